@@ -1,0 +1,42 @@
+# Every install step of the project lives here (and in the scripts it calls).
+# `make demo` sets up and runs the warehouse patrol demo; `make test` sets up and runs the tests.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+PIP    := $(PY) -m pip
+FLEET  := $(VENV)/bin/fleet
+
+.PHONY: setup setup-core setup-sumo setup-ros demo test bench lint clean
+
+setup: setup-core setup-sumo setup-ros
+
+setup-core: $(VENV)/.core-installed
+$(VENV)/.core-installed: pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PIP) install -q --upgrade pip
+	$(PIP) install -q -e '.[dev]'
+	touch $@
+
+setup-sumo: $(VENV)/.sumo-installed
+$(VENV)/.sumo-installed: $(VENV)/.core-installed
+	$(PIP) install -q -e '.[dev,sumo]'
+	touch $@
+
+setup-ros: setup-core
+	VENV=$(VENV) bash tools/setup_ros.sh
+
+demo: setup-core
+	$(FLEET) run configs/warehouse_patrol.yaml --duration 300 --speed 10 --report out/demo_report.json --plot out/demo_trajectories.png
+
+test: setup
+	$(PY) -m pytest -q
+
+bench: setup
+	$(PY) bench/run_all.py
+
+lint: setup-core
+	$(VENV)/bin/ruff check fleet nodes sim tests bench
+	$(VENV)/bin/mypy fleet nodes sim
+
+clean:
+	rm -rf $(VENV) out build

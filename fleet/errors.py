@@ -1,0 +1,34 @@
+"""Exceptions for misuse and bad configuration. Expected runtime failures (a goal that
+aborts, a robot that is stuck) are values, not exceptions: see :mod:`fleet.types`."""
+
+from __future__ import annotations
+
+
+class FleetError(Exception):
+    """Base class of every exception this project raises on purpose."""
+
+
+class ConfigError(FleetError):
+    """A configuration file is invalid. The message names the file, the field and the reason.
+
+    ``str(err)`` reads ``<file>: <field>: <reason>``, e.g.
+    ``configs/bad.yaml: robots[2].start: pose (4.0, 7.5) is inside an obstacle``.
+    """
+
+    def __init__(self, file: str, field: str, reason: str) -> None:
+        self.file = str(file)
+        self.field = field
+        self.reason = reason
+        super().__init__(f"{self.file}: {field}: {reason}" if field else f"{self.file}: {reason}")
+
+
+class MapError(ConfigError):
+    """A map (map_server YAML + image) cannot be loaded or is inconsistent."""
+
+
+class BackendError(FleetError):
+    """A navigation backend was used wrongly or could not be set up (not a goal failure)."""
+
+
+class BusError(FleetError):
+    """The status bus could not be opened (bad endpoint, port in use, ...)."""

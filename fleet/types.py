@@ -1,0 +1,244 @@
+"""Shared value types of the fleet: poses, navigation goals, goal states, robot state.
+
+Every module of the core (``fleet``, ``nodes``, ``sim``) speaks these types; adapters
+(ROS 2, SUMO) translate them at the edge. Units: meters, radians, seconds. Frame: ``map``.
+
+Error codes are Nav2 Jazzy's numeric codes, so a result from the simulator and a result
+from a real Nav2 server mean the same thing (see :class:`ErrorCode`).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+from typing import Union
+
+
+@dataclass(frozen=True)
+class Pose2D:
+    """A planar pose in the ``map`` frame: ``x``, ``y`` in meters, ``theta`` (yaw) in radians."""
+
+    x: float
+    y: float
+    theta: float = 0.0
+
+    def distance_to(self, other: Pose2D) -> float:
+        """Euclidean distance in meters, ignoring heading."""
+        return math.hypot(other.x - self.x, other.y - self.y)
+
+    def as_tuple(self) -> tuple[float, float, float]:
+        return (self.x, self.y, self.theta)
+
+
+def normalize_angle(a: float) -> float:
+    """Wrap an angle in radians to ``[-pi, pi)``."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+# ---------------------------------------------------------------------------
+# Goals: one dataclass per Nav2 action. ``kind`` is the Nav2 action server name.
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class NavigateThroughPoses:
+    """Drive through ``poses`` in order (Nav2 ``navigate_through_poses``)."""
+
+    poses: tuple[Pose2D, ...]
+    behavior_tree: str = ""
+    kind: str = field(default="navigate_through_poses", init=False)
+
+
+@dataclass(frozen=True)
+class NavigateToPose:
+    """Drive to ``pose`` (Nav2 ``navigate_to_pose``)."""
+
+    pose: Pose2D
+    behavior_tree: str = ""
+    kind: str = field(default="navigate_to_pose", init=False)
+
+
+@dataclass(frozen=True)
+class FollowWaypoints:
+    """Visit each of ``poses``; a missed waypoint is reported, not fatal (Nav2 ``follow_waypoints``)."""
+
+    poses: tuple[Pose2D, ...]
+    kind: str = field(default="follow_waypoints", init=False)
+
+
+@dataclass(frozen=True)
+class Spin:
+    """Rotate in place by ``target_yaw`` radians (signed) within ``time_allowance_s``."""
+
+    target_yaw: float
+    time_allowance_s: float = 10.0
+    kind: str = field(default="spin", init=False)
+
+
+@dataclass(frozen=True)
+class BackUp:
+    """Drive straight backwards ``distance_m`` (positive) at ``speed_mps`` (positive)."""
+
+    distance_m: float
+    speed_mps: float = 0.1
+    time_allowance_s: float = 10.0
+    kind: str = field(default="backup", init=False)
+
+
+@dataclass(frozen=True)
+class DriveOnHeading:
+    """Drive straight forwards ``distance_m`` at ``speed_mps``."""
+
+    distance_m: float
+    speed_mps: float = 0.1
+    time_allowance_s: float = 10.0
+    kind: str = field(default="drive_on_heading", init=False)
+
+
+@dataclass(frozen=True)
+class Wait:
+    """Stand still for ``duration_s`` seconds."""
+
+    duration_s: float
+    kind: str = field(default="wait", init=False)
+
+
+Goal = Union[NavigateThroughPoses, NavigateToPose, FollowWaypoints, Spin, BackUp, DriveOnHeading, Wait]
+
+NAV_GOAL_KINDS = ("navigate_through_poses", "navigate_to_pose", "follow_waypoints")
+
+
+class GoalStatus(enum.Enum):
+    """Lifecycle of one goal, as in ``action_msgs/GoalStatus``."""
+
+    PENDING = "pending"  # sent, not yet accepted by the server
+    EXECUTING = "executing"
+    CANCELING = "canceling"
+    SUCCEEDED = "succeeded"
+    CANCELED = "canceled"
+    ABORTED = "aborted"
+    REJECTED = "rejected"
+
+    @property
+    def terminal(self) -> bool:
+        return self in (GoalStatus.SUCCEEDED, GoalStatus.CANCELED, GoalStatus.ABORTED, GoalStatus.REJECTED)
+
+
+class TaskResult(enum.Enum):
+    """What ``nav2_simple_commander.TaskResult`` reports for a finished task."""
+
+    UNKNOWN = 0
+    SUCCEEDED = 1
+    CANCELED = 2
+    FAILED = 3
+
+
+class ErrorCode(enum.IntEnum):
+    """Nav2 Jazzy result error codes used by the simulator and mapped by every backend.
+
+    Navigators (``navigate_to_pose`` / ``navigate_through_poses``) forward the code of the
+    planner or controller that failed, as Nav2 Jazzy's bt_navigator does.
+    """
+
+    NONE = 0
+    # nav2_msgs/action/FollowPath
+    CONTROLLER_UNKNOWN = 100
+    FAILED_TO_MAKE_PROGRESS = 105
+    CONTROLLER_TIMED_OUT = 107
+    # nav2_msgs/action/ComputePathToPose
+    PLANNER_UNKNOWN = 200
+    START_OUTSIDE_MAP = 203
+    GOAL_OUTSIDE_MAP = 204
+    START_OCCUPIED = 205
+    GOAL_OCCUPIED = 206
+    PLANNER_TIMEOUT = 207
+    NO_VALID_PATH = 208
+    # nav2_msgs/action/FollowWaypoints
+    WAYPOINT_UNKNOWN = 600
+    TASK_EXECUTOR_FAILED = 601
+    # nav2_msgs/action/Spin
+    SPIN_UNKNOWN = 700
+    SPIN_TIMEOUT = 701
+    SPIN_COLLISION_AHEAD = 703
+    # nav2_msgs/action/BackUp
+    BACKUP_UNKNOWN = 710
+    BACKUP_TIMEOUT = 711
+    BACKUP_INVALID_INPUT = 713
+    BACKUP_COLLISION_AHEAD = 714
+    # nav2_msgs/action/DriveOnHeading
+    DRIVE_UNKNOWN = 720
+    DRIVE_TIMEOUT = 721
+    DRIVE_COLLISION_AHEAD = 723
+    DRIVE_INVALID_INPUT = 724
+    # Navigator-level (NavigateToPose UNKNOWN in Nav2 Jazzy is reported as 0 + error_msg);
+    # used when the server itself vanished or a goal could not be delivered.
+    SERVER_UNAVAILABLE = 9999
+
+
+@dataclass(frozen=True)
+class Feedback:
+    """Latest feedback of a goal. Fields not produced by an action stay ``None``.
+
+    Navigation actions fill ``current_pose``, ``navigation_time_s``,
+    ``estimated_time_remaining_s``, ``distance_remaining_m``, ``number_of_recoveries`` and
+    (NavigateThroughPoses) ``number_of_poses_remaining``; FollowWaypoints fills
+    ``current_waypoint``; Spin ``angular_distance_traveled``; BackUp / DriveOnHeading
+    ``distance_traveled``; Wait ``time_left_s``.
+    """
+
+    current_pose: Pose2D | None = None
+    navigation_time_s: float | None = None
+    estimated_time_remaining_s: float | None = None
+    distance_remaining_m: float | None = None
+    number_of_recoveries: int | None = None
+    number_of_poses_remaining: int | None = None
+    current_waypoint: int | None = None
+    angular_distance_traveled: float | None = None
+    distance_traveled: float | None = None
+    time_left_s: float | None = None
+
+
+@dataclass(frozen=True)
+class GoalState:
+    """A snapshot of one goal: its status, latest feedback and (when terminal) result.
+
+    ``missed_waypoints`` is only used by FollowWaypoints (indices into the goal's poses).
+    """
+
+    goal_id: str
+    kind: str
+    status: GoalStatus
+    feedback: Feedback = Feedback()
+    error_code: int = 0
+    error_msg: str = ""
+    missed_waypoints: tuple[int, ...] = ()
+
+    @property
+    def result(self) -> TaskResult:
+        if self.status is GoalStatus.SUCCEEDED:
+            return TaskResult.SUCCEEDED
+        if self.status is GoalStatus.CANCELED:
+            return TaskResult.CANCELED
+        if self.status in (GoalStatus.ABORTED, GoalStatus.REJECTED):
+            return TaskResult.FAILED
+        return TaskResult.UNKNOWN
+
+
+@dataclass(frozen=True)
+class RobotState:
+    """What a backend knows about its robot right now.
+
+    ``pose`` is ``None`` until the robot is localized. ``battery`` is a fraction in [0, 1].
+    ``stuck`` is true when the robot has made no progress for the backend's stuck time while
+    it was trying to move. ``charging`` is true while the robot stands on a charger.
+    """
+
+    pose: Pose2D | None
+    linear_velocity: float = 0.0
+    angular_velocity: float = 0.0
+    battery: float = 1.0
+    charging: bool = False
+    stuck: bool = False
+    distance_m: float = 0.0
+    collisions: int = 0
