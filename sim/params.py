@@ -1,0 +1,65 @@
+"""Parameters of the simulated robots and world. Plain dataclasses, validated by
+``fleet.config`` when they come from a file. Units: meters, radians, seconds; battery levels
+are fractions of a full charge in [0, 1]."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from fleet.types import Pose2D
+
+
+@dataclass(frozen=True)
+class RobotModel:
+    """Differential-drive limits shared by every robot of a fleet."""
+
+    radius: float = 0.3
+    max_linear_speed: float = 1.0
+    max_angular_speed: float = 1.5
+    max_linear_accel: float = 0.8
+    max_angular_accel: float = 3.0
+
+
+@dataclass(frozen=True)
+class BatteryModel:
+    """Battery drain and charge. The battery guard sends a robot to charge below ``low`` and
+    the charge leaf releases it at ``resume``."""
+
+    drain_per_m: float = 0.004
+    drain_per_s: float = 0.0005
+    charge_per_s: float = 0.02
+    low: float = 0.25
+    resume: float = 0.95
+    initial: float = 1.0
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """One robot: its name (``robot1``), namespace (``/robot1``), start pose and battery."""
+
+    name: str
+    namespace: str
+    start: Pose2D
+    battery: float = 1.0
+
+
+@dataclass(frozen=True)
+class SimParams:
+    """World-level simulation settings.
+
+    ``step_s`` is the fixed step; ``stuck_time_s`` is how long a robot that is trying to move
+    may make no progress before it is reported stuck (and its navigation goal aborts with
+    ``FAILED_TO_MAKE_PROGRESS``); ``charger_radius`` is how close to a charger pose a robot
+    must stand to charge; ``goal_tolerance`` / ``yaw_tolerance`` are Nav2-style goal checker
+    tolerances.
+    """
+
+    step_s: float = 0.05
+    stuck_time_s: float = 8.0
+    seed: int = 1
+    charger_radius: float = 0.35
+    goal_tolerance: float = 0.25
+    yaw_tolerance: float = 0.5
+    chargers: tuple[Pose2D, ...] = field(default_factory=tuple)
+    model: RobotModel = field(default_factory=RobotModel)
+    battery: BatteryModel = field(default_factory=BatteryModel)
