@@ -1,0 +1,130 @@
+"""Per-robot blackboards: every robot's keys live under its own namespace.
+
+py_trees keeps one process-global key-value store, so 1000 robots in one process would
+share keys if they used plain names. Every key of a robot is therefore stored under the
+robot's namespace: ``/robot1/route``, ``/robot1/laps`` ... (see ``docs/architecture.md``).
+
+Keys written by the agent and read by the tree:
+
+* ``route``: ``tuple[Pose2D, ...] | None`` the patrol route (looped).
+* ``task_id``: ``str | None`` id of the current assignment.
+* ``pick``: ``PickTask | None`` (``shelf``, ``dwell_s``, ``drop``) for the picking tree.
+* ``charger``: ``Pose2D | None`` the charger to use when the battery is low.
+
+Keys written by the tree and read by the agent:
+
+* ``laps``: ``int`` completed laps of the current route; ``lap_task_id``: the task id they
+  count for.
+* ``active_leaf``: ``str`` name of the action leaf that is RUNNING (or last ran).
+* ``mode``: ``"idle" | "patrol" | "charging" | "recovery" | "picking"``.
+* ``route_progress``: ``float`` in [0, 1] through the current lap.
+* ``picks_done``: ``int``.
+
+Extra keys of this package (not part of the agent contract, for status and debugging):
+
+* ``active_goal``: ``str | None`` id of the goal the tree has outstanding on the backend.
+  A leaf that starts a goal first cancels this one, so a preempted goal ends CANCELED.
+* ``last_error``: ``str`` the last failure message of an action leaf (``""`` if none).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import py_trees
+from py_trees.blackboard import Blackboard, Client
+
+#: Keys the agent writes and the tree reads, with their defaults.
+INPUT_KEYS: dict[str, Any] = {
+    "route": None,
+    "task_id": None,
+    "pick": None,
+    "charger": None,
+}
+#: Keys the tree writes and the agent reads, with their defaults.
+OUTPUT_KEYS: dict[str, Any] = {
+    "laps": 0,
+    "lap_task_id": None,
+    "active_leaf": "",
+    "mode": "idle",
+    "route_progress": 0.0,
+    "picks_done": 0,
+}
+#: Keys private to this package (see the module docstring).
+INTERNAL_KEYS: dict[str, Any] = {
+    "active_goal": None,
+    "last_error": "",
+}
+#: Every key with its default.
+DEFAULTS: dict[str, Any] = {**INPUT_KEYS, **OUTPUT_KEYS, **INTERNAL_KEYS}
+#: The modes the tree writes to ``mode``.
+MODES = ("idle", "patrol", "charging", "recovery", "picking")
+
+
+def normalize_namespace(namespace: str) -> str:
+    """Return ``namespace`` with exactly one leading ``/`` and no trailing ``/``
+    (``"robot1"`` -> ``"/robot1"``). Raises ``ValueError`` for an empty namespace: a robot
+    must never write to the root of the shared blackboard."""
+    ns = "/" + namespace.strip().strip("/")
+    if ns == "/":
+        raise ValueError("a robot blackboard needs a non-empty namespace such as '/robot1'")
+    return ns
+
+
+def key_path(namespace: str, key: str) -> str:
+    """Absolute blackboard name of ``key`` for the robot ``namespace`` (``/robot1/laps``)."""
+    return f"{normalize_namespace(namespace)}/{key}"
+
+
+def ensure_defaults(namespace: str) -> None:
+    """Write the default of every key in :data:`DEFAULTS` that does not exist yet under
+    ``namespace``; existing values are kept."""
+    ns = normalize_namespace(namespace)
+    for key, value in DEFAULTS.items():
+        name = f"{ns}/{key}"
+        if name not in Blackboard.storage:
+            Blackboard.storage[name] = value
+
+
+def robot_blackboard(namespace: str, name: str | None = None, keys: Iterable[str] | None = None) -> Client:
+    """A blackboard client for the robot ``namespace`` with read/write access to ``keys``
+    (default: every key in :data:`DEFAULTS`), addressed by their short names
+    (``bb.laps``). Missing keys get their defaults; existing values are kept, so any number
+    of clients (the agent's, each leaf's) can be created for the same robot.
+
+    Args:
+        namespace: the robot namespace, e.g. ``"/robot1"`` (a leading ``/`` is added).
+        name: the client's display name (default ``"<namespace>"``).
+        keys: the keys to register; unknown keys are allowed (they get no default).
+    """
+    ns = normalize_namespace(namespace)
+    client = Client(name=name or ns, namespace=ns)
+    for key in DEFAULTS if keys is None else keys:
+        client.register_key(key=key, access=py_trees.common.Access.WRITE)
+    ensure_defaults(ns)
+    return client
+
+
+def read_key(namespace: str, key: str) -> Callable[[], Any]:
+    """A callable that returns the current value of ``key`` of robot ``namespace`` (or its
+    default if it was never written). Use it as the goal source of a leaf, e.g.
+    ``NavigateToPoseAction(backend, read_key("/robot1", "charger"))``."""
+    name = key_path(namespace, key)
+    default = DEFAULTS.get(key)
+    storage = Blackboard.storage
+
+    def get() -> Any:
+        return storage.get(name, default)
+
+    get.__name__ = f"read_key({name!r})"
+    return get
+
+
+def clear_robot_blackboard(namespace: str) -> None:
+    """Remove every stored key under ``namespace`` (e.g. when a robot leaves the fleet).
+    Clients stay registered; reading a key through them afterwards raises ``KeyError``
+    until :func:`ensure_defaults` is called again."""
+    prefix = normalize_namespace(namespace) + "/"
+    for name in [k for k in Blackboard.storage if k.startswith(prefix)]:
+        del Blackboard.storage[name]

@@ -1,0 +1,114 @@
+"""Condition leaves: instant checks that return SUCCESS (true) or FAILURE (false), never
+RUNNING. They send no goals, so there is nothing to cancel."""
+
+from __future__ import annotations
+
+import py_trees
+from py_trees.common import Status
+
+from fleet.navigation import NavigationBackend
+from fleet.types import Pose2D
+from nodes.blackboard import robot_blackboard
+from nodes.leaves import Source, resolve
+
+
+class BatteryLow(py_trees.behaviour.Behaviour):
+    """True when the robot must go and charge, with hysteresis.
+
+    SUCCESS when the battery is below ``low``; once that happened it stays SUCCESS (latched)
+    until the battery is back at or above ``resume`` (charging, typically), so the battery
+    guard is not released half-way through a charge. FAILURE otherwise (and when the
+    backend reports no state). Fractions in [0, 1].
+    """
+
+    def __init__(
+        self, backend: NavigationBackend, low: float, resume: float, *, name: str = "BatteryLow"
+    ) -> None:
+        super().__init__(name=name)
+        if not 0.0 <= low <= resume <= 1.0:
+            raise ValueError(f"BatteryLow needs 0 <= low <= resume <= 1, got low={low}, resume={resume}")
+        self.backend = backend
+        self.low = low
+        self.resume = resume
+        #: True between falling below ``low`` and reaching ``resume``.
+        self.latched = False
+
+    def update(self) -> Status:
+        battery = self.backend.robot_state().battery
+        if battery < self.low:
+            self.latched = True
+        elif battery >= self.resume:
+            self.latched = False
+        self.feedback_message = f"battery {battery:.2f} ({'low' if self.latched else 'ok'})"
+        return Status.SUCCESS if self.latched else Status.FAILURE
+
+
+class IsStuck(py_trees.behaviour.Behaviour):
+    """SUCCESS when the backend reports the robot stuck (``robot_state().stuck``)."""
+
+    def __init__(self, backend: NavigationBackend, *, name: str = "IsStuck") -> None:
+        super().__init__(name=name)
+        self.backend = backend
+
+    def update(self) -> Status:
+        return Status.SUCCESS if self.backend.robot_state().stuck else Status.FAILURE
+
+
+class IsLocalized(py_trees.behaviour.Behaviour):
+    """SUCCESS when the robot's pose is known (``robot_state().pose is not None``)."""
+
+    def __init__(self, backend: NavigationBackend, *, name: str = "IsLocalized") -> None:
+        super().__init__(name=name)
+        self.backend = backend
+
+    def update(self) -> Status:
+        return Status.SUCCESS if self.backend.robot_state().pose is not None else Status.FAILURE
+
+
+class NearPose(py_trees.behaviour.Behaviour):
+    """SUCCESS when the robot is within ``tolerance_m`` meters (planar distance, heading
+    ignored) of ``pose``, given statically or by a callable evaluated at every tick (e.g.
+    ``read_key(ns, "charger")``). FAILURE when it is farther, the pose is ``None`` or the
+    robot is not localized."""
+
+    def __init__(
+        self,
+        backend: NavigationBackend,
+        pose: Source[Pose2D],
+        tolerance_m: float = 0.3,
+        *,
+        name: str = "NearPose",
+    ) -> None:
+        super().__init__(name=name)
+        self.backend = backend
+        self._pose = pose
+        self.tolerance_m = tolerance_m
+
+    def update(self) -> Status:
+        target = resolve(self._pose)
+        here = self.backend.robot_state().pose
+        if target is None or here is None:
+            self.feedback_message = "no target pose" if target is None else "not localized"
+            return Status.FAILURE
+        d = here.distance_to(target)
+        self.feedback_message = f"{d:.2f} m from the target"
+        return Status.SUCCESS if d <= self.tolerance_m else Status.FAILURE
+
+
+class HasAssignment(py_trees.behaviour.Behaviour):
+    """SUCCESS when the robot's blackboard ``key`` (``"route"`` or ``"pick"``) holds an
+    assignment: not ``None`` and, for a sequence such as a route, not empty."""
+
+    def __init__(self, namespace: str, key: str = "route", *, name: str | None = None) -> None:
+        super().__init__(name=name or f"Has{key.capitalize()}")
+        self.key = key
+        self.blackboard = robot_blackboard(namespace, name=self.name, keys=(key,))
+        self.blackboards.append(self.blackboard)
+
+    def update(self) -> Status:
+        value = self.blackboard.get(self.key)
+        if value is None:
+            return Status.FAILURE
+        if isinstance(value, (tuple, list)) and not value:
+            return Status.FAILURE
+        return Status.SUCCESS

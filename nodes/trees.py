@@ -1,0 +1,359 @@
+"""Functions that build the robots' behavior trees (py_trees idiom: a function returns a
+subtree; trees are composed from subtrees).
+
+* :func:`battery_guard`: ``BatteryLow -> NavigateToPose(charger) -> Charge``.
+* :func:`patrol_branch`: loop the blackboard ``route`` with :class:`FollowRoute`, under a
+  :class:`~nodes.recovery.RecoveryNode`, restarted when ``task_id`` changes.
+* :func:`pick_branch`: shelf -> dwell -> drop -> mark done, for the blackboard ``pick``.
+* :func:`patrol_tree`, :func:`picking_tree`, :func:`build_tree`: whole per-robot trees.
+* :func:`dump_tree`: an ASCII / unicode drawing of a tree.
+
+Every tree reads and writes only its robot's blackboard namespace (``nodes.blackboard``)
+and talks to the robot only through its :class:`~fleet.navigation.NavigationBackend`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import py_trees
+from py_trees.behaviour import Behaviour
+from py_trees.common import Status
+
+from fleet.errors import FleetError
+from fleet.navigation import Clock, NavigationBackend
+from fleet.types import Goal, GoalState, NavigateThroughPoses, NavigateToPose, Pose2D
+from nodes.blackboard import normalize_namespace, read_key, robot_blackboard
+from nodes.conditions import BatteryLow, HasAssignment
+from nodes.leaves import (
+    Charge,
+    CompletePick,
+    Idle,
+    NavigateThroughPosesAction,
+    NavigateToPoseAction,
+    WaitAction,
+)
+from nodes.recovery import RecoveryNode, RestartOnChange, recovery_actions
+from sim.params import BatteryModel
+
+#: Tree kinds accepted by :func:`build_tree`.
+TREE_KINDS = ("patrol", "picking")
+
+
+def next_route_index(route: Sequence[Pose2D], pose: Pose2D | None, tolerance_m: float = 0.3) -> int:
+    """Index of the route pose a robot at ``pose`` should drive to next.
+
+    The nearest pose, unless the robot already stands on it (within ``tolerance_m``) or
+    has passed it along the segment to the following pose, in which case the following one.
+    ``0`` when the pose is unknown or the route has one pose.
+    """
+    n = len(route)
+    if pose is None or n <= 1:
+        return 0
+    i = min(range(n), key=lambda k: pose.distance_to(route[k]))
+    nxt = route[(i + 1) % n]
+    if pose.distance_to(route[i]) <= tolerance_m or pose.distance_to(nxt) < route[i].distance_to(nxt):
+        return (i + 1) % n
+    return i
+
+
+class FollowRoute(NavigateThroughPosesAction):
+    """One lap of the robot's patrol route (blackboard ``route``), driven with navigation
+    goals sent one after the other.
+
+    Goals: the lap is the route's ``n`` poses rotated to start at :func:`next_route_index`
+    of the robot's pose ``k`` (so it resumes near the robot after an interruption:
+    charging, recovery, a new route). A lap ends where it started, and a navigator treats a
+    goal that ends at the robot's own position as reached at once (Nav2's goal checker does
+    the same); so the lap is sent as two legs, ``NavigateThroughPoses(lap[:m])`` then
+    ``NavigateThroughPoses(lap[m:])`` with ``m = ceil(n / 2)``. When the robot does not
+    stand on the pose before ``route[k]`` (it is joining the route rather than continuing
+    the previous lap), an approach ``NavigateToPose(route[k])`` comes first, so the robot
+    joins the route facing along it, and the two legs split the rest of the lap. A route
+    needs at least two distinct poses.
+
+    Blackboard: on start, if ``task_id`` differs from ``lap_task_id`` the lap counter is
+    restarted (``laps = 0``, ``lap_task_id = task_id``); ``mode = "patrol"``;
+    ``route_progress`` follows the feedback (lap poses done plus the driven fraction of the
+    current goal, over ``n``); when the last leg succeeds
+    ``laps += 1`` and ``route_progress = 1``.
+
+    Returns RUNNING (a goal is executing, or one just succeeded and the next was sent),
+    SUCCESS (the lap is done), FAILURE (no route, a goal failed: ``feedback_message`` has
+    the error code and message). Cancel: like every :class:`~nodes.leaves.GoalAction`,
+    ``terminate(INVALID)`` while RUNNING cancels the executing goal. Loop it with a
+    ``Repeat`` decorator.
+    """
+
+    def __init__(
+        self, backend: NavigationBackend, *, name: str = "FollowRoute", tolerance_m: float = 0.3
+    ) -> None:
+        super().__init__(backend, read_key(backend.namespace, "route"), name=name, mode="patrol")
+        self.tolerance_m = tolerance_m
+        self.route_bb = robot_blackboard(
+            backend.namespace,
+            name=f"{name}-route",
+            keys=("route", "task_id", "laps", "lap_task_id", "route_progress"),
+        )
+        self.blackboards.append(self.route_bb)
+        #: Index into the route of the first pose of the current lap.
+        self.start_index = 0
+        #: The goals of the current lap (approach, then the two legs).
+        self.legs: list[Goal] = []
+        #: Index into :attr:`legs` of the executing goal.
+        self.leg = 0
+        self._leg_poses: list[int] = []
+        self._lap_poses = 0
+        self._leg_length = 0.0
+
+    def make_goal(self) -> Goal | None:
+        bb = self.route_bb
+        if bb.task_id != bb.lap_task_id:
+            bb.laps = 0
+            bb.lap_task_id = bb.task_id
+        route = tuple(bb.route or ())
+        self.legs, self._leg_poses, self.leg = [], [], 0
+        if not route:
+            return None
+        here = self.backend.robot_state().pose
+        k = next_route_index(route, here, self.tolerance_m)
+        self.start_index = k
+        lap = route[k:] + route[:k]
+        rest = lap
+        if len(route) > 1 and (here is None or here.distance_to(route[k - 1]) > self.tolerance_m):
+            self.legs.append(NavigateToPose(lap[0]))
+            self._leg_poses.append(1)
+            rest = lap[1:]
+        m = (len(rest) + 1) // 2
+        for leg in (rest[:m], rest[m:]) if len(rest) > 1 else (rest,):
+            self.legs.append(NavigateThroughPoses(leg))
+            self._leg_poses.append(len(leg))
+        self._lap_poses = len(lap)
+        self._leg_length = 0.0
+        bb.route_progress = 0.0
+        return self.legs[0]
+
+    def on_state(self, state: GoalState) -> None:
+        if not self.legs:
+            return
+        leg_poses = self._leg_poses[self.leg]
+        done_before = sum(self._leg_poses[: self.leg])
+        fb = state.feedback
+        frac = 0.0
+        if fb.distance_remaining_m is not None:
+            self._leg_length = max(self._leg_length, fb.distance_remaining_m)
+            if self._leg_length > 0.0:
+                frac = 1.0 - fb.distance_remaining_m / self._leg_length
+        elif fb.number_of_poses_remaining is not None and leg_poses:
+            frac = 1.0 - fb.number_of_poses_remaining / leg_poses
+        progress = (done_before + min(1.0, max(0.0, frac)) * leg_poses) / max(1, self._lap_poses)
+        self.route_bb.route_progress = min(1.0, max(0.0, progress))
+
+    def on_success(self, state: GoalState) -> Status:
+        if self.leg + 1 < len(self.legs):
+            self.leg += 1
+            self._leg_length = 0.0
+            self.send(self.legs[self.leg])
+            return Status.RUNNING
+        bb = self.route_bb
+        bb.laps = int(bb.laps) + 1
+        bb.route_progress = 1.0
+        self.feedback_message = f"lap {bb.laps} done ({self.goal_id})"
+        return Status.SUCCESS
+
+
+def navigate_with_recovery(
+    action: Behaviour, backend: NavigationBackend, *, retries: int = 6, name: str | None = None
+) -> RecoveryNode:
+    """``RecoveryNode(action, recovery_actions(backend), retries)``: the Nav2-style wrapper
+    of a navigation leaf."""
+    return RecoveryNode(action, recovery_actions(backend), retries, name=name or f"{action.name}Recovery")
+
+
+def battery_guard(
+    namespace: str, backend: NavigationBackend, clock: Clock, battery: BatteryModel
+) -> Behaviour:
+    """The highest-priority branch of every robot tree.
+
+    ``Sequence[BatteryLow(low, resume), HasCharger, Sequence(memory)[Recovery(
+    NavigateToPose(charger)), Charge(resume)]]``. The charger pose is read from the
+    blackboard ``charger`` when the leaf starts. RUNNING while going to / standing on the
+    charger, SUCCESS when charged to ``battery.resume``, FAILURE when the battery is fine or
+    no charger is assigned (the robot then carries on with its work), or when the charger
+    cannot be reached after every recovery or the robot does not charge there.
+    """
+    go_charge = py_trees.composites.Sequence(
+        "GoCharge",
+        memory=True,
+        children=[
+            navigate_with_recovery(
+                NavigateToPoseAction(
+                    backend, read_key(namespace, "charger"), name="GoToCharger", mode="charging"
+                ),
+                backend,
+            ),
+            Charge(backend, clock, battery.resume),
+        ],
+    )
+    return py_trees.composites.Sequence(
+        "BatteryGuard",
+        memory=False,
+        children=[
+            BatteryLow(backend, battery.low, battery.resume),
+            HasAssignment(namespace, "charger", name="HasCharger"),
+            go_charge,
+        ],
+    )
+
+
+def _task_watch(namespace: str, key: str) -> Callable[[], object]:
+    """``() -> (task_id, <key>)`` of robot ``namespace``: what a branch restarts on."""
+    task_id = read_key(namespace, "task_id")
+    value = read_key(namespace, key)
+    return lambda: (task_id(), value())
+
+
+def patrol_branch(namespace: str, backend: NavigationBackend, *, retries: int = 6) -> Behaviour:
+    """``Sequence[HasRoute, RestartOnChange(task_id, route)[Repeat(-1)[Recovery(FollowRoute)]]]``.
+
+    RUNNING while a route is assigned (laps repeat forever); FAILURE when there is no route
+    or a lap fails after every recovery. A new ``task_id`` (or route) interrupts the running
+    lap (its goal is canceled) and starts the new route at once; laps restart at 0.
+    """
+    laps = py_trees.decorators.Repeat(
+        "Laps", navigate_with_recovery(FollowRoute(backend), backend, retries=retries), num_success=-1
+    )
+    return py_trees.composites.Sequence(
+        "Patrol",
+        memory=False,
+        children=[
+            HasAssignment(namespace, "route", name="HasRoute"),
+            RestartOnChange("OnNewTask", laps, _task_watch(namespace, "route")),
+        ],
+    )
+
+
+def pick_branch(namespace: str, backend: NavigationBackend, *, retries: int = 6) -> Behaviour:
+    """``Sequence[HasPick, RestartOnChange(task_id, pick)[Sequence(memory)[Recovery(
+    NavigateToPose(shelf)), Wait(dwell_s), Recovery(NavigateToPose(drop)), CompletePick]]]``.
+
+    Shelf, dwell and drop are read from the blackboard ``pick`` when each leaf starts.
+    RUNNING while picking, SUCCESS once the pick is done (``picks_done += 1``, ``pick`` is
+    cleared), FAILURE when there is no pick or a step fails after every recovery. An
+    interrupted pick (battery guard, new task) starts again from the shelf.
+    """
+    pick = read_key(namespace, "pick")
+
+    def shelf() -> Pose2D | None:
+        p = pick()
+        return None if p is None else p.shelf
+
+    def drop() -> Pose2D | None:
+        p = pick()
+        return None if p is None else p.drop
+
+    def dwell() -> float | None:
+        p = pick()
+        return None if p is None else float(p.dwell_s)
+
+    steps = py_trees.composites.Sequence(
+        "PickSteps",
+        memory=True,
+        children=[
+            navigate_with_recovery(
+                NavigateToPoseAction(backend, shelf, name="GoToShelf", mode="picking"),
+                backend,
+                retries=retries,
+            ),
+            WaitAction(backend, dwell, name="Dwell", mode="picking"),
+            navigate_with_recovery(
+                NavigateToPoseAction(backend, drop, name="GoToDrop", mode="picking"), backend, retries=retries
+            ),
+            CompletePick(namespace),
+        ],
+    )
+    return py_trees.composites.Sequence(
+        "Picking",
+        memory=False,
+        children=[
+            HasAssignment(namespace, "pick", name="HasPick"),
+            RestartOnChange("OnNewPick", steps, _task_watch(namespace, "pick")),
+        ],
+    )
+
+
+def patrol_tree(
+    namespace: str,
+    backend: NavigationBackend,
+    clock: Clock,
+    battery: BatteryModel,
+    *,
+    retries: int = 6,
+) -> Behaviour:
+    """The patrol robot's tree: ``Selector(memory=False)[battery_guard, patrol_branch, Idle]``.
+
+    Priorities are re-checked every tick: a low battery interrupts the patrol (its goal ends
+    CANCELED), the robot charges to ``battery.resume`` and resumes the route near where it
+    is. Without a route the robot idles (``mode = "idle"``). Blackboard keys: see
+    :mod:`nodes.blackboard`; ``namespace`` is the robot's (``/robot1``) and should equal
+    ``backend.namespace``.
+    """
+    ns = normalize_namespace(namespace)
+    robot_blackboard(ns, name=f"{ns}-tree")
+    return py_trees.composites.Selector(
+        f"PatrolRobot {ns}",
+        memory=False,
+        children=[
+            battery_guard(ns, backend, clock, battery),
+            patrol_branch(ns, backend, retries=retries),
+            Idle(ns),
+        ],
+    )
+
+
+def picking_tree(
+    namespace: str,
+    backend: NavigationBackend,
+    clock: Clock,
+    battery: BatteryModel,
+    *,
+    retries: int = 6,
+) -> Behaviour:
+    """The picking robot's tree: ``Selector(memory=False)[battery_guard, pick_branch, Idle]``."""
+    ns = normalize_namespace(namespace)
+    robot_blackboard(ns, name=f"{ns}-tree")
+    return py_trees.composites.Selector(
+        f"PickingRobot {ns}",
+        memory=False,
+        children=[
+            battery_guard(ns, backend, clock, battery),
+            pick_branch(ns, backend, retries=retries),
+            Idle(ns),
+        ],
+    )
+
+
+def build_tree(
+    kind: str,
+    namespace: str,
+    backend: NavigationBackend,
+    clock: Clock,
+    battery: BatteryModel,
+    *,
+    retries: int = 6,
+) -> Behaviour:
+    """Build the tree of ``kind`` (``"patrol"`` or ``"picking"``, see :data:`TREE_KINDS`).
+    Raises :class:`~fleet.errors.FleetError` for another kind."""
+    if kind == "patrol":
+        return patrol_tree(namespace, backend, clock, battery, retries=retries)
+    if kind == "picking":
+        return picking_tree(namespace, backend, clock, battery, retries=retries)
+    raise FleetError(f"unknown behavior tree kind {kind!r}; known kinds: {', '.join(TREE_KINDS)}")
+
+
+def dump_tree(root: Behaviour, *, unicode: bool = False, show_status: bool = False) -> str:
+    """A text drawing of the tree under ``root`` (``py_trees.display.ascii_tree`` or
+    ``unicode_tree``); ``show_status`` adds each node's last status."""
+    if unicode:
+        return py_trees.display.unicode_tree(root, show_status=show_status)
+    return py_trees.display.ascii_tree(root, show_status=show_status)
