@@ -1,0 +1,295 @@
+"""Global path planning over a static occupancy grid, inflated by the robot radius.
+
+:class:`GridPlanner` is the simulator's stand-in for Nav2's planner server. It plans over
+the *static* map only (other robots and dynamic obstacles are left to the reactive safety
+layer of :mod:`sim.simulator`), and reports failures with Nav2 Jazzy's planner error codes
+(:class:`fleet.types.ErrorCode`), as values, never as exceptions.
+
+Two inflated grids are precomputed with NumPy when the planner is built:
+
+* ``footprint``: cells whose center is within the robot radius of a non-free cell (or of the
+  map border). A robot whose center lies in such a cell overlaps an obstacle. The simulator
+  uses it to clamp motion and to decide ``START_OCCUPIED`` / ``GOAL_OCCUPIED``.
+* ``plan``: the same with ``radius + margin``, the grid paths are searched on, so planned
+  paths keep a little clearance.
+
+Planning: a straight segment when it is collision-free on ``footprint``; otherwise A* on a
+coarse grid (cells about :data:`COARSE_CELL_M`; 8-connected without corner cutting, octile
+heuristic weighted by 1.001 to break ties) whose cells take the value of the fine ``plan``
+cell at their center; the cell path is then shortened by line-of-sight checks on the fine
+``plan`` grid. A* results are cached by ``(start cell, goal cell)``. On a 40 x 30 m map at
+0.1 m a plan takes a few milliseconds (about 20 ms in the worst case measured).
+
+Frame ``map``, units meters.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from fleet.types import ErrorCode
+from sim.occupancy import FREE, OccupancyGrid
+
+Point = tuple[float, float]
+
+#: Target size of a coarse A* cell in meters (the fine grid is downsampled to about this).
+COARSE_CELL_M = 0.3
+#: Clearance added to the robot radius when searching paths, in meters.
+PLAN_MARGIN_M = 0.15
+_SQRT2 = math.sqrt(2.0)
+
+
+def inflate(blocked: np.ndarray, radius_cells: float) -> np.ndarray:
+    """Return a boolean grid that is True within ``radius_cells`` (cell-center distance) of any
+    True cell of ``blocked``; cells outside the array count as blocked (the map border)."""
+    h, w = blocked.shape
+    r = int(math.floor(radius_cells))
+    padded = np.ones((h + 2 * r, w + 2 * r), dtype=bool)
+    padded[r : r + h, r : r + w] = blocked
+    out = np.zeros((h, w), dtype=bool)
+    r2 = radius_cells * radius_cells
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            if dx * dx + dy * dy <= r2:
+                out |= padded[r + dy : r + dy + h, r + dx : r + dx + w]
+    return out
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """Outcome of one planning request.
+
+    ``path`` is a polyline of ``(x, y)`` points in the ``map`` frame from the start to the
+    goal (both included) when ``error_code`` is ``ErrorCode.NONE``; otherwise it is empty and
+    ``error_msg`` is a sentence naming the pose that failed.
+    """
+
+    path: tuple[Point, ...]
+    error_code: ErrorCode = ErrorCode.NONE
+    error_msg: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.error_code == ErrorCode.NONE
+
+
+class GridPlanner:
+    """Plans collision-free polylines for a round robot of ``radius`` meters on ``grid``.
+
+    The grid is treated as static: build a new planner if the map changes. ``plan`` never
+    raises for an unreachable goal; see :class:`PlanResult`.
+    """
+
+    def __init__(self, grid: OccupancyGrid, radius: float, margin: float = PLAN_MARGIN_M) -> None:
+        self.grid = grid
+        self.radius = float(radius)
+        self.margin = float(margin)
+        res = grid.resolution
+        blocked = grid.cells != FREE
+        # A cell is in the footprint if an obstacle cell center is within radius + half a cell
+        # (the same rule as OccupancyGrid.is_free).
+        self.footprint: np.ndarray = inflate(blocked, radius / res + 0.5)
+        self.plan_grid: np.ndarray = inflate(blocked, (radius + margin) / res + 0.5)
+        self._fp_list: list[list[bool]] = self.footprint.tolist()
+        self._k = max(1, int(round(COARSE_CELL_M / res)))
+        k = self._k
+        ch = (grid.height + k - 1) // k
+        cw = (grid.width + k - 1) // k
+        iy = np.minimum(np.arange(ch) * k + k // 2, grid.height - 1)
+        ix = np.minimum(np.arange(cw) * k + k // 2, grid.width - 1)
+        coarse_free = ~self.plan_grid[np.ix_(iy, ix)]
+        self._coarse_free: list[list[bool]] = coarse_free.tolist()
+        padded = np.zeros((ch + 2, cw + 2), dtype=bool)
+        padded[1:-1, 1:-1] = coarse_free
+        self._free_flat: list[bool] = padded.ravel().tolist()
+        self._cw, self._ch = cw, ch
+        self._cache: dict[tuple[tuple[int, int], tuple[int, int]], tuple[Point, ...] | None] = {}
+
+    # -- cell queries -------------------------------------------------------------------
+
+    def in_map(self, x: float, y: float) -> bool:
+        """True if ``(x, y)`` lies inside the map bounds."""
+        return self.grid.in_bounds(x, y)
+
+    def footprint_free(self, x: float, y: float) -> bool:
+        """True if a robot centered at ``(x, y)`` overlaps no static obstacle and is on the map."""
+        g = self.grid
+        ix = int(math.floor((x - g.origin_x) / g.resolution))
+        iy = int(math.floor((y - g.origin_y) / g.resolution))
+        if ix < 0 or iy < 0 or ix >= g.width or iy >= g.height:
+            return False
+        return not self._fp_list[iy][ix]
+
+    def segment_free(self, a: Point, b: Point, grid: np.ndarray | None = None) -> bool:
+        """True if every point of segment ``a``-``b`` is free on ``grid`` (default: the
+        planning grid, i.e. radius + margin), sampled every half cell."""
+        g = self.grid
+        occ = self.plan_grid if grid is None else grid
+        length = math.hypot(b[0] - a[0], b[1] - a[1])
+        n = max(2, int(math.ceil(length / (0.5 * g.resolution))) + 1)
+        t = np.linspace(0.0, 1.0, n)
+        ix = np.floor((a[0] + t * (b[0] - a[0]) - g.origin_x) / g.resolution).astype(np.int64)
+        iy = np.floor((a[1] + t * (b[1] - a[1]) - g.origin_y) / g.resolution).astype(np.int64)
+        if ix.min() < 0 or iy.min() < 0 or ix.max() >= g.width or iy.max() >= g.height:
+            return False
+        return not bool(occ[iy, ix].any())
+
+    # -- planning ---------------------------------------------------------------------
+
+    def check_goal(self, x: float, y: float) -> PlanResult | None:
+        """Return a failed :class:`PlanResult` if ``(x, y)`` cannot be a goal, else ``None``."""
+        if not (math.isfinite(x) and math.isfinite(y)) or not self.in_map(x, y):
+            return PlanResult((), ErrorCode.GOAL_OUTSIDE_MAP, f"Goal ({x:.2f}, {y:.2f}) is outside the map.")
+        if not self.footprint_free(x, y):
+            return PlanResult(
+                (),
+                ErrorCode.GOAL_OCCUPIED,
+                f"Goal ({x:.2f}, {y:.2f}) is occupied: the robot would overlap an obstacle there.",
+            )
+        return None
+
+    def plan(self, start: Point, goal: Point) -> PlanResult:
+        """Plan from ``start`` to ``goal`` (meters, ``map`` frame).
+
+        Error codes: ``START_OUTSIDE_MAP`` / ``START_OCCUPIED`` for a bad start,
+        ``GOAL_OUTSIDE_MAP`` / ``GOAL_OCCUPIED`` for a bad goal, ``NO_VALID_PATH`` when the
+        free space of the start does not connect to the goal.
+        """
+        sx, sy = start
+        gx, gy = goal
+        if not self.in_map(sx, sy):
+            return PlanResult(
+                (), ErrorCode.START_OUTSIDE_MAP, f"Start ({sx:.2f}, {sy:.2f}) is outside the map."
+            )
+        if not self.footprint_free(sx, sy):
+            return PlanResult(
+                (),
+                ErrorCode.START_OCCUPIED,
+                f"Start ({sx:.2f}, {sy:.2f}) is occupied: the robot overlaps an obstacle.",
+            )
+        bad = self.check_goal(gx, gy)
+        if bad is not None:
+            return bad
+        if self.segment_free(start, goal, self.footprint):
+            return PlanResult((start, goal))
+        g = self.grid
+        k = self._k
+        sc = self._coarse_cell(sx, sy)
+        gc = self._coarse_cell(gx, gy)
+        key = (sc, gc)
+        if key in self._cache:
+            cells = self._cache[key]
+        else:
+            cells = self._astar(sc, gc)
+            self._cache[key] = cells
+        if cells is None:
+            return PlanResult(
+                (),
+                ErrorCode.NO_VALID_PATH,
+                f"No valid path from ({sx:.2f}, {sy:.2f}) to goal ({gx:.2f}, {gy:.2f}).",
+            )
+        half = 0.5 * k * g.resolution
+        pts: list[Point] = [start]
+        for cx, cy in cells[1:-1]:
+            pts.append((g.origin_x + cx * k * g.resolution + half, g.origin_y + cy * k * g.resolution + half))
+        pts.append(goal)
+        return PlanResult(tuple(self._shorten(pts)))
+
+    def _coarse_cell(self, x: float, y: float) -> tuple[int, int]:
+        """The free coarse cell nearest to ``(x, y)`` (the cell itself if it is free)."""
+        g = self.grid
+        size = self._k * g.resolution
+        cx = min(max(int((x - g.origin_x) // size), 0), self._cw - 1)
+        cy = min(max(int((y - g.origin_y) // size), 0), self._ch - 1)
+        if self._coarse_free[cy][cx]:
+            return (cx, cy)
+        best: tuple[float, tuple[int, int]] | None = None
+        for r in range(1, 4):
+            for dy in range(-r, r + 1):
+                for dx in range(-r, r + 1):
+                    if max(abs(dx), abs(dy)) != r:
+                        continue
+                    nx, ny = cx + dx, cy + dy
+                    if 0 <= nx < self._cw and 0 <= ny < self._ch and self._coarse_free[ny][nx]:
+                        wx = g.origin_x + (nx + 0.5) * size
+                        wy = g.origin_y + (ny + 0.5) * size
+                        d = math.hypot(wx - x, wy - y)
+                        if best is None or d < best[0]:
+                            best = (d, (nx, ny))
+            if best is not None:
+                return best[1]
+        return (cx, cy)
+
+    def _astar(self, start: tuple[int, int], goal: tuple[int, int]) -> tuple[tuple[int, int], ...] | None:
+        """8-connected A* over the coarse grid (no corner cutting), octile heuristic."""
+        free = self._free_flat
+        W = self._cw + 2
+        s = (start[1] + 1) * W + start[0] + 1
+        g = (goal[1] + 1) * W + goal[0] + 1
+        if not free[s] or not free[g]:
+            return None
+        gy, gx = divmod(g, W)
+        size = len(free)
+        cost = [math.inf] * size
+        parent = [-1] * size
+        closed = bytearray(size)
+        cost[s] = 0.0
+        heap: list[tuple[float, int]] = [(0.0, s)]
+        straight = (1, -1, W, -W)
+        diags = ((W + 1, 1, W), (W - 1, -1, W), (-W + 1, 1, -W), (-W - 1, -1, -W))
+        k = _SQRT2 - 2.0
+        pop, push = heapq.heappop, heapq.heappush
+        while heap:
+            _, cur = pop(heap)
+            if closed[cur]:
+                continue
+            if cur == g:
+                out: list[tuple[int, int]] = []
+                while cur != -1:
+                    cy, cx = divmod(cur, W)
+                    out.append((cx - 1, cy - 1))
+                    cur = parent[cur]
+                out.reverse()
+                return tuple(out)
+            closed[cur] = 1
+            base = cost[cur]
+            for off in straight:
+                n = cur + off
+                if free[n] and not closed[n]:
+                    ng = base + 1.0
+                    if ng < cost[n]:
+                        cost[n] = ng
+                        parent[n] = cur
+                        ny, nx = divmod(n, W)
+                        dx = nx - gx if nx > gx else gx - nx
+                        dy = ny - gy if ny > gy else gy - ny
+                        push(heap, (ng + 1.001 * (dx + dy + k * (dx if dx < dy else dy)), n))
+            for off, ox, oy in diags:
+                n = cur + off
+                if free[n] and free[cur + ox] and free[cur + oy] and not closed[n]:
+                    ng = base + _SQRT2
+                    if ng < cost[n]:
+                        cost[n] = ng
+                        parent[n] = cur
+                        ny, nx = divmod(n, W)
+                        dx = nx - gx if nx > gx else gx - nx
+                        dy = ny - gy if ny > gy else gy - ny
+                        push(heap, (ng + 1.001 * (dx + dy + k * (dx if dx < dy else dy)), n))
+        return None
+
+    def _shorten(self, pts: list[Point]) -> list[Point]:
+        """Greedy string pulling: from each kept point, jump to the farthest point still in sight."""
+        out = [pts[0]]
+        i = 0
+        n = len(pts)
+        while i < n - 1:
+            j = i + 1
+            while j + 1 < n and self.segment_free(pts[i], pts[j + 1]):
+                j += 1
+            out.append(pts[j])
+            i = j
+        return out
