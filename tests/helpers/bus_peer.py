@@ -1,0 +1,101 @@
+"""Subprocess side of the bus tests: ``python tests/helpers/bus_peer.py MODE ENDPOINT ...``.
+
+Modes (each prints ``ready`` once set up, runs until SIGTERM or its count is done, always
+closes its Zenoh session):
+
+* ``status ENDPOINT ROBOTS COUNT HZ``: a client publishing ``COUNT`` status records per robot
+  (comma-separated ``ROBOTS``) at ``HZ``, holding their liveliness tokens, then idling.
+* ``alive ENDPOINT ROBOT``: a client holding the token ``fleet/ROBOT/alive``.
+* ``navserver ENDPOINT SPEED``: a router serving a one-robot simulator (the world of
+  ``tests/conformance/conformance_harness.py``, robot ``/robot1`` at its start) at ``SPEED`` x
+  real time.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+
+from fleet.status_bus import StatusBus, StatusRecord, open_session
+
+
+def record(robot: str, seq: int) -> StatusRecord:
+    return StatusRecord(
+        robot=robot,
+        ns="/" + robot,
+        t=0.1 * seq,
+        pose=(1.0 + seq, 2.0, 0.5),
+        battery=0.9,
+        charging=False,
+        stuck=False,
+        bt="RUNNING",
+        leaf="FollowRoute",
+        mode="patrol",
+        task_id=f"p-{robot}",
+        laps=seq // 10,
+        progress=(seq % 10) / 10.0,
+        distance_m=1.5 * seq,
+        collisions=0,
+        seq=seq,
+    )
+
+
+def main(argv: list[str]) -> int:
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    mode, endpoint = argv[0], argv[1]
+    if mode == "navserver":
+        return navserver(endpoint, float(argv[2]), stop)
+    session = open_session(endpoint, "client")
+    bus = StatusBus(session)
+    try:
+        if mode == "status":
+            robots = argv[2].split(",")
+            count, hz = int(argv[3]), float(argv[4])
+            for r in robots:
+                bus.declare_alive(r)
+            print("ready", flush=True)
+            for seq in range(1, count + 1):
+                for r in robots:
+                    bus.publish_status(record(r, seq))
+                if stop.wait(1.0 / hz):
+                    break
+            print("done", flush=True)
+            stop.wait()
+        elif mode == "alive":
+            bus.declare_alive(argv[2])
+            print("ready", flush=True)
+            stop.wait()
+        else:
+            print(f"unknown mode {mode}", file=sys.stderr)
+            return 2
+    finally:
+        bus.shutdown()
+    return 0
+
+
+def navserver(endpoint: str, speed: float, stop: threading.Event) -> int:
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "conformance"))
+    from conformance_harness import SIM_PARAMS, SIM_WORLD, conformance_grid
+
+    from fleet.clock import SimClock
+    from fleet.nav_bridge import serve_simulator
+    from sim.params import RobotSpec
+    from sim.simulator import Simulator
+
+    sim = Simulator(conformance_grid(), SIM_PARAMS, SimClock())
+    sim.add_robot(RobotSpec("robot1", "/robot1", SIM_WORLD.start))
+    session = open_session(endpoint, "router")
+    try:
+        print("ready", flush=True)
+        serve_simulator(sim, session, speed=speed, stop_event=stop, quiet=True)
+    finally:
+        session.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
