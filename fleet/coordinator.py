@@ -1,0 +1,769 @@
+"""The fleet coordinator: who patrols which route, and what happens when a robot drops out.
+
+Two layers, so the decisions can be tested without a network:
+
+* :class:`CoordinatorState` is the pure decision logic. It is fed robot observations
+  (:meth:`~CoordinatorState.observe`, :meth:`~CoordinatorState.robot_joined`,
+  :meth:`~CoordinatorState.robot_left`) and, once per cycle, :meth:`~CoordinatorState.step`
+  returns the :class:`TaskOrder` messages to send. It never reads a clock: every call takes
+  ``now`` (seconds of the fleet clock, simulated time in a simulated run).
+* :class:`Coordinator` is the thin bus-facing wrapper: it subscribes to ``fleet/*/status`` and
+  the liveliness tokens on the :class:`~fleet.status_bus.StatusBus`, feeds the state, and
+  publishes the orders on ``fleet/<robot>/task``.
+
+Rules (all times in seconds of the fleet clock):
+
+* Patrols are the config's routes. Each route is held by at most one robot at a time; robots
+  without a route idle as spares; routes without a robot wait.
+* Assignment is a global greedy min-cost matching on roadmap travel cost (the robot's pose to
+  the route's nearest waypoint, along the roadmap): the cheapest (robot, route) pair is
+  matched first, then the next cheapest among the rest. Distances come from one Dijkstra per
+  distinct start node (cached; the roadmap is read-only), and the cost matrix is built with
+  numpy, so a cycle with 1000 idle robots and 1000 waiting routes stays well under a second.
+* Every assignment has a fresh id ``p-0001``, ``p-0002``, ... (one counter for every order
+  kind, so ids also order idle orders ``i-0003``). Ids are never reused.
+* A route is taken back from its robot (a :class:`Reassignment` is recorded with the time and
+  the reason) when the robot dies (its liveliness token disappears, or no status arrived for
+  ``status_timeout_s``), is stuck (no progress of :data:`PROGRESS_M` for
+  ``stuck_reassign_s`` while it should be driving), or goes to charge (its status reports
+  ``mode == "charging"``). The robot gets an idle order, the route goes to the best available
+  idle robot. A robot that was taken off a route for being stuck is not given a new route for
+  ``stuck_reassign_s``; a charging robot becomes available again when it reports ``idle``.
+* Laps: a status counts only for the assignment whose id it carries and only from that
+  assignment's robot, and a lap count never decreases, so a late or duplicate status cannot
+  complete (or un-complete) the wrong assignment. A patrol assignment is *completed* when it
+  has at least one lap.
+* Reconciliation: if a robot reports a task id other than the one the coordinator last gave it
+  (a lost, late or never-received order: Zenoh publications are not stored), the current order
+  is sent again, at most once per :data:`RESEND_S`.
+* Idle robots standing on a charger are matched first (their cost is lowered by
+  :data:`CHARGER_BONUS_M`), so that a charged spare leaves the charger to robots that need it.
+* Chargers: every order carries a charger pose. Each robot is given a charger when first seen:
+  the least-loaded charger, nearest first among equally loaded ones, so two robots share a
+  charger only when there are more robots than chargers.
+
+Traffic management plugs in through :class:`TrafficPolicy` (the default, :class:`NoTraffic`,
+does nothing): it sees every assignment and release and runs once per cycle.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Protocol
+
+import networkx as nx
+import numpy as np
+
+from fleet.types import Pose2D
+
+if TYPE_CHECKING:
+    from fleet.config import FleetConfig
+    from fleet.navigation import Clock
+    from fleet.roadmap import Roadmap
+
+#: A robot has made progress when it moved this far (m) from where it last made progress.
+PROGRESS_M = 0.5
+#: An order the robot does not acknowledge (its status carries another id) is resent this often (s).
+RESEND_S = 1.0
+#: Robots whose battery is below ``low + BATTERY_MARGIN`` are not given a new patrol.
+BATTERY_MARGIN = 0.05
+#: Two robots closer than this (m) when one of them becomes stuck count as a deadlock.
+DEADLOCK_RADIUS_M = 1.5
+#: Modes in which a robot is expected to drive (used by the stuck check).
+DRIVING_MODES = ("patrol", "recovery")
+
+#: Added to the travel cost (m) of a robot recently taken off a route for being stuck.
+COOLDOWN_PENALTY = 1e6
+#: Idle robots standing within ON_CHARGER_M (m) of a charger look this much (m) closer to
+#: every route, so that they leave the charger to robots that need it.
+CHARGER_BONUS_M = 20.0
+ON_CHARGER_M = 0.5
+#: A robot stuck this close (m) to a waypoint of its lap marks the waypoint blocked ...
+BLOCKED_RADIUS_M = 1.5
+#: ... and new assignments skip it for this long (s).
+BLOCKED_WAYPOINT_S = 300.0
+
+REASON_DEAD = "dead"
+REASON_STUCK = "stuck"
+REASON_CHARGING = "charging"
+
+
+# ----------------------------------------------------------------------------- values
+
+
+@dataclass(frozen=True)
+class PatrolRoute:
+    """A patrol route as the coordinator holds it: one lap of ``poses`` (map frame), the
+    roadmap node at each pose (``nodes[i]`` for ``poses[i]``), and an optional preferred robot."""
+
+    name: str
+    poses: tuple[Pose2D, ...]
+    nodes: tuple[str, ...]
+    robot: str | None = None
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What one status record tells the coordinator about a robot.
+
+    ``t``: the record's timestamp (s); ``pose``: map frame or ``None``; ``battery`` in [0, 1];
+    ``mode``: the tree's mode (``idle``, ``patrol``, ``charging``, ``recovery``, ``picking``);
+    ``task_id``: the assignment the robot is executing; ``laps``: laps completed for that id.
+    """
+
+    t: float
+    pose: Pose2D | None
+    battery: float = 1.0
+    mode: str = "idle"
+    stuck: bool = False
+    task_id: str | None = None
+    laps: int = 0
+    charging: bool = False
+
+
+@dataclass(frozen=True)
+class TaskOrder:
+    """A message for one robot (published on ``fleet/<robot>/task``).
+
+    ``kind`` is ``"patrol"`` (``route`` and ``poses`` set) or ``"idle"`` (drop any route).
+    ``charger`` is the charger pose the robot should use when its battery runs low.
+    """
+
+    robot: str
+    task_id: str
+    kind: str
+    route: str | None
+    poses: tuple[Pose2D, ...]
+    charger: Pose2D | None
+
+
+@dataclass
+class Assignment:
+    """One patrol assignment: ``route`` given to ``robot`` at ``t_assigned`` under ``task_id``.
+
+    ``laps`` is the highest lap count the robot reported for this id; ``t_first_lap`` when the
+    first lap was reported; ``ended`` / ``end_reason`` when the route was taken back (``None``
+    while active).
+    """
+
+    task_id: str
+    route: str
+    robot: str
+    t_assigned: float
+    poses: tuple[Pose2D, ...]
+    laps: int = 0
+    t_first_lap: float | None = None
+    ended: float | None = None
+    end_reason: str | None = None
+
+    @property
+    def completed(self) -> bool:
+        return self.laps >= 1
+
+
+@dataclass
+class Reassignment:
+    """A route taken from ``from_robot`` at ``t`` for ``reason`` (``dead``, ``stuck``,
+    ``charging``). ``to_robot`` / ``new_task_id`` / ``t_reassigned`` are filled when the route
+    is given to another robot (``None`` while it waits)."""
+
+    t: float
+    route: str
+    from_robot: str
+    reason: str
+    old_task_id: str
+    to_robot: str | None = None
+    new_task_id: str | None = None
+    t_reassigned: float | None = None
+
+
+@dataclass
+class RobotView:
+    """Everything the coordinator knows about one robot (mutable; owned by the state)."""
+
+    name: str
+    alive: bool = True
+    last_seen: float | None = None
+    obs: Observation | None = None
+    assignment: Assignment | None = None
+    charger: int | None = None
+    progress_pose: Pose2D | None = None
+    progress_t: float = 0.0
+    cooldown_until: float = -math.inf
+    last_order: TaskOrder | None = None
+    last_sent: float = -math.inf
+    was_stuck: bool = False
+
+
+class TrafficPolicy(Protocol):
+    """Extension point for traffic management (e.g. roadmap segment reservations).
+
+    The coordinator calls :meth:`on_assign` when it gives a route to a robot (the policy may
+    return different poses, e.g. with waiting points), :meth:`on_release` when a robot loses
+    its route or dies, and :meth:`cycle` once per coordinator cycle with every robot's view;
+    :meth:`cycle` returns extra orders to send (usually none). Policies must keep
+    :meth:`cycle` roughly linear in the number of robots.
+    """
+
+    def on_assign(self, robot: str, route: PatrolRoute, poses: tuple[Pose2D, ...]) -> tuple[Pose2D, ...]: ...
+
+    def on_release(self, robot: str) -> None: ...
+
+    def cycle(self, now: float, robots: Mapping[str, RobotView]) -> Sequence[TaskOrder]: ...
+
+
+class NoTraffic:
+    """The default :class:`TrafficPolicy`: robots rely on their own reactive safety layer."""
+
+    def on_assign(self, robot: str, route: PatrolRoute, poses: tuple[Pose2D, ...]) -> tuple[Pose2D, ...]:
+        return poses
+
+    def on_release(self, robot: str) -> None:
+        return None
+
+    def cycle(self, now: float, robots: Mapping[str, RobotView]) -> Sequence[TaskOrder]:
+        return ()
+
+
+@dataclass
+class CoordinatorParams:
+    """Thresholds (seconds) and the battery level below which robots go to charge."""
+
+    stuck_reassign_s: float = 30.0
+    status_timeout_s: float = 3.0
+    battery_low: float = 0.25
+
+
+# ----------------------------------------------------------------------------- state
+
+
+class _Distances:
+    """Roadmap shortest-path distances from a node to every node, one Dijkstra per source node
+    (LRU-cached), as numpy rows indexed like :attr:`index`."""
+
+    def __init__(self, roadmap: Roadmap, cache_rows: int = 4096) -> None:
+        self.roadmap = roadmap
+        self.names = roadmap.nodes
+        self.index = {n: i for i, n in enumerate(self.names)}
+        self._rows: OrderedDict[str, np.ndarray] = OrderedDict()
+        self._cap = cache_rows
+
+    def row(self, source: str) -> np.ndarray:
+        r = self._rows.get(source)
+        if r is not None:
+            self._rows.move_to_end(source)
+            return r
+        lengths = nx.single_source_dijkstra_path_length(self.roadmap.graph, source, weight="length")
+        r = np.full(len(self.names), np.inf)
+        for n, d in lengths.items():
+            r[self.index[str(n)]] = d
+        self._rows[source] = r
+        if len(self._rows) > self._cap:
+            self._rows.popitem(last=False)
+        return r
+
+
+class CoordinatorState:
+    """The coordinator's decisions, free of I/O. See the module docstring for the rules.
+
+    Args:
+        routes: the patrols to keep covered.
+        chargers: charger poses (map frame).
+        roadmap: the roadmap used for travel costs.
+        params: thresholds.
+        traffic: the traffic policy (default :class:`NoTraffic`).
+    """
+
+    def __init__(
+        self,
+        routes: Sequence[PatrolRoute],
+        chargers: Sequence[Pose2D],
+        roadmap: Roadmap,
+        params: CoordinatorParams | None = None,
+        traffic: TrafficPolicy | None = None,
+    ) -> None:
+        self.routes: dict[str, PatrolRoute] = {r.name: r for r in routes}
+        self.chargers = list(chargers)
+        self.roadmap = roadmap
+        self.params = params or CoordinatorParams()
+        self.traffic: TrafficPolicy = traffic or NoTraffic()
+        self.robots: dict[str, RobotView] = {}
+        self.assignments: list[Assignment] = []
+        self.by_id: dict[str, Assignment] = {}
+        self.reassignments: list[Reassignment] = []
+        self.holder: dict[str, str | None] = {r.name: None for r in routes}
+        self.deadlocks = 0
+        self.events: list[tuple[float, str]] = []
+        self._counter = 0
+        self._charger_load = [0] * len(self.chargers)
+        self._dist = _Distances(roadmap)
+        self._route_idx = self._route_index_matrix(routes)
+        self._pending_reassign: dict[str, Reassignment] = {}
+        self.blocked: list[tuple[float, float, float]] = []
+        self.expected: set[str] = set()
+        self.settle_s = 0.0
+        self._t_start: float | None = None
+
+    def expect(self, robots: Iterable[str], settle_s: float) -> None:
+        """Hold the first assignment until every robot in ``robots`` has reported or
+        ``settle_s`` seconds passed since the first cycle, so that robots starting in other
+        processes a moment later are matched too (and get their preferred routes)."""
+        self.expected = set(robots)
+        self.settle_s = float(settle_s)
+
+    # -- inputs ------------------------------------------------------------------------
+
+    def robot_joined(self, robot: str, now: float) -> None:
+        """The robot's liveliness token appeared (or it was seen again after being dead)."""
+        v = self._view(robot, now)
+        if not v.alive:
+            v.alive = True
+            v.last_seen = now
+            self._log(now, f"{robot} joined")
+
+    def robot_left(self, robot: str, now: float) -> None:
+        """The robot's liveliness token disappeared: it is dead at once."""
+        v = self.robots.get(robot)
+        if v is not None and v.alive:
+            self._die(v, now, "liveliness token dropped")
+
+    def observe(self, robot: str, now: float, obs: Observation) -> None:
+        """A status record from ``robot`` arrived at ``now``."""
+        v = self._view(robot, now)
+        if not v.alive:
+            v.alive = True
+            self._log(now, f"{robot} is back")
+        v.last_seen = now
+        v.obs = obs
+        if obs.task_id is not None:
+            a = self.by_id.get(obs.task_id)
+            if a is not None and a.robot == robot and obs.laps > a.laps:
+                if a.t_first_lap is None:
+                    a.t_first_lap = now
+                a.laps = obs.laps
+        if obs.pose is not None:
+            if v.progress_pose is None or v.progress_pose.distance_to(obs.pose) > PROGRESS_M:
+                v.progress_pose = obs.pose
+                v.progress_t = now
+        if obs.stuck and not v.was_stuck and obs.pose is not None and self._someone_near(v, obs.pose):
+            self.deadlocks += 1
+            self._log(now, f"{robot} blocked by another robot")
+        v.was_stuck = obs.stuck
+
+    # -- the cycle ---------------------------------------------------------------------
+
+    def step(self, now: float) -> list[TaskOrder]:
+        """Run one cycle at ``now``: detect dead, stuck and charging robots, take their routes
+        back, assign waiting routes, resend unacknowledged orders. Returns the orders to send."""
+        p = self.params
+        out: list[TaskOrder] = []
+        for v in self.robots.values():
+            if v.alive and v.last_seen is not None and now - v.last_seen > p.status_timeout_s:
+                self._die(v, now, f"no status for {now - v.last_seen:.1f} s")
+                continue
+            a = v.assignment
+            if a is None or not v.alive or v.obs is None:
+                continue
+            if v.obs.mode == "charging":
+                out.append(self._release(v, now, REASON_CHARGING))
+            elif (
+                v.obs.task_id == a.task_id
+                and v.obs.mode in DRIVING_MODES
+                and now - max(v.progress_t, a.t_assigned) > p.stuck_reassign_s
+            ):
+                v.cooldown_until = now + p.stuck_reassign_s
+                self._block_waypoint_near(a, v.obs.pose, now)
+                out.append(self._release(v, now, REASON_STUCK))
+        if self._t_start is None:
+            self._t_start = now
+        settled = now - self._t_start >= self.settle_s or all(
+            r in self.robots and self.robots[r].obs is not None for r in self.expected
+        )
+        if settled:
+            out.extend(self._assign(now))
+        out.extend(self.traffic.cycle(now, self.robots))
+        sent = {o.robot for o in out}
+        for v in self.robots.values():
+            if v.name in sent or not v.alive or v.obs is None or now - v.last_sent < RESEND_S:
+                continue
+            last = v.last_order
+            if v.assignment is not None:
+                if v.obs.task_id != v.assignment.task_id:
+                    out.append(
+                        last
+                        if last is not None and last.task_id == v.assignment.task_id
+                        else self._patrol_order(v)
+                    )
+            elif v.obs.task_id is not None and (last is None or v.obs.task_id != last.task_id):
+                out.append(last if last is not None and last.kind == "idle" else self._idle_order(v))
+        for o in out:
+            rv = self.robots.get(o.robot)
+            if rv is not None:
+                rv.last_order = o
+                rv.last_sent = now
+        return out
+
+    # -- queries -----------------------------------------------------------------------
+
+    @property
+    def waiting_routes(self) -> list[str]:
+        """Routes without a robot, in config order."""
+        return [r for r, h in self.holder.items() if h is None]
+
+    def active_assignment(self, route: str) -> Assignment | None:
+        holder = self.holder.get(route)
+        if holder is None:
+            return None
+        return self.robots[holder].assignment
+
+    def laps_completed(self) -> int:
+        return sum(a.laps for a in self.assignments)
+
+    def patrols_completed(self) -> int:
+        return sum(1 for a in self.assignments if a.completed)
+
+    def laps_by_route(self) -> dict[str, int]:
+        out = {r: 0 for r in self.routes}
+        for a in self.assignments:
+            out[a.route] += a.laps
+        return out
+
+    def laps_by_robot(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for a in self.assignments:
+            out[a.robot] = out.get(a.robot, 0) + a.laps
+        return out
+
+    # -- internals ---------------------------------------------------------------------
+
+    def _view(self, robot: str, now: float) -> RobotView:
+        v = self.robots.get(robot)
+        if v is None:
+            v = RobotView(name=robot, last_seen=now, progress_t=now)
+            self.robots[robot] = v
+            self._log(now, f"{robot} joined")
+        return v
+
+    def _log(self, now: float, text: str) -> None:
+        self.events.append((now, text))
+
+    def _next_id(self, prefix: str) -> str:
+        self._counter += 1
+        return f"{prefix}-{self._counter:04d}"
+
+    def _die(self, v: RobotView, now: float, why: str) -> None:
+        v.alive = False
+        self._log(now, f"{v.name} dead ({why})")
+        if v.assignment is not None:
+            self._release(v, now, REASON_DEAD)
+        if v.charger is not None:
+            self._charger_load[v.charger] -= 1
+            v.charger = None
+        v.last_order = None
+        v.obs = None
+        v.progress_pose = None
+
+    def _release(self, v: RobotView, now: float, reason: str) -> TaskOrder:
+        a = v.assignment
+        assert a is not None
+        a.ended = now
+        a.end_reason = reason
+        v.assignment = None
+        self.holder[a.route] = None
+        self.traffic.on_release(v.name)
+        r = Reassignment(t=now, route=a.route, from_robot=v.name, reason=reason, old_task_id=a.task_id)
+        self.reassignments.append(r)
+        self._pending_reassign[a.route] = r
+        self._log(now, f"{a.route} taken from {v.name} ({reason})")
+        return self._idle_order(v)
+
+    def _charger_for(self, v: RobotView) -> Pose2D | None:
+        if not self.chargers:
+            return None
+        if v.charger is None:
+            pose = v.obs.pose if v.obs is not None else None
+            best: tuple[int, float, int] | None = None
+            for i, c in enumerate(self.chargers):
+                d = pose.distance_to(c) if pose is not None else 0.0
+                key = (self._charger_load[i], d, i)
+                if best is None or key < best:
+                    best = key
+            assert best is not None
+            v.charger = best[2]
+            self._charger_load[v.charger] += 1
+        return self.chargers[v.charger]
+
+    def _idle_order(self, v: RobotView) -> TaskOrder:
+        return TaskOrder(v.name, self._next_id("i"), "idle", None, (), self._charger_for(v))
+
+    def _eligible(self, v: RobotView, now: float) -> bool:
+        o = v.obs
+        return (
+            v.alive
+            and v.assignment is None
+            and o is not None
+            and o.pose is not None
+            and o.mode == "idle"
+            and o.battery >= self.params.battery_low + BATTERY_MARGIN
+        )
+
+    def _route_index_matrix(self, routes: Sequence[PatrolRoute]) -> np.ndarray:
+        idx = self._dist.index
+        width = max((len(r.nodes) for r in routes), default=1)
+        m = np.zeros((len(routes), max(width, 1)), dtype=np.int64)
+        for i, r in enumerate(routes):
+            ids = [idx[n] for n in r.nodes] or [0]
+            m[i, :] = ids[-1]
+            m[i, : len(ids)] = ids
+        return m
+
+    def cost_matrix(
+        self, robots: Sequence[RobotView], routes: Sequence[str]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Travel costs (m) ``[robot, route]`` and the lap index each robot would enter at."""
+        order = {r: i for i, r in enumerate(self.routes)}
+        ridx = np.array([order[r] for r in routes], dtype=np.int64) if routes else np.zeros(0, np.int64)
+        sub = self._route_idx[ridx] if len(ridx) else np.zeros((0, 1), np.int64)
+        costs = np.full((len(robots), len(routes)), np.inf)
+        entry = np.zeros((len(robots), len(routes)), dtype=np.int64)
+        for i, v in enumerate(robots):
+            assert v.obs is not None and v.obs.pose is not None
+            pose = v.obs.pose
+            start = self.roadmap.nearest_node(pose.x, pose.y)
+            sx, sy = self.roadmap.pos(start)
+            row = self._dist.row(start)
+            d = row[sub]
+            k = np.argmin(d, axis=1)
+            costs[i] = math.hypot(sx - pose.x, sy - pose.y) + d[np.arange(len(routes)), k]
+            entry[i] = k
+        return costs, entry
+
+    def _assign(self, now: float) -> list[TaskOrder]:
+        waiting = self.waiting_routes
+        if not waiting:
+            return []
+        idle = [v for v in self.robots.values() if self._eligible(v, now)]
+        if not idle:
+            return []
+        costs, entry = self.cost_matrix(idle, waiting)
+        rank = costs.copy()
+        for i, v in enumerate(idle):
+            if self._on_charger(v):
+                rank[i] -= CHARGER_BONUS_M  # send robots idling on a charger first: frees the charger
+            if now < v.cooldown_until:
+                rank[i] += COOLDOWN_PENALTY  # a robot just taken off a route for being stuck goes last
+        names = {v.name: i for i, v in enumerate(idle)}
+        for j, rname in enumerate(waiting):
+            pref = self.routes[rname].robot
+            if pref is not None and pref in names and math.isfinite(rank[names[pref], j]):
+                rank[names[pref], j] = -1.0  # a route's preferred robot goes first
+        out: list[TaskOrder] = []
+        flat = np.argsort(rank, axis=None, kind="stable")
+        used_r: set[int] = set()
+        used_c: set[int] = set()
+        n = min(len(idle), len(waiting))
+        for f in flat:
+            i, j = divmod(int(f), len(waiting))
+            if i in used_r or j in used_c or not math.isfinite(rank[i, j]):
+                continue
+            used_r.add(i)
+            used_c.add(j)
+            out.append(self._give(idle[i], waiting[j], int(entry[i, j]), now))
+            if len(used_r) == n:
+                break
+        return out
+
+    def _give(self, v: RobotView, route_name: str, k: int, now: float) -> TaskOrder:
+        route = self.routes[route_name]
+        poses = route.poses[k:] + route.poses[:k]
+        self.blocked = [b for b in self.blocked if b[2] > now]
+        if self.blocked:
+            kept = tuple(
+                p
+                for p in poses
+                if not any(math.hypot(p.x - bx, p.y - by) < 1e-6 for bx, by, _ in self.blocked)
+            )
+            if len(kept) >= 2 and len(kept) < len(poses):
+                self._log(now, f"{route_name}: skipping {len(poses) - len(kept)} blocked waypoint(s)")
+                poses = kept
+        poses = self.traffic.on_assign(v.name, route, poses)
+        tid = self._next_id("p")
+        a = Assignment(task_id=tid, route=route_name, robot=v.name, t_assigned=now, poses=poses)
+        self.assignments.append(a)
+        self.by_id[tid] = a
+        v.assignment = a
+        v.progress_t = now
+        self.holder[route_name] = v.name
+        r = self._pending_reassign.pop(route_name, None)
+        if r is not None:
+            r.to_robot, r.new_task_id, r.t_reassigned = v.name, tid, now
+            self._log(now, f"{route_name} reassigned to {v.name} as {tid}")
+        else:
+            self._log(now, f"{route_name} assigned to {v.name} as {tid}")
+        return self._patrol_order(v)
+
+    def _patrol_order(self, v: RobotView) -> TaskOrder:
+        a = v.assignment
+        assert a is not None
+        return TaskOrder(v.name, a.task_id, "patrol", a.route, a.poses, self._charger_for(v))
+
+    def _on_charger(self, v: RobotView) -> bool:
+        pose = v.obs.pose if v.obs is not None else None
+        return pose is not None and any(pose.distance_to(c) <= ON_CHARGER_M for c in self.chargers)
+
+    def _block_waypoint_near(self, a: Assignment, pose: Pose2D | None, now: float) -> None:
+        """The robot of ``a`` got stuck at ``pose``: if that is next to a waypoint of its lap
+        (something sits on it, e.g. a dead robot), skip that waypoint in new assignments for
+        :data:`BLOCKED_WAYPOINT_S`."""
+        if pose is None or not a.poses:
+            return
+        wp = min(a.poses, key=pose.distance_to)
+        if wp.distance_to(pose) <= BLOCKED_RADIUS_M:
+            self.blocked.append((wp.x, wp.y, now + BLOCKED_WAYPOINT_S))
+            self._log(now, f"waypoint ({wp.x:.1f}, {wp.y:.1f}) of {a.route} blocked")
+
+    def _someone_near(self, v: RobotView, pose: Pose2D) -> bool:
+        for other in self.robots.values():
+            if other is v or not other.alive or other.obs is None or other.obs.pose is None:
+                continue
+            if other.obs.pose.distance_to(pose) < DEADLOCK_RADIUS_M:
+                return True
+        return False
+
+
+def patrol_routes(config: FleetConfig) -> list[PatrolRoute]:
+    """The config's routes as :class:`PatrolRoute` values (one lap each, roadmap node per pose)."""
+    out = []
+    for r in config.routes:
+        poses = config.route_poses(r)
+        nodes = tuple(config.roadmap.nearest_node(p.x, p.y) for p in poses)
+        out.append(PatrolRoute(r.name, poses, nodes, r.robot))
+    return out
+
+
+def state_from_config(config: FleetConfig, traffic: TrafficPolicy | None = None) -> CoordinatorState:
+    """A :class:`CoordinatorState` for the routes, chargers and thresholds of ``config``."""
+    params = CoordinatorParams(
+        stuck_reassign_s=config.coordinator.stuck_reassign_s,
+        status_timeout_s=config.coordinator.status_timeout_s,
+        battery_low=config.sim.battery.low,
+    )
+    return CoordinatorState(
+        patrol_routes(config), [c.pose for c in config.chargers], config.roadmap, params, traffic
+    )
+
+
+# ----------------------------------------------------------------------------- bus wrapper
+
+
+class Coordinator:
+    """The coordinator on the status bus.
+
+    Subscribes to every robot's status and liveliness token on ``bus`` and publishes orders on
+    ``fleet/<robot>/task``. Call :meth:`cycle` once per agent tick (the runner does); it
+    returns the orders it sent. ``clock`` gives the fleet time (simulated seconds).
+
+    Robots in ``local_robots`` run in the same process: their statuses are fed directly with
+    :meth:`feed_local` (their bus copies and liveliness events are ignored) and their orders
+    are also handed to ``local_deliver[robot]`` at once, so an in-process run does not depend
+    on network timing. Their orders are still published, for observers and for robustness.
+    """
+
+    def __init__(
+        self,
+        config: FleetConfig,
+        bus: Any,
+        clock: Clock,
+        traffic: TrafficPolicy | None = None,
+        local_robots: set[str] | None = None,
+    ) -> None:
+        self.config = config
+        self.bus = bus
+        self.clock = clock
+        self.state = state_from_config(config, traffic)
+        self.state.expect([r.name for r in config.robots], config.coordinator.status_timeout_s)
+        self.local_robots = set(local_robots or ())
+        self.local_deliver: dict[str, Callable[[Any], None]] = {}
+        self._inbox: list[tuple[str, Any]] = []
+        self._lock = threading.Lock()
+        if bus is not None:
+            bus.subscribe_statuses(self._on_status)
+            bus.watch_alive(self._on_join, self._on_leave)
+
+    def _on_status(self, rec: Any) -> None:
+        if rec.robot not in self.local_robots:
+            self.feed("status", rec)
+
+    def _on_join(self, robot: str) -> None:
+        if robot not in self.local_robots:
+            self.feed("join", robot)
+
+    def _on_leave(self, robot: str) -> None:
+        if robot not in self.local_robots:
+            self.feed("leave", robot)
+
+    def feed(self, kind: str, payload: Any) -> None:
+        """Queue an input (``status`` record, ``join`` / ``leave`` robot name); thread-safe."""
+        with self._lock:
+            self._inbox.append((kind, payload))
+
+    def feed_local(self, rec: Any) -> None:
+        """A status record of an in-process robot."""
+        self.feed("status", rec)
+
+    def cycle(self) -> list[TaskOrder]:
+        """Apply everything received since the last cycle, decide, publish. Returns the orders."""
+        now = self.clock.now()
+        with self._lock:
+            inbox, self._inbox = self._inbox, []
+        for kind, payload in inbox:
+            if kind == "status":
+                self.state.observe(payload.robot, now, observation_from_record(payload))
+            elif kind == "join":
+                self.state.robot_joined(payload, now)
+            elif kind == "leave":
+                self.state.robot_left(payload, now)
+        orders = self.state.step(now)
+        for o in orders:
+            msg = task_message(o)
+            deliver = self.local_deliver.get(o.robot)
+            if deliver is not None:
+                deliver(msg)
+            if self.bus is not None:
+                self.bus.publish_task(msg)
+        return orders
+
+
+def observation_from_record(rec: Any) -> Observation:
+    """Convert a :class:`fleet.status_bus.StatusRecord` to an :class:`Observation`."""
+    pose = getattr(rec, "pose", None)
+    if pose is not None and not isinstance(pose, Pose2D):
+        pose = Pose2D(*pose)
+    return Observation(
+        t=float(getattr(rec, "t", 0.0)),
+        pose=pose,
+        battery=float(getattr(rec, "battery", 1.0)),
+        mode=str(getattr(rec, "mode", "idle")),
+        stuck=bool(getattr(rec, "stuck", False)),
+        task_id=getattr(rec, "task_id", None),
+        laps=int(getattr(rec, "laps", 0) or 0),
+        charging=bool(getattr(rec, "charging", False)),
+    )
+
+
+def task_message(order: TaskOrder) -> Any:
+    """Convert a :class:`TaskOrder` to the bus's :class:`fleet.status_bus.TaskMessage`."""
+    from fleet.status_bus import TaskMessage
+
+    return TaskMessage(
+        robot=order.robot,
+        task_id=order.task_id,
+        kind=order.kind,
+        route=order.route,
+        poses=order.poses,
+        charger=order.charger,
+    )

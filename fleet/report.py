@@ -1,0 +1,128 @@
+"""The result of one fleet run: a :class:`RunReport` that serializes to JSON and prints a summary.
+
+JSON fields (``RunReport.to_dict``), units in the names:
+
+* ``config``, ``backend``: the config file and the navigation backend name;
+* ``robots``: number of robots; ``sim_time_s``: simulated seconds run; ``wall_time_s``: wall
+  seconds the run took; ``speed``: requested multiple of real time (0 = as fast as possible);
+* ``patrols_assigned``: patrol assignments made (each with its own id);
+  ``patrols_completed``: assignments whose robot finished at least one lap;
+  ``laps_completed``: laps over all assignments; ``laps_by_route``: ``{route: laps}``;
+* ``collisions``: robot-robot contact events; ``deadlocks``: times a robot was reported stuck
+  with another robot within 1.5 m; ``reassignments``: routes taken back from a robot (dead,
+  stuck, charging); ``reassignment_events``: one entry per reassignment (``t``, ``route``,
+  ``from_robot``, ``reason``, ``old_task_id``, ``to_robot``, ``new_task_id``,
+  ``t_reassigned``); ``assignments``: every assignment (``task_id``, ``route``, ``robot``,
+  ``t_assigned``, ``laps``, ``t_first_lap``, ``ended``, ``end_reason``);
+* ``per_robot``: one entry per robot: ``name``, ``namespace``, ``distance_m``, ``laps``,
+  ``battery_final``, ``final_state`` (the tree's mode at the end, or ``dead`` / ``unknown``),
+  ``leaf``, ``task_id``, ``collisions``, ``charges`` (times it went to charge).
+
+Trajectories (for :mod:`fleet.plot`) are kept on the object but not written to JSON.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+REQUIRED_FIELDS = (
+    "robots",
+    "sim_time_s",
+    "wall_time_s",
+    "patrols_assigned",
+    "patrols_completed",
+    "laps_completed",
+    "collisions",
+    "deadlocks",
+    "reassignments",
+    "per_robot",
+)
+ROBOT_FIELDS = ("name", "distance_m", "laps", "battery_final", "final_state")
+
+
+@dataclass
+class RobotReport:
+    """One robot's result. Distances in meters, battery a fraction in [0, 1]."""
+
+    name: str
+    namespace: str
+    distance_m: float
+    laps: int
+    battery_final: float
+    final_state: str
+    leaf: str = ""
+    task_id: str | None = None
+    collisions: int = 0
+    charges: int = 0
+
+
+@dataclass
+class RunReport:
+    """Everything a run measured (see the module docstring for the JSON fields)."""
+
+    config: str
+    backend: str
+    robots: int
+    sim_time_s: float
+    wall_time_s: float
+    speed: float
+    patrols_assigned: int
+    patrols_completed: int
+    laps_completed: int
+    collisions: int
+    deadlocks: int
+    reassignments: int
+    per_robot: list[RobotReport]
+    laps_by_route: dict[str, int] = field(default_factory=dict)
+    reassignment_events: list[dict[str, Any]] = field(default_factory=list)
+    assignments: list[dict[str, Any]] = field(default_factory=list)
+    malformed_messages: int = 0
+    interrupted: bool = False
+    trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON-ready dict (trajectories left out)."""
+        d = asdict(self)
+        d.pop("trajectories", None)
+        d["sim_time_s"] = round(self.sim_time_s, 3)
+        d["wall_time_s"] = round(self.wall_time_s, 3)
+        for r in d["per_robot"]:
+            r["distance_m"] = round(r["distance_m"], 2)
+            r["battery_final"] = round(r["battery_final"], 4)
+        return d
+
+    def write_json(self, path: str | Path) -> Path:
+        """Write :meth:`to_dict` as indented JSON to ``path`` (parent folders are created)."""
+        p = Path(path)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+        return p
+
+    def summary(self) -> str:
+        """A short human-readable summary (several lines, no trailing newline)."""
+        rate = self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else float("inf")
+        lines = [
+            f"{'interrupted' if self.interrupted else 'finished'}: {self.robots} robots, "
+            f"{self.sim_time_s:.1f} s simulated in {self.wall_time_s:.1f} s wall ({rate:.1f}x real time)",
+            f"patrols: {self.patrols_assigned} assigned, {self.patrols_completed} completed, "
+            f"{self.laps_completed} laps"
+            + (
+                " (" + ", ".join(f"{k}: {v}" for k, v in self.laps_by_route.items()) + ")"
+                if self.laps_by_route
+                else ""
+            ),
+            f"collisions: {self.collisions}   deadlocks: {self.deadlocks}   reassignments: {self.reassignments}",
+        ]
+        for e in self.reassignment_events:
+            to = f"-> {e['to_robot']} at {e['t_reassigned']:.1f} s" if e.get("to_robot") else "(waiting)"
+            lines.append(f"  t={e['t']:.1f} s {e['route']}: {e['from_robot']} {e['reason']} {to}")
+        width = max((len(r.name) for r in self.per_robot), default=5)
+        lines.append(f"  {'robot':<{width}}  {'dist m':>8}  {'laps':>4}  {'battery':>7}  state")
+        for r in self.per_robot:
+            lines.append(
+                f"  {r.name:<{width}}  {r.distance_m:8.1f}  {r.laps:4d}  {r.battery_final:7.0%}  {r.final_state}"
+            )
+        return "\n".join(lines)
