@@ -99,15 +99,35 @@ HarnessFactory = Callable[[], AbstractContextManager[ConformanceHarness]]
 BACKEND_FACTORIES: dict[str, HarnessFactory] = {}
 _MARKS: dict[str, tuple[Any, ...]] = {}
 
+#: Capabilities a conformance test may require with ``@pytest.mark.requires("<capability>")``.
+#: A backend that declares it ``lacks`` one (with the reason) is not tested for it: the pair
+#: is never generated, so nothing is skipped, and the reason is documented in one place.
+CAPABILITIES = {
+    "occupancy_map": "knows static obstacles, so a goal inside one aborts with GOAL_OCCUPIED",
+    "spin_in_place": "can turn on the spot (Spin)",
+    "reverse": "can drive backwards (BackUp)",
+}
+LACKS: dict[str, dict[str, str]] = {}
 
-def register_backend(name: str, marks: tuple[Any, ...] = ()) -> Callable[[HarnessFactory], HarnessFactory]:
-    """Decorator registering ``factory`` under ``name`` (with optional pytest marks)."""
+
+def register_backend(
+    name: str, marks: tuple[Any, ...] = (), lacks: dict[str, str] | None = None
+) -> Callable[[HarnessFactory], HarnessFactory]:
+    """Decorator registering ``factory`` under ``name`` (with optional pytest marks).
+
+    ``lacks`` maps capability names from :data:`CAPABILITIES` to the reason the backend
+    cannot provide them; tests requiring those capabilities are not generated for it.
+    """
+    unknown = set(lacks or {}) - set(CAPABILITIES)
+    if unknown:
+        raise ValueError(f"conformance backend {name!r}: unknown capabilities {sorted(unknown)}")
 
     def deco(factory: HarnessFactory) -> HarnessFactory:
         if name in BACKEND_FACTORIES:
             raise ValueError(f"conformance backend {name!r} registered twice")
         BACKEND_FACTORIES[name] = factory
         _MARKS[name] = tuple(marks)
+        LACKS[name] = dict(lacks or {})
         return factory
 
     return deco

@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conformance_harness import _MARKS, BACKEND_FACTORIES, ConformanceHarness
+from conformance_harness import _MARKS, BACKEND_FACTORIES, LACKS, ConformanceHarness
 
 
 def _load_plugins() -> None:
@@ -36,7 +36,20 @@ def _load_plugins() -> None:
 _load_plugins()
 
 
-@pytest.fixture(params=[pytest.param(n, marks=_MARKS[n]) for n in sorted(BACKEND_FACTORIES)])
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "requires(capability): the test needs a backend capability")
+
+
+def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
+    """Parametrize ``harness`` over every backend that has the capabilities the test requires."""
+    if "harness" not in metafunc.fixturenames:
+        return
+    needs = {m.args[0] for m in metafunc.definition.iter_markers("requires")}
+    names = [n for n in sorted(BACKEND_FACTORIES) if not needs & set(LACKS[n])]
+    metafunc.parametrize("harness", [pytest.param(n, marks=_MARKS[n]) for n in names], indirect=True)
+
+
+@pytest.fixture
 def harness(request: pytest.FixtureRequest) -> Iterator[ConformanceHarness]:
     """A fresh harness of each registered backend."""
     with BACKEND_FACTORIES[request.param]() as h:

@@ -7,18 +7,16 @@ lane of the aisle runs along ``y = -lane_width / 2`` (-0.45 m for the default ro
 start and the reachable pose lie on that lane, heading east. ``off_map`` is more than
 ``max_snap_m`` from every lane, ``unreachable`` is on the island.
 
-Differences from the simulator, each skipped below with its reason (the test module is shared
-by every backend and is not edited): SUMO knows only lanes, so a pose inside an obstacle is
+Differences from the simulator, declared below as capabilities SUMO lacks (the shared suite
+then does not generate those tests for SUMO): SUMO knows only lanes, so a pose inside an obstacle is
 simply snapped onto the nearest lane (there is no GOAL_OCCUPIED), and SUMO vehicles can
 neither turn on the spot nor reverse (Spin and BackUp succeed as timed no-ops; see
 ``docs/sumo.md``). The world uses the default network (no lanes inside junctions: a robot is
-always on a lane it can stop on). The skip is decided from ``PYTEST_CURRENT_TEST`` because a factory does not
-receive the test it serves.
+always on a lane it can stop on).
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -32,17 +30,13 @@ from fleet.navigation import NavigationBackend
 from fleet.types import Pose2D
 from sim.params import RobotSpec, SimParams
 
-#: Tests of the shared suite that cannot apply to SUMO, with the reason shown in the report.
-SUMO_SKIPS: dict[str, str] = {
-    "test_bad_goal_aborts_with_planner_code[sumo-occupied-206]": (
-        "SUMO has no occupancy map: a pose inside an obstacle is snapped onto the nearest lane"
-    ),
-    "test_spin_succeeds_and_turns_the_robot[sumo]": (
-        "SUMO vehicles cannot turn on the spot: Spin is a timed no-op (tests/sim/test_sumo_backend.py)"
-    ),
-    "test_backup_succeeds_and_moves_backwards[sumo]": (
-        "SUMO vehicles cannot reverse: BackUp is a timed no-op (tests/sim/test_sumo_backend.py)"
-    ),
+#: Capabilities of the shared suite that SUMO lacks, with the reason (see ``docs/sumo.md``);
+#: the suite does not generate those tests for SUMO. What SUMO does instead (snap to a lane,
+#: Spin/BackUp as timed no-ops) is tested in ``tests/sim/test_sumo_backend.py``.
+SUMO_LACKS: dict[str, str] = {
+    "occupancy_map": "SUMO has no occupancy map: a pose inside an obstacle is snapped onto the nearest lane",
+    "spin_in_place": "SUMO vehicles cannot turn on the spot: Spin is a timed no-op",
+    "reverse": "SUMO vehicles cannot reverse: BackUp is a timed no-op",
 }
 
 SUMO_PARAMS = replace(SimParams(), step_s=0.1)
@@ -51,7 +45,7 @@ _HALF_LANE = (2.0 * SUMO_PARAMS.model.radius + 0.3) / 2.0  # see sim.sumo_net.se
 SUMO_WORLD = ConformanceWorld(
     start=Pose2D(2.0, -_HALF_LANE, 0.0),
     reachable=Pose2D(15.0, -_HALF_LANE, 0.0),
-    occupied=Pose2D(3.0, 3.0, 0.0),  # not applicable (skipped)
+    occupied=Pose2D(3.0, 3.0, 0.0),  # not used: SUMO lacks occupancy_map
     off_map=Pose2D(-30.0, 0.0, 0.0),
     unreachable=Pose2D(33.0, -_HALF_LANE, 0.0),
     free_behind_m=0.0,
@@ -76,11 +70,6 @@ def conformance_roadmap() -> nx.Graph:
     return g
 
 
-def _current_test() -> str:
-    current = os.environ.get("PYTEST_CURRENT_TEST", "")
-    return current.split("::")[-1].split(" ")[0]
-
-
 @dataclass
 class SumoHarness:
     """``advance`` steps the SUMO world."""
@@ -95,13 +84,9 @@ class SumoHarness:
             self.world_obj.step()  # type: ignore[attr-defined]
 
 
-@register_backend("sumo", marks=(pytest.mark.sumo,))
+@register_backend("sumo", marks=(pytest.mark.sumo,), lacks=SUMO_LACKS)
 @contextmanager
 def sumo_harness() -> Iterator[ConformanceHarness]:
-    reason = SUMO_SKIPS.get(_current_test())
-    if reason is not None:
-        pytest.skip(reason)
-    pytest.importorskip("libsumo")
     from sim.sumo_backend import SumoWorld
 
     world = SumoWorld(

@@ -65,21 +65,26 @@ def test_navigate_to_reachable_pose_succeeds_within_tolerance(harness: Conforman
     assert abs(normalize_angle(pose.theta - w.reachable.theta)) <= w.yaw_tolerance + 0.05
 
 
-@pytest.mark.parametrize(
-    ("where", "code"),
-    [
-        ("occupied", ErrorCode.GOAL_OCCUPIED),
-        ("off_map", ErrorCode.GOAL_OUTSIDE_MAP),
-        ("unreachable", ErrorCode.NO_VALID_PATH),
-    ],
-)
-def test_bad_goal_aborts_with_planner_code(harness: ConformanceHarness, where: str, code: ErrorCode) -> None:
+def _assert_bad_goal_aborts(harness: ConformanceHarness, where: str, code: ErrorCode) -> None:
     target: Pose2D = getattr(harness.world, where)
     gid = harness.backend.send_goal(NavigateToPose(target))
     state = _finish(harness, gid, 10.0)
     assert state.status is GoalStatus.ABORTED
     assert state.error_code == code
     assert state.error_msg, "an aborted goal must explain itself"
+
+
+@pytest.mark.parametrize(
+    ("where", "code"),
+    [("off_map", ErrorCode.GOAL_OUTSIDE_MAP), ("unreachable", ErrorCode.NO_VALID_PATH)],
+)
+def test_bad_goal_aborts_with_planner_code(harness: ConformanceHarness, where: str, code: ErrorCode) -> None:
+    _assert_bad_goal_aborts(harness, where, code)
+
+
+@pytest.mark.requires("occupancy_map")
+def test_goal_inside_obstacle_aborts_goal_occupied(harness: ConformanceHarness) -> None:
+    _assert_bad_goal_aborts(harness, "occupied", ErrorCode.GOAL_OCCUPIED)
 
 
 def test_cancel_ends_canceled_and_robot_stops(harness: ConformanceHarness) -> None:
@@ -148,6 +153,7 @@ def test_feedback_present_during_navigation(harness: ConformanceHarness) -> None
     assert fb.number_of_recoveries is not None
 
 
+@pytest.mark.requires("spin_in_place")
 def test_spin_succeeds_and_turns_the_robot(harness: ConformanceHarness) -> None:
     yaw0 = _pose(harness).theta
     gid = harness.backend.send_goal(Spin(math.pi / 2, time_allowance_s=10.0))
@@ -157,6 +163,7 @@ def test_spin_succeeds_and_turns_the_robot(harness: ConformanceHarness) -> None:
     assert abs(normalize_angle(_pose(harness).theta - yaw0 - math.pi / 2)) < 0.2
 
 
+@pytest.mark.requires("reverse")
 def test_backup_succeeds_and_moves_backwards(harness: ConformanceHarness) -> None:
     start = _pose(harness)
     dist = min(0.3, harness.world.free_behind_m / 2)
