@@ -1,12 +1,16 @@
 """One simulated robot and the goal executors that drive it (the simulator's "Nav2 servers").
 
-:class:`Robot` is the plain mutable state of a differential-drive robot (pose in the ``map``
-frame, velocities, battery, odometer, flags). Each executing goal is a :class:`Task` that the
-simulator asks once per step for a desired ``(v, w)`` command (m/s, rad/s) through
-:meth:`Task.control`, and tells about the motion that resulted through :meth:`Task.after_move`.
-The simulator, not the task, applies acceleration limits, the reactive safety stop, static
-collision clamping, battery and faults; a task only decides where it wants to go and when
-its goal has succeeded or failed.
+:class:`Robot` is a view of one row of the simulator's state arrays
+(:class:`sim.state.FleetState`: pose in the ``map`` frame, velocities, battery, odometer,
+flags). Each executing goal is a :class:`Task`. Navigation goals plan their path and hand it to
+the simulator's vectorized path follower (:meth:`World.attach_path`); they hear back only
+through events: :meth:`Task.arrived` (final pose reached), :meth:`Task.no_approach` (the
+remaining path stopped shrinking) and :meth:`Task.on_stuck` (no motion for ``stuck_time_s``).
+Other goals (Spin, BackUp, DriveOnHeading, Wait, FollowWaypoints between waypoints) are asked
+once per step for a desired ``(v, w)`` command (m/s, rad/s) through :meth:`Task.control` and
+told about the resulting motion through :meth:`Task.after_move`. The simulator, not the task,
+applies acceleration limits, the reactive safety stop, static collision clamping, battery and
+faults; a task only decides where it wants to go and when its goal has succeeded or failed.
 
 Goal records (:class:`GoalRecord`) hold the lifecycle of one goal id; a task finishes its
 record with :meth:`Task.succeed` / :meth:`Task.abort`; the simulator handles cancel and
@@ -17,7 +21,7 @@ ends, so a terminal goal keeps its last feedback.
 from __future__ import annotations
 
 import math
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from fleet.types import (
     ErrorCode,
@@ -26,10 +30,13 @@ from fleet.types import (
     GoalState,
     GoalStatus,
     Pose2D,
-    normalize_angle,
 )
 from sim.params import SimParams
 from sim.planner import GridPlanner, PlanResult
+
+if TYPE_CHECKING:
+    from fleet.clock import SimClock
+    from sim.state import FleetState
 
 #: Heading error (rad) above which a path-following robot stops and rotates in place.
 ROTATE_IN_PLACE_RAD = 0.8
@@ -57,59 +64,135 @@ AVOID_OFFSETS = (-0.35, 0.35, -0.7, 0.7, -1.05, 1.05, -1.4, 1.4, -1.75, 1.75, -2
 
 
 class Robot:
-    """Mutable state of one simulated differential-drive robot.
+    """One simulated differential-drive robot: its identity, goal and fault, and a view of its
+    row in the simulator's state arrays (:class:`sim.state.FleetState`).
 
     Pose ``x``, ``y`` (m) and ``theta`` (rad, in ``[-pi, pi)``) in the ``map`` frame; ``v``
     (m/s, negative = backwards) and ``w`` (rad/s, counter-clockwise positive) are the velocities
     applied during the last step. ``battery`` is a fraction in [0, 1]; ``distance_m`` is the
     odometer (absolute distance driven); ``collisions`` counts contact events this robot took
-    part in. ``fault`` is ``None`` or ``"stalled"`` (wheels do not respond).
+    part in. ``fault`` is ``None`` or ``"stalled"`` (wheels do not respond). Reading or writing
+    an attribute reads or writes the arrays, so tasks see the same state as the vectorized step.
     """
 
-    __slots__ = (
-        "name",
-        "namespace",
-        "x",
-        "y",
-        "theta",
-        "v",
-        "w",
-        "battery",
-        "charging",
-        "stuck",
-        "distance_m",
-        "collisions",
-        "fault",
-        "task",
-        "progress_x",
-        "progress_y",
-        "progress_t",
-        "trajectory",
-    )
+    __slots__ = ("name", "namespace", "index", "state", "task", "fault")
 
-    def __init__(self, name: str, namespace: str, pose: Pose2D, battery: float, now: float) -> None:
+    def __init__(self, name: str, namespace: str, index: int, state: FleetState) -> None:
         self.name = name
         self.namespace = namespace
-        self.x = float(pose.x)
-        self.y = float(pose.y)
-        self.theta = normalize_angle(float(pose.theta))
-        self.v = 0.0
-        self.w = 0.0
-        self.battery = min(1.0, max(0.0, float(battery)))
-        self.charging = False
-        self.stuck = False
-        self.distance_m = 0.0
-        self.collisions = 0
-        self.fault: str | None = None
+        self.index = index
+        self.state = state
         self.task: Task | None = None
-        self.progress_x = self.x
-        self.progress_y = self.y
-        self.progress_t = now
-        self.trajectory: list[tuple[float, float, float]] = [(now, self.x, self.y)]
+        self.fault: str | None = None
 
     @property
     def pose(self) -> Pose2D:
-        return Pose2D(self.x, self.y, self.theta)
+        s, i = self.state, self.index
+        return Pose2D(s.x.item(i), s.y.item(i), s.th.item(i))
+
+    @property
+    def x(self) -> float:
+        return float(self.state.x.item(self.index))
+
+    @x.setter
+    def x(self, value: float) -> None:
+        self.state.x[self.index] = value
+
+    @property
+    def y(self) -> float:
+        return float(self.state.y.item(self.index))
+
+    @y.setter
+    def y(self, value: float) -> None:
+        self.state.y[self.index] = value
+
+    @property
+    def theta(self) -> float:
+        return float(self.state.th.item(self.index))
+
+    @theta.setter
+    def theta(self, value: float) -> None:
+        self.state.th[self.index] = value
+
+    @property
+    def v(self) -> float:
+        return float(self.state.v.item(self.index))
+
+    @v.setter
+    def v(self, value: float) -> None:
+        self.state.v[self.index] = value
+
+    @property
+    def w(self) -> float:
+        return float(self.state.w.item(self.index))
+
+    @w.setter
+    def w(self, value: float) -> None:
+        self.state.w[self.index] = value
+
+    @property
+    def battery(self) -> float:
+        return float(self.state.battery.item(self.index))
+
+    @battery.setter
+    def battery(self, value: float) -> None:
+        self.state.battery[self.index] = value
+
+    @property
+    def charging(self) -> bool:
+        return bool(self.state.charging.item(self.index))
+
+    @charging.setter
+    def charging(self, value: bool) -> None:
+        self.state.charging[self.index] = value
+
+    @property
+    def stuck(self) -> bool:
+        return bool(self.state.stuck.item(self.index))
+
+    @stuck.setter
+    def stuck(self, value: bool) -> None:
+        self.state.stuck[self.index] = value
+
+    @property
+    def distance_m(self) -> float:
+        return float(self.state.dist.item(self.index))
+
+    @distance_m.setter
+    def distance_m(self, value: float) -> None:
+        self.state.dist[self.index] = value
+
+    @property
+    def collisions(self) -> int:
+        return int(self.state.collisions.item(self.index))
+
+    @collisions.setter
+    def collisions(self, value: int) -> None:
+        self.state.collisions[self.index] = value
+
+    @property
+    def progress_x(self) -> float:
+        return float(self.state.px.item(self.index))
+
+    @progress_x.setter
+    def progress_x(self, value: float) -> None:
+        self.state.px[self.index] = value
+
+    @property
+    def progress_y(self) -> float:
+        return float(self.state.py.item(self.index))
+
+    @progress_y.setter
+    def progress_y(self, value: float) -> None:
+        self.state.py[self.index] = value
+
+    @property
+    def progress_t(self) -> float:
+        return float(self.state.pt.item(self.index))
+
+    @progress_t.setter
+    def progress_t(self, value: float) -> None:
+        self.state.pt[self.index] = value
 
 
 class World(Protocol):
@@ -117,6 +200,7 @@ class World(Protocol):
 
     params: SimParams
     planner: GridPlanner
+    clock: SimClock
 
     def free_distance(
         self, robot: Robot, direction: float, lookahead: float, static: bool, heading: float | None = None
@@ -124,6 +208,26 @@ class World(Protocol):
         """Distance (m) the robot's center can travel straight along ``heading`` (default its
         yaw; ``direction`` +1 forward, -1 backward) before touching another robot or a dynamic
         obstacle (and, if ``static``, a static obstacle), capped at ``lookahead``."""
+        ...
+
+    def attach_path(
+        self, robot: Robot, path: list[tuple[float, float]], vias: list[int], final_yaw: float, now: float
+    ) -> None:
+        """Let the vectorized path follower drive ``robot`` along ``path`` (``vias``: indices
+        of the poses to pass, the last is the goal), then turn it to ``final_yaw``. The task
+        hears back through :meth:`Task.arrived` and :meth:`Task.no_approach`."""
+        ...
+
+    def detach_path(self, robot: Robot) -> None:
+        """Stop following the robot's path (no-op when it follows none)."""
+        ...
+
+    def path_remaining(self, robot: Robot) -> float:
+        """Distance (m) along the followed path from the robot to its end (0 once reached)."""
+        ...
+
+    def poses_remaining(self, robot: Robot) -> int:
+        """Poses of the followed path not yet passed (0 once the final position is reached)."""
         ...
 
 
@@ -203,6 +307,13 @@ class Task:
     def on_stuck(self) -> None:
         """Called when the robot made no progress for ``stuck_time_s`` while :attr:`drives`."""
 
+    def arrived(self, now: float) -> None:
+        """Called when the attached path's final pose is reached (position and yaw)."""
+
+    def no_approach(self, now: float) -> None:
+        """Called when the robot following the attached path has not shortened its remaining
+        path by :data:`APPROACH_M` for ``APPROACH_FACTOR * stuck_time_s``."""
+
     def feedback(self) -> Feedback:
         return Feedback()
 
@@ -219,153 +330,14 @@ def _fmt(p: Pose2D) -> str:
     return f"({p.x:.2f}, {p.y:.2f}, {p.theta:.2f})"
 
 
-class PathFollower:
-    """Follows a polyline with a turn-then-drive pure-pursuit controller, then turns to a
-    final yaw. ``vias`` are indices into ``path`` of the poses to pass through (the last one
-    is the final goal)."""
-
-    def __init__(self, path: list[tuple[float, float]], vias: list[int], final_yaw: float) -> None:
-        self.path = path
-        self.vias = vias
-        self.final_yaw = final_yaw
-        n = len(path)
-        self.seg_len = [
-            math.hypot(path[i + 1][0] - path[i][0], path[i + 1][1] - path[i][1]) for i in range(n - 1)
-        ]
-        suffix = [0.0] * n
-        for i in range(n - 2, -1, -1):
-            suffix[i] = suffix[i + 1] + self.seg_len[i]
-        self.suffix = suffix
-        self.seg = 0
-        self.proj_t = 0.0
-        self.next_via = 0
-        self.xy_reached = False
-        self.avoid_side = 0  # -1 / +1 while steering around something on the right / left
-        self.best_remaining = math.inf
-        self.best_time = 0.0
-
-    def seconds_without_approach(self, x: float, y: float, now: float) -> float:
-        """Seconds since the remaining path length last shrank by :data:`APPROACH_M` (0 once
-        the final position is reached). Catches a robot that keeps moving (so it is never
-        "stuck") but never gets closer, e.g. circling around robots parked at its goal."""
-        rem = self.remaining(x, y)
-        if self.xy_reached or rem < self.best_remaining - APPROACH_M:
-            self.best_remaining = rem
-            self.best_time = now
-        return now - self.best_time
-
-    def _update_progress(self, x: float, y: float, tol: float) -> None:
-        path = self.path
-        last = len(path) - 2
-        while True:
-            ax, ay = path[self.seg]
-            bx, by = path[self.seg + 1]
-            L = self.seg_len[self.seg]
-            t = ((x - ax) * (bx - ax) + (y - ay) * (by - ay)) / (L * L) if L > 1e-9 else 1.0
-            if t >= 1.0 and self.seg < last:
-                self.seg += 1
-                continue
-            self.proj_t = min(max(t, 0.0), 1.0)
-            break
-        while self.next_via < len(self.vias) - 1:
-            vi = self.vias[self.next_via]
-            vx, vy = path[vi]
-            if self.seg >= vi or math.hypot(vx - x, vy - y) <= tol:
-                self.next_via += 1
-            else:
-                break
-
-    def remaining(self, x: float, y: float) -> float:
-        """Distance (m) along the remaining path from the robot's projection to the end."""
-        if self.xy_reached:
-            return 0.0
-        i = self.seg
-        ax, ay = self.path[i]
-        bx, by = self.path[i + 1]
-        px = ax + self.proj_t * (bx - ax)
-        py = ay + self.proj_t * (by - ay)
-        return math.hypot(bx - px, by - py) + self.suffix[i + 1] + math.hypot(px - x, py - y)
-
-    def poses_remaining(self) -> int:
-        return 0 if self.xy_reached else len(self.vias) - self.next_via
-
-    def command(self, robot: Robot, world: World) -> tuple[float, float] | None:
-        """Desired ``(v, w)``; ``None`` once the final pose is reached within tolerance.
-
-        When a robot or dynamic obstacle blocks the direction to the lookahead point within
-        :data:`AVOID_LOOKAHEAD_M` (and it is not sitting on the goal), the follower steers to
-        the first free detour heading of :data:`AVOID_OFFSETS`, staying on the side it chose
-        until the way is clear (a local controller going around what the global plan does not
-        know about); with no free detour it waits.
-        """
-        params = world.params
-        m = params.model
-        x, y = robot.x, robot.y
-        gx, gy = self.path[-1]
-        if not self.xy_reached:
-            self._update_progress(x, y, params.goal_tolerance)
-            if math.hypot(gx - x, gy - y) <= params.goal_tolerance:
-                self.xy_reached = True
-        if self.xy_reached:
-            err = normalize_angle(self.final_yaw - robot.theta)
-            if abs(err) <= params.yaw_tolerance:
-                return None
-            w = min(m.max_angular_speed, math.sqrt(2.0 * m.max_angular_accel * abs(err)))
-            return (0.0, math.copysign(w, err))
-        rem = self.remaining(x, y)
-        lookahead = 0.3 + 0.3 * abs(robot.v)
-        tx, ty = self._point_ahead(lookahead)
-        desired = math.atan2(ty - y, tx - x)
-        blocked = world.free_distance(robot, 1.0, AVOID_LOOKAHEAD_M, False, desired)
-        if blocked < AVOID_LOOKAHEAD_M and blocked + 2.0 * m.radius + params.goal_tolerance < rem:
-            side = self.avoid_side
-            order: tuple[float, ...] = AVOID_OFFSETS
-            if side != 0:  # keep going around on the side already chosen
-                order = tuple(o for o in AVOID_OFFSETS if o * side > 0) + tuple(
-                    o for o in AVOID_OFFSETS if o * side < 0
-                )
-            for off in order:
-                if world.free_distance(robot, 1.0, AVOID_CLEAR_M, True, desired + off) >= AVOID_CLEAR_M:
-                    desired += off
-                    self.avoid_side = 1 if off > 0 else -1
-                    break
-        else:
-            self.avoid_side = 0
-        err = normalize_angle(desired - robot.theta)
-        if abs(err) > ROTATE_IN_PLACE_RAD:
-            w = min(m.max_angular_speed, math.sqrt(2.0 * m.max_angular_accel * abs(err)))
-            return (0.0, math.copysign(w, err))
-        v = m.max_linear_speed * (1.0 - 0.6 * abs(err) / ROTATE_IN_PLACE_RAD)
-        v = min(v, math.sqrt(2.0 * m.max_linear_accel * 0.8 * rem))
-        w = max(-m.max_angular_speed, min(m.max_angular_speed, HEADING_GAIN * err))
-        return (v, w)
-
-    def _point_ahead(self, dist: float) -> tuple[float, float]:
-        i = self.seg
-        ax, ay = self.path[i]
-        bx, by = self.path[i + 1]
-        px = ax + self.proj_t * (bx - ax)
-        py = ay + self.proj_t * (by - ay)
-        left = math.hypot(bx - px, by - py)
-        while dist > left and i + 1 < len(self.path) - 1:
-            dist -= left
-            i += 1
-            px, py = self.path[i]
-            bx, by = self.path[i + 1]
-            left = self.seg_len[i]
-        if dist >= left:
-            return (bx, by)
-        f = dist / left
-        return (px + f * (bx - px), py + f * (by - py))
-
-
 class NavigateTask(Task):
     """NavigateToPose / NavigateThroughPoses: plan through every pose, follow the path, pass
     intermediate poses within ``goal_tolerance`` without stopping, turn to the last pose's yaw.
 
-    Aborts with the planner's code (``GOAL_OUTSIDE_MAP``, ``GOAL_OCCUPIED``,
-    ``START_OCCUPIED``, ``NO_VALID_PATH``) at start, or ``FAILED_TO_MAKE_PROGRESS`` when the
-    robot is stuck.
+    The path is followed by the simulator's vectorized follower (:meth:`World.attach_path`);
+    this task only hears about events. Aborts with the planner's code (``GOAL_OUTSIDE_MAP``,
+    ``GOAL_OCCUPIED``, ``START_OCCUPIED``, ``NO_VALID_PATH``) at start, or
+    ``FAILED_TO_MAKE_PROGRESS`` when the robot is stuck or stops getting closer.
     """
 
     def __init__(
@@ -373,7 +345,7 @@ class NavigateTask(Task):
     ) -> None:
         super().__init__(record, robot, world, now)
         self.poses = poses
-        self.follower: PathFollower | None = None
+        self.planned = False
         planner = world.planner
         path: list[tuple[float, float]] = [(robot.x, robot.y)]
         vias: list[int] = []
@@ -387,7 +359,14 @@ class NavigateTask(Task):
         if len(path) == 1:
             path.append(path[0])
             vias = [1]
-        self.follower = PathFollower(path, vias, poses[-1].theta)
+        self.path = path
+        self.vias = vias
+        self.planned = True
+
+    def start(self, now: float) -> None:
+        """Hand the planned path to the follower (called once the task is the robot's)."""
+        if self.planned and not self.done:
+            self.world.attach_path(self.robot, self.path, self.vias, self.poses[-1].theta, now)
 
     def _name_pose(self, res: PlanResult, i: int, pose: Pose2D) -> str:
         where = f"pose {i} {_fmt(pose)}" if len(self.poses) > 1 else f"pose {_fmt(pose)}"
@@ -395,24 +374,22 @@ class NavigateTask(Task):
 
     def control(self, now: float, dt: float) -> tuple[float, float]:
         self.now = now
-        if self.follower is None:
-            return (0.0, 0.0)
-        cmd = self.follower.command(self.robot, self.world)
-        if cmd is None:
-            self.drives = False
-            self.succeed()
-            return (0.0, 0.0)
+        return (0.0, 0.0)
+
+    def arrived(self, now: float) -> None:
+        self.now = now
+        self.drives = False
+        self.succeed()
+
+    def no_approach(self, now: float) -> None:
+        self.now = now
         window = APPROACH_FACTOR * self.world.params.stuck_time_s
-        if self.follower.seconds_without_approach(self.robot.x, self.robot.y, now) >= window - 1e-9:
-            self.robot.stuck = True
-            self.abort(
-                ErrorCode.FAILED_TO_MAKE_PROGRESS,
-                f"Failed to make progress towards pose {_fmt(self.poses[-1])}: the robot has not come closer "
-                f"for {window:.1f} s.",
-            )
-            return (0.0, 0.0)
-        self.drives = cmd[0] != 0.0
-        return cmd
+        self.robot.stuck = True
+        self.abort(
+            ErrorCode.FAILED_TO_MAKE_PROGRESS,
+            f"Failed to make progress towards pose {_fmt(self.poses[-1])}: the robot has not come closer "
+            f"for {window:.1f} s.",
+        )
 
     def on_stuck(self) -> None:
         self.abort(
@@ -423,16 +400,17 @@ class NavigateTask(Task):
 
     def feedback(self) -> Feedback:
         r = self.robot
-        f = self.follower
-        rem = f.remaining(r.x, r.y) if f is not None else 0.0
+        rem = self.world.path_remaining(r) if self.planned else 0.0
         through = self.record.kind == "navigate_through_poses"
         return Feedback(
             current_pose=r.pose,
-            navigation_time_s=self.now - self.started,
+            navigation_time_s=self.world.clock.now() - self.started,
             estimated_time_remaining_s=rem / self.world.params.model.max_linear_speed,
             distance_remaining_m=rem,
             number_of_recoveries=0,
-            number_of_poses_remaining=(f.poses_remaining() if f is not None else 0) if through else None,
+            number_of_poses_remaining=(self.world.poses_remaining(r) if self.planned else 0)
+            if through
+            else None,
         )
 
 
@@ -440,7 +418,10 @@ class FollowWaypointsTask(Task):
     """FollowWaypoints: navigate to each pose in turn (NavigateToPose semantics, yaw
     included). A waypoint that cannot be planned to or where the robot gets stuck is recorded
     in ``missed_waypoints`` and skipped; the goal SUCCEEDS at the end (Nav2's default
-    ``stop_on_failure: false``). An empty pose list ABORTS with ``WAYPOINT_UNKNOWN``."""
+    ``stop_on_failure: false``). An empty pose list ABORTS with ``WAYPOINT_UNKNOWN``.
+
+    Between waypoints the task plans the next leg in :meth:`control`; while a leg is driven
+    the simulator's vectorized follower runs it."""
 
     def __init__(
         self, record: GoalRecord, robot: Robot, world: World, now: float, poses: tuple[Pose2D, ...]
@@ -449,7 +430,7 @@ class FollowWaypointsTask(Task):
         self.poses = poses
         self.index = 0
         self.missed: list[int] = []
-        self.follower: PathFollower | None = None
+        self.following = False
         if not poses:
             self.abort(ErrorCode.WAYPOINT_UNKNOWN, "FollowWaypoints got an empty list of waypoints.")
 
@@ -458,11 +439,11 @@ class FollowWaypointsTask(Task):
             p = self.poses[self.index]
             res = self.world.planner.plan((self.robot.x, self.robot.y), (p.x, p.y))
             if res.ok:
-                self.follower = PathFollower(list(res.path), [len(res.path) - 1], p.theta)
+                self.following = True
+                self.world.attach_path(self.robot, list(res.path), [len(res.path) - 1], p.theta, self.now)
                 self.robot.progress_t = self.now
                 return
             self._miss()
-        self.follower = None
 
     def _miss(self) -> None:
         self.missed.append(self.index)
@@ -471,29 +452,28 @@ class FollowWaypointsTask(Task):
 
     def control(self, now: float, dt: float) -> tuple[float, float]:
         self.now = now
-        for _ in range(len(self.poses) + 1):
-            if self.follower is None:
-                self._start_next()
-                if self.follower is None:
-                    self.drives = False
-                    self.succeed()
-                    return (0.0, 0.0)
-            cmd = self.follower.command(self.robot, self.world)
-            if cmd is not None:
-                window = APPROACH_FACTOR * self.world.params.stuck_time_s
-                if self.follower.seconds_without_approach(self.robot.x, self.robot.y, now) >= window - 1e-9:
-                    self.robot.stuck = True
-                    self.on_stuck()
-                    continue
-                self.drives = cmd[0] != 0.0
-                return cmd
-            self.follower = None
-            self.index += 1
+        if not self.following:
+            self._start_next()
+            if not self.following:
+                self.drives = False
+                self.succeed()
         return (0.0, 0.0)
+
+    def arrived(self, now: float) -> None:
+        self.now = now
+        self.following = False
+        self.world.detach_path(self.robot)
+        self.index += 1
+
+    def no_approach(self, now: float) -> None:
+        self.now = now
+        self.robot.stuck = True
+        self.on_stuck()
 
     def on_stuck(self) -> None:
         self._miss()
-        self.follower = None
+        self.following = False
+        self.world.detach_path(self.robot)
 
     def feedback(self) -> Feedback:
         return Feedback(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from sim_testworld import BOX_CENTER, advance, corridor_grid, make_sim, run_goal
+from sim_testworld import BOX_CENTER, advance, corridor_grid, make_sim, room_grid, run_goal
 
 from fleet.types import (
     ErrorCode,
@@ -278,3 +278,24 @@ def test_new_goal_preempts_follow_waypoints() -> None:
     assert "preempted" in sim.goal_state(gid).error_msg
     assert sim.run_until(lambda: sim.goal_state(new).status.terminal, 30.0)
     assert sim.goal_state(new).status is GoalStatus.SUCCEEDED
+
+
+def test_path_with_turns_sharper_than_90_degrees_is_followed_to_the_end() -> None:
+    """Regression: the follower only advanced when its projection reached a segment's end, so
+    at a turn sharper than 90 degrees it orbited the corner near (3.1, 2.3) forever."""
+    sim = make_sim({"/r1": Pose2D(2.0, 3.0, 0.0)}, grid=room_grid(12.0, 8.0, furnished=False))
+    poses = (Pose2D(3.0, 2.0, 0.0), Pose2D(4.0, 4.0, 0.0), Pose2D(2.0, 4.0, 0.0))
+    state = run_goal(sim, "/r1", NavigateThroughPoses(poses), timeout_s=40.0)
+    assert state.status is GoalStatus.SUCCEEDED, state.error_msg
+    pose = sim.robot_state("/r1").pose
+    assert pose is not None and pose.distance_to(poses[-1]) <= sim.params.goal_tolerance
+
+
+def test_closed_loop_route_is_driven_all_the_way_round() -> None:
+    """A NavigateThroughPoses that ends where the robot starts (a patrol lap) passes every pose
+    before it can succeed: being at the final position does not count until the vias are passed."""
+    sim = make_sim({"/r1": Pose2D(2.0, 2.0, 0.0)}, grid=room_grid(12.0, 8.0, furnished=False))
+    lap = (Pose2D(6.0, 2.0, 0.0), Pose2D(6.0, 5.0, 0.0), Pose2D(2.0, 5.0, 0.0), Pose2D(2.0, 2.0, 0.0))
+    state = run_goal(sim, "/r1", NavigateThroughPoses(lap), timeout_s=60.0)
+    assert state.status is GoalStatus.SUCCEEDED, state.error_msg
+    assert sim.robot_state("/r1").distance_m > 12.0

@@ -319,3 +319,60 @@ def test_planner_reports_start_occupied() -> None:
     res = planner.plan((5.5, 2.0), (2.0, 2.0))
     assert res.error_code == ErrorCode.START_OCCUPIED
     assert "(5.50, 2.00)" in res.error_msg
+
+
+def test_planner_does_not_pass_through_a_thin_wall_into_a_small_closed_box() -> None:
+    """Regression: the leg from the last coarse cell to a goal inside a 1 x 1 m box with
+    0.1 m walls went through the wall (the goal's own coarse cell is blocked by the inflation)."""
+    g = room_grid(12.0, 8.0, furnished=False)
+    g.cells[45:56, 65] = g.cells[45:56, 75] = OCCUPIED
+    g.cells[45, 65:76] = g.cells[55, 65:76] = OCCUPIED
+    planner = GridPlanner(g, 0.3)
+    assert planner.footprint_free(7.0, 5.0)  # the robot fits inside the box ...
+    res = planner.plan((2.0, 3.0), (7.0, 5.0))
+    assert res.error_code == ErrorCode.NO_VALID_PATH, res.path  # ... but cannot get in
+    ok = planner.plan((2.0, 3.0), (9.0, 6.5))
+    assert ok.ok and all(
+        planner.segment_free(a, b, planner.footprint) for a, b in zip(ok.path, ok.path[1:], strict=False)
+    )
+
+
+def test_robot_boxed_in_by_obstacles_in_the_open_is_stuck_and_aborts_105() -> None:
+    sim = make_sim(
+        {"/r1": Pose2D(6.0, 4.0, 0.0)}, grid=room_grid(12.0, 8.0, furnished=False), stuck_time_s=3.0
+    )
+    for k in range(8):
+        a = k * math.pi / 4
+        sim.add_obstacle(6.0 + 0.75 * math.cos(a), 4.0 + 0.75 * math.sin(a), 0.3)
+    state = run_goal(sim, "/r1", NavigateToPose(Pose2D(10.0, 4.0, 0.0)), timeout_s=3 * 3.0)
+    assert state.status is GoalStatus.ABORTED
+    assert state.error_code == ErrorCode.FAILED_TO_MAKE_PROGRESS
+    assert sim.robot_state("/r1").stuck
+
+
+def test_robot_whose_goal_is_covered_by_an_obstacle_aborts_105_instead_of_waiting_forever() -> None:
+    sim = make_sim(
+        {"/r1": Pose2D(2.0, 4.0, 0.0)}, grid=room_grid(12.0, 8.0, furnished=False), stuck_time_s=3.0
+    )
+    sim.add_obstacle(8.0, 4.0, 1.0)
+    state = run_goal(sim, "/r1", NavigateToPose(Pose2D(8.0, 4.0, 0.0)), timeout_s=40.0)
+    assert state.status is GoalStatus.ABORTED
+    assert state.error_code == ErrorCode.FAILED_TO_MAKE_PROGRESS
+    assert sim.collisions == 0
+    assert _pose(sim, "/r1").distance_to(Pose2D(8.0, 4.0)) >= 1.3 - 1e-6
+
+
+def test_patrol_stepping_is_vectorized_and_fast_for_a_big_fleet() -> None:
+    """A loose floor for 400 robots (measured far higher); catches per-robot Python loops."""
+    sim = make_sim(
+        {f"/r{i}": Pose2D(1.0 + (i % 38) * 1.0, 1.0 + (i // 38) * 1.0, 0.0) for i in range(400)},
+        grid=room_grid(40.0, 30.0, furnished=False),
+    )
+    for i, ns in enumerate(sim.namespaces):
+        sim.send_goal(ns, NavigateToPose(Pose2D(1.0 + (i % 38) * 1.0, 16.0 + (i // 38) * 1.0, 0.0)))
+    advance(sim, 1.0)
+    t0 = time.perf_counter()
+    advance(sim, 5.0)
+    rate = 400 * 100 / (time.perf_counter() - t0)
+    assert rate > 40_000
+    assert sum(sim.robot_state(ns).distance_m for ns in sim.namespaces) > 400 * 1.5

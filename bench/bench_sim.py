@@ -1,0 +1,216 @@
+"""Robot-steps per second of the kinematic simulator (``sim.simulator.Simulator``) on a
+generated warehouse.
+
+The world is ``fleet.warehouse.generate_warehouse(tmp, "bench", N)`` loaded with
+``fleet.config.load_config(path, robots=N)``: its map, robot model, parameters and start poses.
+Robot ``i`` patrols route ``i mod len(routes)``: it gets a NavigateThroughPoses of
+``config.route_poses(route)`` and the same goal again whenever its goal ends (succeeded,
+aborted or stuck). Goals are polled every ``1 / poll_hz`` simulated seconds, as agents tick
+their trees. Generating the world, adding the robots and planning every robot's first goal are
+excluded from the timing (``setup_wall_s``); later goals (re-planned patrol laps) are inside
+the timed loop. The headline figure is ``N * K / wall seconds of the K timed steps`` including
+the goal polling (``goal_state`` of every robot at ``poll_hz``), as in ``bench/sumo_steps.py``;
+``step_only_*`` counts the time inside ``Simulator.step()`` alone.
+
+Command line::
+
+    python bench/bench_sim.py --robots 1000 --steps 500
+    python bench/bench_sim.py --robots 30 --steps 2000 --json
+    python bench/bench_sim.py --robots 1000 --steps 200 --warmup 200 --profile   # cProfile of step()
+    python bench/bench_sim.py --robots 1000 --steps 200 --warmup 200 --stages    # stage timers
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import json
+import pstats
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from fleet.clock import SimClock
+from fleet.types import GoalStatus, NavigateThroughPoses
+
+
+@dataclass(frozen=True)
+class SimBenchResult:
+    """One run. ``robot_steps_per_s = robots * steps / step_wall_s``."""
+
+    robots: int
+    steps: int
+    step_s: float
+    map_size_m: tuple[float, float]
+    setup_wall_s: float
+    step_wall_s: float
+    robot_steps_per_s: float
+    real_time_factor: float
+    step_only_wall_s: float
+    step_only_robot_steps_per_s: float
+    goals_succeeded: int
+    goals_failed: int
+    collisions: int
+    distance_m: float
+
+
+def load_world(n_robots: int, out_dir: str | Path | None = None) -> Any:
+    """Generate the benchmark warehouse for ``n_robots`` and load its config."""
+    from fleet.config import load_config
+    from fleet.warehouse import generate_warehouse
+
+    out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="bench_sim_"))
+    path = generate_warehouse(out, "bench", n_robots)
+    return load_config(path, robots=n_robots)
+
+
+def run_sim_steps(
+    cfg: Any,
+    steps: int,
+    *,
+    step_s: float = 0.05,
+    poll_hz: float = 10.0,
+    profile: bool = False,
+    progress: bool = False,
+    warmup: int = 0,
+    stages: bool = False,
+) -> SimBenchResult:
+    """Run ``steps`` timed steps of every robot of ``cfg`` patrolling (module docstring)."""
+    from sim.simulator import Simulator
+
+    t0 = time.perf_counter()
+    params = replace(cfg.sim, step_s=step_s)
+    sim = Simulator(cfg.grid, params, SimClock())
+    for spec in cfg.robots:
+        sim.add_robot(spec)
+    routes = [cfg.route_poses(r) for r in cfg.routes]
+    nss = sim.namespaces
+    goals: list[str] = []
+    counts = {"ok": 0, "failed": 0}
+    for i, ns in enumerate(nss):
+        goals.append(sim.send_goal(ns, NavigateThroughPoses(routes[i % len(routes)])))
+    setup = time.perf_counter() - t0
+
+    def dispatch() -> None:
+        for i, ns in enumerate(nss):
+            status = sim.goal_state(goals[i]).status
+            if status.terminal:
+                counts["ok" if status is GoalStatus.SUCCEEDED else "failed"] += 1
+                goals[i] = sim.send_goal(ns, NavigateThroughPoses(routes[i % len(routes)]))
+
+    poll_every = max(1, round(1.0 / (poll_hz * step_s)))
+    prof = cProfile.Profile() if profile else None
+    for k in range(warmup):
+        if k % poll_every == 0:
+            dispatch()
+        sim.step()
+    stage_s: dict[str, float] = {}
+    if stages:
+        import sim.simulator as simmod
+
+        def timed(owner: Any, name: str) -> None:
+            inner = getattr(owner, name)
+
+            def wrapper(*a: Any, **kw: Any) -> Any:
+                t = time.perf_counter()
+                try:
+                    return inner(*a, **kw)
+                finally:
+                    stage_s[name] = stage_s.get(name, 0.0) + time.perf_counter() - t
+
+            setattr(owner, name, wrapper)
+
+        timed(simmod, "neighbor_pairs")
+        for name in ("_follow", "_free_dynamic", "_footprint_free", "_count_contacts"):
+            timed(sim, name)
+    step_only = 0.0
+    t1 = time.perf_counter()
+    for k in range(steps):
+        if k % poll_every == 0:
+            dispatch()
+        ts = time.perf_counter()
+        if prof is not None:
+            prof.enable()
+        sim.step()
+        if prof is not None:
+            prof.disable()
+        step_only += time.perf_counter() - ts
+        if progress and (k + 1) % max(1, steps // 10) == 0:
+            el = time.perf_counter() - t1
+            print(f"  step {k + 1}/{steps}: {len(nss) * (k + 1) / el:,.0f} robot-steps/s", file=sys.stderr)
+    elapsed = time.perf_counter() - t1
+    if prof is not None:
+        pstats.Stats(prof, stream=sys.stderr).sort_stats("tottime").print_stats(20)
+    if stages:
+        parts = ", ".join(f"{k} {v / steps * 1000:.2f}" for k, v in stage_s.items())
+        print(f"  stage ms/step (nested: _follow includes its _free_dynamic calls): {parts}", file=sys.stderr)
+    xmin, xmax, ymin, ymax = cfg.grid.extent
+    return SimBenchResult(
+        robots=len(nss),
+        steps=steps,
+        step_s=step_s,
+        map_size_m=(round(xmax - xmin, 1), round(ymax - ymin, 1)),
+        setup_wall_s=setup,
+        step_wall_s=elapsed,
+        robot_steps_per_s=len(nss) * steps / elapsed,
+        real_time_factor=steps * step_s / elapsed,
+        step_only_wall_s=step_only,
+        step_only_robot_steps_per_s=len(nss) * steps / step_only,
+        goals_succeeded=counts["ok"],
+        goals_failed=counts["failed"],
+        collisions=sim.collisions,
+        distance_m=sum(sim.robot_state(ns).distance_m for ns in nss),
+    )
+
+
+def describe(res: SimBenchResult) -> str:
+    return (
+        f"sim: {res.robots} robots x {res.steps} steps of {res.step_s:g} s on a "
+        f"{res.map_size_m[0]:g} x {res.map_size_m[1]:g} m warehouse: {res.robot_steps_per_s:,.0f} robot-steps/s "
+        f"({res.step_wall_s / res.steps * 1000:.2f} ms/step, {res.real_time_factor:.1f}x real time; "
+        f"Simulator.step() alone {res.step_only_robot_steps_per_s:,.0f} robot-steps/s, "
+        f"{res.step_only_wall_s / res.steps * 1000:.2f} ms/step; setup "
+        f"{res.setup_wall_s:.1f} s; goals ok {res.goals_succeeded}, failed {res.goals_failed}; "
+        f"collisions {res.collisions}; {res.distance_m:,.0f} m driven)"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        description="Robot-steps per second of the kinematic simulator with N robots patrolling "
+        "a generated warehouse (fleet.warehouse).",
+        epilog="Example: python bench/bench_sim.py --robots 1000 --steps 500",
+    )
+    ap.add_argument("--robots", "-n", type=int, default=1000, help="number of robots (default 1000)")
+    ap.add_argument("--steps", "-k", type=int, default=500, help="steps to time (default 500)")
+    ap.add_argument("--step-s", type=float, default=0.05, help="step length in s (default 0.05)")
+    ap.add_argument("--poll-hz", type=float, default=10.0, help="goal polling rate, sim Hz (default 10)")
+    ap.add_argument("--out", help="directory for the generated warehouse (default: a temp dir)")
+    ap.add_argument("--warmup", type=int, default=0, help="untimed steps before the timed ones (default 0)")
+    ap.add_argument(
+        "--profile", action="store_true", help="cProfile Simulator.step() of the timed steps (stderr)"
+    )
+    ap.add_argument("--stages", action="store_true", help="time the step's stages (stderr)")
+    ap.add_argument("--progress", action="store_true", help="print progress to stderr")
+    ap.add_argument("--json", action="store_true", help="print the result as JSON")
+    args = ap.parse_args(argv)
+    cfg = load_world(args.robots, args.out)
+    res = run_sim_steps(
+        cfg,
+        args.steps,
+        step_s=args.step_s,
+        poll_hz=args.poll_hz,
+        profile=args.profile,
+        progress=args.progress,
+        warmup=args.warmup,
+        stages=args.stages,
+    )
+    print(json.dumps(asdict(res)) if args.json else describe(res))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

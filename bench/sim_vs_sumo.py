@@ -1,0 +1,86 @@
+"""The kinematic simulator and SUMO side by side: robot-steps per second on the same
+generated warehouse, the same robots, the same step length and the same number of steps.
+
+Both sides load ``fleet.warehouse.generate_warehouse(tmp, "bench", N)`` through
+``fleet.config.load_config(path, robots=N)`` and use its robots (names, start poses) and robot
+model, with ``step_s`` (default 0.05 s) on both sides, and time ``K`` steps after an untimed
+warm-up. What each side computes per step:
+
+* **sim** (``bench/bench_sim.py``): ``Simulator.step()`` over the occupancy map: every robot's
+  path follower, local avoidance, reactive safety stop, static-obstacle clamping, battery,
+  progress checker and contact counting. Robot ``i`` patrols route ``i mod R`` of the config
+  (NavigateThroughPoses of ``config.route_poses(route)``, re-sent when it ends); goals are
+  polled with ``goal_state`` at 10 Hz of simulated time inside the timed loop.
+* **SUMO** (``bench/sumo_steps.py``, ``sim/sumo_backend.py``): the warehouse roadmap converted
+  to a SUMO network, one vehicle per robot, ``libsumo.simulationStep()`` plus the backend's
+  per-step bookkeeping (positions of every vehicle, arrivals, collisions, teleports). Each
+  robot gets NavigateThroughPoses through random roadmap nodes, re-sent when it ends, polled at
+  10 Hz of simulated time inside the timed loop.
+
+Command line::
+
+    python bench/sim_vs_sumo.py --robots 1000 --steps 400
+    python bench/sim_vs_sumo.py --robots 30 --steps 2000 --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from dataclasses import asdict, replace
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_sim import describe, load_world, run_sim_steps  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        description="Robot-steps/s of the kinematic simulator and of SUMO (libsumo) on the same "
+        "generated warehouse roadmap, robot count, step length and step count.",
+        epilog="Example: python bench/sim_vs_sumo.py --robots 1000 --steps 400",
+    )
+    ap.add_argument("--robots", "-n", type=int, default=1000, help="number of robots (default 1000)")
+    ap.add_argument("--steps", "-k", type=int, default=400, help="steps to time on each side (default 400)")
+    ap.add_argument(
+        "--step-s", type=float, default=0.05, help="step length in s on both sides (default 0.05)"
+    )
+    ap.add_argument("--json", action="store_true", help="print both results and the ratio as JSON")
+    args = ap.parse_args(argv)
+    out = Path(tempfile.mkdtemp(prefix="sim_vs_sumo_"))
+    cfg = load_world(args.robots, out)
+    sim_res = run_sim_steps(cfg, args.steps, step_s=args.step_s)
+    print(describe(sim_res), flush=True)
+    from sumo_steps import run_sumo_steps
+
+    sumo_res = run_sumo_steps(
+        args.robots,
+        args.steps,
+        roadmap=cfg.roadmap,
+        robots=list(cfg.robots),
+        params=replace(cfg.sim, step_s=args.step_s),
+        cache_dir=out / "sumo",
+    )
+    print(
+        f"SUMO: {sumo_res.robots} robots x {sumo_res.steps} steps of {sumo_res.step_s:g} s on the same "
+        f"warehouse roadmap ({sumo_res.junctions} junctions, {sumo_res.lanes} lanes): "
+        f"{sumo_res.robot_steps_per_s:,.0f} robot-steps/s ({sumo_res.real_time_factor:.1f}x real time; "
+        f"setup {sumo_res.setup_wall_s:.1f} s; goals ok {sumo_res.goals_succeeded}, failed "
+        f"{sumo_res.goals_failed}; collisions {sumo_res.collisions}, teleports {sumo_res.teleports})"
+    )
+    ratio = sim_res.robot_steps_per_s / sumo_res.robot_steps_per_s
+    ratio_step = sim_res.step_only_robot_steps_per_s / sumo_res.robot_steps_per_s
+    print(
+        f"ratio sim / SUMO at {args.robots} robots: {ratio:.1f}x (with goal polling on both sides); "
+        f"Simulator.step() alone vs SUMO: {ratio_step:.1f}x"
+    )
+    if args.json:
+        print(json.dumps({"sim": asdict(sim_res), "sumo": asdict(sumo_res), "ratio": ratio}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
