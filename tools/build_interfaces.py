@@ -128,7 +128,13 @@ def build_package(
     py = venv / "bin" / "python"
     run(
         [
-            "cmake", "-S", str(src), "-B", str(bdir), "-G", "Ninja",
+            "cmake",
+            "-S",
+            str(src),
+            "-B",
+            str(bdir),
+            "-G",
+            "Ninja",
             f"-DCMAKE_INSTALL_PREFIX={prefix}",
             f"-DCMAKE_PREFIX_PATH={env['CMAKE_PREFIX_PATH'].replace(os.pathsep, ';')}",
             f"-DPython3_EXECUTABLE={py}",
@@ -161,7 +167,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     for tool in ("cmake", "ninja"):
         if shutil.which(tool) is None:
-            print(f"error: '{tool}' is not installed (apt-get install cmake ninja-build g++)", file=sys.stderr)
+            print(
+                f"error: '{tool}' is not installed (apt-get install cmake ninja-build g++)", file=sys.stderr
+            )
             return 1
 
     importable, ours = locate_package(venv, "nav2_msgs")

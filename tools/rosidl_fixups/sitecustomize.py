@@ -9,8 +9,8 @@ affected (constants are not part of a type description).
 """
 
 try:
-    from lark import Tree
     import rosidl_parser.parser as _parser
+    from lark import Tree
 
     def _find_path(node, target):  # type: ignore[no-untyped-def]
         if node is target:

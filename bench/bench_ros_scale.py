@@ -1,0 +1,113 @@
+#!/usr/bin/env python3
+"""How many namespaced Nav2 robots one ROS 2 process (``fleet sim-ros``) can serve, and what
+it costs: a benchmark, not a test.
+
+For each robot count N (and interface profile): start ``python -m fleet.ros.nav2_server
+CONFIG --robots N`` in a child process and measure
+  * create_s: creating the N facades (nodes, action servers, services) in the server;
+  * server_rss_mb: the server's resident memory once ready;
+  * discover_s: in this process, from creating N RosNavigationBackends (one lean node each,
+    one shared executor thread) until every robot's 7 action servers are discovered;
+  * wait_all_s: sending one Wait(0.5 s) goal to every robot at once until all SUCCEEDED
+    (the goal round trip under load, at --speed 1);
+  * client_rss_mb: this process's resident memory growth.
+Private ROS domain, loopback, the fleet's FastDDS discovery profile.
+
+Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full]
+       [--config configs/warehouse_patrol_30.yaml] [--json out/bench_ros_scale.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from fleet.ros.env import apply_ros_env_defaults  # noqa: E402
+from fleet.ros.launch import ServerProcess, private_domain_id  # noqa: E402
+
+
+def rss_mb(pid: int | str = "self") -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def one(config: str, n: int, profile: str, timeout_s: float) -> dict[str, float | int | str]:
+    from fleet.ros.backend import make_ros_backends
+    from fleet.types import GoalStatus, Wait
+
+    row: dict[str, float | int | str] = {"robots": n, "profile": profile}
+    with ServerProcess.for_config(
+        config,
+        "--robots",
+        str(n),
+        "--profile",
+        profile,
+        "--odom-hz",
+        "2",
+        "--amcl-hz",
+        "0.5",
+        ready_timeout_s=timeout_s,
+    ) as srv:
+        row["create_s"] = srv.info["create_s"]
+        time.sleep(0.5)
+        row["server_rss_mb"] = round(rss_mb(srv.proc.pid), 1)
+        rss0 = rss_mb()
+        t0 = time.monotonic()
+        rb = make_ros_backends([f"/robot{i + 1}" for i in range(n)])
+        row["client_create_s"] = round(time.monotonic() - t0, 3)
+        missing = rb.wait_for_servers(timeout_s)
+        row["discover_s"] = round(time.monotonic() - t0, 3) if not missing else float("nan")
+        row["missing"] = len(missing)
+        try:
+            if not missing:
+                t1 = time.monotonic()
+                ids = {ns: b.send_goal(Wait(0.5)) for ns, b in rb.backends.items()}
+                while time.monotonic() - t1 < timeout_s:
+                    if all(rb[ns].goal_state(g).status.terminal for ns, g in ids.items()):
+                        break
+                    time.sleep(0.01)
+                ok = sum(rb[ns].goal_state(g).status is GoalStatus.SUCCEEDED for ns, g in ids.items())
+                row["wait_all_s"] = round(time.monotonic() - t1, 3)
+                row["wait_ok"] = ok
+            row["client_rss_mb"] = round(rss_mb() - rss0, 1)
+        finally:
+            rb.close()
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--robots", default="10,50,100")
+    ap.add_argument("--profile", default="lean,full")
+    ap.add_argument("--config", default=str(ROOT / "configs" / "warehouse_patrol_30.yaml"))
+    ap.add_argument("--timeout", type=float, default=120.0)
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+    # SIGTERM (e.g. `timeout`) unwinds like Ctrl-C so the server child is stopped
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    os.environ.setdefault("ROS_DOMAIN_ID", str(private_domain_id(base=190, span=40)))
+    apply_ros_env_defaults()
+    rows = []
+    for profile in args.profile.split(","):
+        for n in (int(x) for x in args.robots.split(",")):
+            row = one(args.config, n, profile, args.timeout)
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,511 @@
+"""The ROS 2 navigation backend: :class:`~fleet.navigation.NavigationBackend` over any
+namespaced Nav2 (a real Nav2 Jazzy bringup, or ``fleet sim-ros``).
+
+One :class:`RosNavigationBackend` per robot namespace, all sharing one rclpy context, one lean
+node per robot (``<ns>/fleet_backend``) and one executor spinning on a background thread
+(:class:`RosBackends`, made by :func:`make_ros_backends`). Under the robot's namespace it uses
+the Nav2 action servers named like the goal kinds (``navigate_to_pose``,
+``navigate_through_poses``, ``follow_waypoints``, ``spin``, ``backup``, ``drive_on_heading``,
+``wait``) and the topics ``amcl_pose`` (map pose), ``odom`` (velocities, and the pose between
+two amcl updates) and, if present, ``battery_state``.
+
+Mapping onto the protocol (:mod:`fleet.navigation`):
+
+* :meth:`~RosNavigationBackend.send_goal` never blocks: it records the goal ``PENDING``, hands
+  the request to the executor thread and returns an id ``"<ns>#r<n>"`` (never reused). The
+  goal becomes ``EXECUTING`` when the server accepts it, ``REJECTED`` if it refuses.
+* Preemption: the goal this backend was running ends ``ABORTED`` at once when a new goal is
+  sent (error message names the new goal); if it ran on another action server, a cancel
+  request is sent to that server so the robot executes one goal at a time.
+* Results: Nav2's status and ``error_code`` / ``error_msg`` (FollowWaypoints: missed waypoint
+  indices) become the terminal :class:`~fleet.types.GoalState`; feedback messages become
+  :class:`~fleet.types.Feedback`.
+* :meth:`~RosNavigationBackend.cancel_goal` is idempotent; the goal is ``CANCELING`` until
+  the server confirms ``CANCELED``.
+* Server loss: a goal whose action server is not discovered any more (or that got no answer
+  to its request) for ``server_timeout_s`` ends ``ABORTED`` with
+  ``ErrorCode.SERVER_UNAVAILABLE``; nothing waits forever.
+
+Thread safety: the backend methods may be called from any one thread (the runner's); ROS
+callbacks run on the executor thread; shared state is guarded by one lock.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from fleet.ros.env import apply_ros_env_defaults
+
+apply_ros_env_defaults()
+
+import rclpy  # noqa: E402
+import rclpy.task  # noqa: E402
+from action_msgs.msg import GoalStatus as RosGoalStatus  # noqa: E402
+from geometry_msgs.msg import PoseWithCovarianceStamped  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+from rclpy.action import ActionClient  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from rclpy.signals import SignalHandlerOptions  # noqa: E402
+
+from fleet.errors import BackendError  # noqa: E402
+from fleet.ros.conversions import ACTION_TYPES, goal_to_msg, msg_to_feedback, pose_to_pose2d  # noqa: E402
+from fleet.types import ErrorCode, Feedback, Goal, GoalState, GoalStatus, Pose2D, RobotState  # noqa: E402
+
+#: Goal kinds (= Nav2 action names) the backend sends.
+BACKEND_KINDS = (
+    "navigate_through_poses",
+    "navigate_to_pose",
+    "follow_waypoints",
+    "spin",
+    "backup",
+    "drive_on_heading",
+    "wait",
+)
+_AMCL_QOS = QoSProfile(
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    reliability=ReliabilityPolicy.RELIABLE,
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+)
+_STATUS_MAP = {
+    RosGoalStatus.STATUS_SUCCEEDED: GoalStatus.SUCCEEDED,
+    RosGoalStatus.STATUS_CANCELED: GoalStatus.CANCELED,
+    RosGoalStatus.STATUS_ABORTED: GoalStatus.ABORTED,
+}
+
+
+@dataclass
+class _Goal:
+    goal_id: str
+    kind: str
+    goal: Goal
+    status: GoalStatus = GoalStatus.PENDING
+    feedback: Feedback = field(default_factory=Feedback)
+    error_code: int = 0
+    error_msg: str = ""
+    missed: tuple[int, ...] = ()
+    handle: Any = None
+    cancel_wanted: bool = False
+    sent_at: float = 0.0
+    unavailable_since: float | None = None
+
+    def snapshot(self) -> GoalState:
+        return GoalState(
+            self.goal_id, self.kind, self.status, self.feedback, self.error_code, self.error_msg, self.missed
+        )
+
+    def finish(self, status: GoalStatus, code: int = 0, msg: str = "") -> None:
+        if self.status.terminal:
+            return
+        self.status, self.error_code, self.error_msg = status, int(code), msg
+
+
+def _compose(a: Pose2D, b: Pose2D) -> Pose2D:
+    """a ∘ b: pose b expressed in a's parent frame."""
+    c, s = math.cos(a.theta), math.sin(a.theta)
+    return Pose2D(a.x + c * b.x - s * b.y, a.y + s * b.x + c * b.y, _wrap(a.theta + b.theta))
+
+
+def _inverse(a: Pose2D) -> Pose2D:
+    c, s = math.cos(a.theta), math.sin(a.theta)
+    return Pose2D(-(c * a.x + s * a.y), -(-s * a.x + c * a.y), _wrap(-a.theta))
+
+
+def _wrap(t: float) -> float:
+    return (t + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class RosNavigationBackend:
+    """NavigationBackend of one namespaced Nav2 robot. Made by :func:`make_ros_backends`;
+    see the module docstring for the contract mapping."""
+
+    def __init__(self, owner: RosBackends, namespace: str, server_timeout_s: float) -> None:
+        self._owner = owner
+        self._ns = namespace
+        self._timeout = server_timeout_s
+        self._lock = owner.lock
+        self.node = Node(
+            "fleet_backend",
+            namespace=namespace,
+            context=owner.context,
+            start_parameter_services=False,
+            enable_rosout=False,
+        )
+        self._clients = {k: ActionClient(self.node, ACTION_TYPES[k], k) for k in BACKEND_KINDS}
+        self._goals: dict[str, _Goal] = {}
+        self._ids = itertools.count(1)
+        self._current: _Goal | None = None
+        # localization: map pose = T_map_odom ∘ odom pose (T from the last amcl_pose)
+        self._odom: Pose2D | None = None
+        self._map_from_odom: Pose2D | None = None
+        self._amcl: Pose2D | None = None
+        self._v = 0.0
+        self._w = 0.0
+        self._distance = 0.0
+        self._battery = 1.0
+        self._charging = False
+        self.node.create_subscription(PoseWithCovarianceStamped, "amcl_pose", self._on_amcl, _AMCL_QOS)
+        self.node.create_subscription(Odometry, "odom", self._on_odom, 10)
+        try:
+            from sensor_msgs.msg import BatteryState
+
+            self.node.create_subscription(BatteryState, "battery_state", self._on_battery, 10)
+        except ImportError:  # sensor_msgs is optional
+            pass
+
+    # -- protocol -------------------------------------------------------------------------
+
+    @property
+    def namespace(self) -> str:
+        return self._ns
+
+    def send_goal(self, goal: Goal) -> str:
+        """Record ``goal`` PENDING, queue it for the executor thread, return its id at once."""
+        if goal.kind not in self._clients:
+            raise BackendError(f"{self._ns}: the ROS backend cannot send a {type(goal).__name__} goal")
+        gid = f"{self._ns}#r{next(self._ids)}"
+        rec = _Goal(gid, goal.kind, goal, sent_at=time.monotonic())
+        with self._lock:
+            old = self._current
+            self._goals[gid] = rec
+            self._current = rec
+            cancel_old = None
+            if old is not None and not old.status.terminal:
+                old.finish(GoalStatus.ABORTED, 0, f"Goal {old.goal_id} was preempted by goal {gid}.")
+                if old.kind != goal.kind:
+                    cancel_old = old
+        if cancel_old is not None:
+            self._owner.call_soon(lambda: self._cancel_remote(cancel_old))
+        self._owner.call_soon(lambda: self._send_remote(rec))
+        return gid
+
+    def goal_state(self, goal_id: str) -> GoalState:
+        with self._lock:
+            return self._goals[goal_id].snapshot()
+
+    def cancel_goal(self, goal_id: str) -> None:
+        with self._lock:
+            rec = self._goals.get(goal_id)
+            if rec is None or rec.status.terminal or rec.cancel_wanted:
+                return
+            rec.cancel_wanted = True
+            if rec.status is GoalStatus.EXECUTING:
+                rec.status = GoalStatus.CANCELING
+        self._owner.call_soon(lambda: self._cancel_remote(rec))
+
+    def robot_state(self) -> RobotState:
+        with self._lock:
+            pose = self._pose_locked()
+            return RobotState(
+                pose=pose,
+                linear_velocity=self._v,
+                angular_velocity=self._w,
+                battery=self._battery,
+                charging=self._charging,
+                stuck=False,
+                distance_m=self._distance,
+            )
+
+    def wait_for_servers(self, timeout_s: float, kinds: Iterable[str] = BACKEND_KINDS) -> bool:
+        """Block until the action servers ``kinds`` are discovered (True) or ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        kinds = tuple(kinds)
+        while True:
+            if all(self._clients[k].server_is_ready() for k in kinds):
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.02)
+
+    def __repr__(self) -> str:
+        return f"RosNavigationBackend({self._ns!r})"
+
+    # -- executor thread ------------------------------------------------------------------
+
+    def _pose_locked(self) -> Pose2D | None:
+        if self._odom is not None and self._map_from_odom is not None:
+            return _compose(self._map_from_odom, self._odom)
+        return self._amcl
+
+    def _on_amcl(self, msg: PoseWithCovarianceStamped) -> None:
+        pose = pose_to_pose2d(msg.pose.pose)
+        self._owner.saw_stamp(msg.header.stamp)
+        with self._lock:
+            self._amcl = pose
+            if self._odom is not None:
+                self._map_from_odom = _compose(pose, _inverse(self._odom))
+
+    def _on_odom(self, msg: Odometry) -> None:
+        pose = pose_to_pose2d(msg.pose.pose)
+        self._owner.saw_stamp(msg.header.stamp)
+        with self._lock:
+            if self._odom is not None:
+                self._distance += math.hypot(pose.x - self._odom.x, pose.y - self._odom.y)
+            elif self._amcl is not None:
+                self._map_from_odom = _compose(self._amcl, _inverse(pose))
+            self._odom = pose
+            self._v = float(msg.twist.twist.linear.x)
+            self._w = float(msg.twist.twist.angular.z)
+
+    def _on_battery(self, msg: Any) -> None:
+        with self._lock:
+            if math.isfinite(msg.percentage):
+                self._battery = max(0.0, min(1.0, float(msg.percentage)))
+            self._charging = msg.power_supply_status == 1  # POWER_SUPPLY_STATUS_CHARGING
+
+    def _send_remote(self, rec: _Goal) -> None:
+        with self._lock:
+            if rec.status.terminal:
+                return
+        client = self._clients[rec.kind]
+        if not client.server_is_ready():
+            return  # the watchdog retries, then gives up after server_timeout_s
+        rec.sent_at = time.monotonic()
+        fut = client.send_goal_async(
+            goal_to_msg(rec.goal), feedback_callback=lambda m: self._on_feedback(rec, m)
+        )
+        rec.handle = fut  # marks "request sent"
+        fut.add_done_callback(lambda f: self._on_goal_response(rec, f))
+
+    def _on_goal_response(self, rec: _Goal, fut: Any) -> None:
+        handle = fut.result() if fut.exception() is None else None
+        cancel = False
+        with self._lock:
+            if handle is None or not handle.accepted:
+                rec.finish(GoalStatus.REJECTED, 0, f"{self._ns}/{rec.kind} rejected the goal")
+                return
+            rec.handle = handle
+            if rec.status is GoalStatus.PENDING:
+                rec.status = GoalStatus.CANCELING if rec.cancel_wanted else GoalStatus.EXECUTING
+            # preempted or canceled before the server answered: cancel it there too
+            cancel = rec.cancel_wanted or rec.status.terminal
+        if cancel:
+            handle.cancel_goal_async()
+        handle.get_result_async().add_done_callback(lambda f: self._on_result(rec, f))
+
+    def _on_feedback(self, rec: _Goal, msg: Any) -> None:
+        fb = msg_to_feedback(rec.kind, msg.feedback)
+        with self._lock:
+            if not rec.status.terminal:
+                rec.feedback = fb
+                if fb.current_pose is not None and self._odom is None:
+                    self._amcl = fb.current_pose
+
+    def _on_result(self, rec: _Goal, fut: Any) -> None:
+        if fut.exception() is not None:
+            with self._lock:
+                rec.finish(
+                    GoalStatus.ABORTED, ErrorCode.SERVER_UNAVAILABLE, f"result lost: {fut.exception()}"
+                )
+            return
+        res = fut.result()
+        status = _STATUS_MAP.get(res.status, GoalStatus.ABORTED)
+        result = res.result
+        code = int(getattr(result, "error_code", 0))
+        msg = str(getattr(result, "error_msg", ""))
+        with self._lock:
+            if rec.kind == "follow_waypoints":
+                rec.missed = tuple(int(m.index) for m in result.missed_waypoints)
+            if status is GoalStatus.CANCELED and not rec.cancel_wanted:
+                status = GoalStatus.ABORTED  # canceled by someone else: not what we asked for
+                msg = msg or "canceled by another client"
+            rec.finish(status, code, msg)
+
+    def _cancel_remote(self, rec: _Goal) -> None:
+        handle = rec.handle
+        if handle is None:
+            with self._lock:
+                # never sent (server missing): cancel locally
+                if rec.cancel_wanted:
+                    rec.finish(GoalStatus.CANCELED, 0, "")
+            return
+        if hasattr(handle, "cancel_goal_async"):
+            handle.cancel_goal_async()
+        # else the request is in flight: _on_goal_response cancels it once accepted
+
+    def _watchdog(self, now: float) -> None:
+        """Send goals that waited for their server; end goals whose server vanished or never
+        answered (executor thread)."""
+        with self._lock:
+            live = [r for r in self._goals.values() if not r.status.terminal]
+        for rec in live:
+            ready = self._clients[rec.kind].server_is_ready()
+            if rec.handle is None and ready:
+                self._send_remote(rec)
+                continue
+            with self._lock:
+                if ready:
+                    rec.unavailable_since = None
+                    if isinstance(rec.handle, rclpy.task.Future) and now - rec.sent_at > self._timeout:
+                        rec.finish(
+                            GoalStatus.ABORTED,
+                            ErrorCode.SERVER_UNAVAILABLE,
+                            f"{self._ns}/{rec.kind} did not answer the goal request within {self._timeout:.1f} s",
+                        )
+                    continue
+                if rec.unavailable_since is None:
+                    rec.unavailable_since = now
+                elif now - rec.unavailable_since >= self._timeout:
+                    rec.finish(
+                        GoalStatus.ABORTED,
+                        ErrorCode.SERVER_UNAVAILABLE,
+                        f"Nav2 action server {self._ns}/{rec.kind} is unavailable "
+                        f"(not discovered for {self._timeout:.1f} s)",
+                    )
+
+    def _destroy(self) -> None:
+        for c in self._clients.values():
+            c.destroy()
+        self.node.destroy_node()
+
+
+class RosBackends:
+    """The backends of several namespaced Nav2 robots sharing one rclpy context and one
+    executor thread. Use as a context manager or call :meth:`close` (idempotent)."""
+
+    def __init__(
+        self,
+        namespaces: Iterable[str],
+        *,
+        domain_id: int | None = None,
+        context: Context | None = None,
+        server_timeout_s: float = 3.0,
+    ) -> None:
+        self.lock = threading.RLock()
+        self._owns_context = context is None
+        if context is None:
+            context = Context()
+            rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+        self.context = context
+        self._queue: deque[Callable[[], None]] = deque()
+        self._closed = False
+        #: Latest header stamp (s) seen on amcl_pose / odom: the robots' time (simulated time
+        #: with ``fleet sim-ros``, ROS time with a real Nav2).
+        self.latest_stamp = 0.0
+        self.backends: dict[str, RosNavigationBackend] = {}
+        try:
+            for ns in namespaces:
+                ns = ns if ns.startswith("/") else "/" + ns
+                if ns in self.backends:
+                    raise BackendError(f"namespace {ns!r} listed twice")
+                self.backends[ns] = RosNavigationBackend(self, ns, server_timeout_s)
+            self._helper = Node(
+                "fleet_backends", context=context, start_parameter_services=False, enable_rosout=False
+            )
+            self._guard = self._helper.create_guard_condition(self._drain)
+            self._helper.create_timer(0.1, self._tick)
+            self.executor = SingleThreadedExecutor(context=context)
+            self.executor.add_node(self._helper)
+            for b in self.backends.values():
+                self.executor.add_node(b.node)
+        except Exception:
+            if self._owns_context and context.ok():
+                rclpy.shutdown(context=context)
+            raise
+        self._thread = threading.Thread(target=self._spin, name="fleet-ros-backends", daemon=True)
+        self._thread.start()
+
+    def __getitem__(self, namespace: str) -> RosNavigationBackend:
+        return self.backends[namespace]
+
+    def call_soon(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` on the executor thread (thread-safe)."""
+        self._queue.append(fn)
+        if not self._closed:
+            self._guard.trigger()
+
+    def wait_for_servers(self, timeout_s: float = 30.0, kinds: Iterable[str] = BACKEND_KINDS) -> list[str]:
+        """Wait until every robot's action servers are discovered; return the namespaces
+        still missing after ``timeout_s`` (empty when all are there)."""
+        deadline = time.monotonic() + timeout_s
+        kinds = tuple(kinds)
+        missing = list(self.backends)
+        while missing and time.monotonic() < deadline:
+            missing = [ns for ns in missing if not self.backends[ns].wait_for_servers(0.0, kinds)]
+            if missing:
+                time.sleep(0.05)
+        return missing
+
+    def saw_stamp(self, stamp: Any) -> None:
+        t = float(stamp.sec) + float(stamp.nanosec) * 1e-9
+        if t > self.latest_stamp:
+            self.latest_stamp = t
+
+    def _drain(self) -> None:
+        while self._queue:
+            fn = self._queue.popleft()
+            fn()
+
+    def _tick(self) -> None:
+        self._drain()
+        now = time.monotonic()
+        for b in self.backends.values():
+            b._watchdog(now)
+
+    def _spin(self) -> None:
+        while not self._closed and self.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=0.1)
+            except Exception:  # noqa: BLE001 - a shut-down context ends the loop
+                if self._closed or not self.context.ok():
+                    break
+                raise
+
+    def close(self) -> None:
+        """Stop the executor thread, destroy the nodes, shut the context down."""
+        if self._closed:
+            return
+        self._closed = True
+        self._thread.join(timeout=5.0)
+        for b in self.backends.values():
+            b._destroy()
+        self._helper.destroy_node()
+        self.executor.shutdown(timeout_sec=1.0)
+        if self._owns_context and self.context.ok():
+            rclpy.shutdown(context=self.context)
+
+    def __enter__(self) -> RosBackends:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def make_ros_backends(
+    namespaces: Iterable[str],
+    *,
+    domain_id: int | None = None,
+    context: Context | None = None,
+    server_timeout_s: float = 3.0,
+    wait_s: float | None = None,
+) -> RosBackends:
+    """Create ROS backends for ``namespaces`` (e.g. ``["/robot1", "/robot2"]``).
+
+    Returns a :class:`RosBackends`: ``.backends[ns]`` is each robot's
+    :class:`RosNavigationBackend`; ``.close()`` stops the shared executor thread and the
+    context. With ``wait_s``, waits that long for every robot's Nav2 action servers and
+    raises :class:`~fleet.errors.BackendError` naming the robots still missing.
+    """
+    rb = RosBackends(namespaces, domain_id=domain_id, context=context, server_timeout_s=server_timeout_s)
+    if wait_s is not None:
+        missing = rb.wait_for_servers(wait_s)
+        if missing:
+            rb.close()
+            raise BackendError(
+                f"no Nav2 action servers found within {wait_s:.0f} s for {', '.join(missing)} "
+                f"(ROS_DOMAIN_ID={__import__('os').environ.get('ROS_DOMAIN_ID', '0')}; is `fleet sim-ros` running?)"
+            )
+    return rb
+
+
+__all__ = ["RosBackends", "RosNavigationBackend", "make_ros_backends"]
