@@ -170,6 +170,19 @@ examples:
     )
     status.add_argument("rest", nargs=argparse.REMAINDER)
 
+    simros = sub.add_parser(
+        "sim-ros",
+        help="serve the simulator as namespaced Nav2 over ROS 2 (needs make setup-ros)",
+        description="Serve every robot of the config as namespaced Nav2 over ROS 2 Jazzy: the Nav2 "
+        "action servers, lifecycle get_state, amcl_pose, odom and the costmap services, so "
+        "nav2_simple_commander scripts and `fleet run --backend ros` drive the simulator. "
+        "Options are those of fleet.ros.nav2_server (see `fleet sim-ros --help`).",
+        epilog="example:\n  fleet sim-ros configs/warehouse_patrol.yaml --speed 10\n"
+        "  fleet run configs/warehouse_patrol.yaml --backend ros    # in a second terminal\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    simros.add_argument("rest", nargs=argparse.REMAINDER)
+
     agent = sub.add_parser(
         "agent",
         help="run one robot's agent in its own process (robots of a `fleet sim`)",
@@ -251,6 +264,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         from fleet.status_view import status_main
 
         return _guard(lambda: int(status_main(args_list[1:]) or 0))
+    if args_list and args_list[0] == "sim-ros":
+        return _guard(lambda: _cmd_sim_ros(args_list[1:]))
     parser = build_parser()
     args = parser.parse_args(args_list)
     if args.command is None:
@@ -265,6 +280,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         "loadtest": lambda a: a.loadtest_handler(a),
     }
     return _guard(lambda: handlers[args.command](args))
+
+
+def _cmd_sim_ros(argv: list[str]) -> int:
+    """``fleet sim-ros``: imported lazily so the core never imports rclpy."""
+    try:
+        from fleet.ros.nav2_server import main as sim_ros_main
+    except ImportError as e:
+        raise BackendError(
+            f"fleet sim-ros needs ROS 2 Jazzy and nav2_msgs ({e}); run `make setup-ros`"
+        ) from None
+    return int(sim_ros_main(argv) or 0)
 
 
 def _sigterm_as_interrupt() -> Any:

@@ -184,6 +184,24 @@ class RemoteWorld:
 BACKENDS: dict[str, WorldFactory] = {"sim": SimWorld, "remote": RemoteWorld}
 
 
+def _ros_world(config: FleetConfig, robots: list[RobotSpec], session: Any) -> World:
+    """Robots are namespaced Nav2 servers reached over ROS 2 (``fleet sim-ros`` or real robots)."""
+    from fleet.ros.world import RosWorld
+
+    return RosWorld(config, robots, session)
+
+
+def _sumo_world(config: FleetConfig, robots: list[RobotSpec], session: Any) -> World:
+    """Robots are SUMO vehicles on a network generated from the roadmap (libsumo)."""
+    from sim.sumo_backend import SumoRunnerWorld
+
+    return SumoRunnerWorld(config, robots, session)
+
+
+BACKENDS["ros"] = _ros_world
+BACKENDS["sumo"] = _sumo_world
+
+
 def register_backend(name: str, factory: WorldFactory) -> None:
     """Make ``factory`` available as ``FleetRunner(backend=name)`` / ``fleet run --backend name``."""
     BACKENDS[name] = factory
