@@ -38,6 +38,7 @@ SMALL_ARGS: dict[str, list[str]] = {
     "bench_sim.py": ["--robots", "200", "--steps", "200"],
     "sim_vs_sumo.py": ["--robots", "200", "--steps", "200"],
     "bench_ros_scale.py": ["--robots", "20"],
+    "bench_demo.py": ["--duration", "300"],
 }
 #: Never run as benchmarks.
 SKIP = {"run_all.py", "__init__.py"}

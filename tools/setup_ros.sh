@@ -48,6 +48,16 @@ fi
 # rclpy must import in a fresh interpreter (the bootstrapper's .pth sets LD_LIBRARY_PATH).
 "$PY" -c 'import rclpy' 2>/dev/null || die "rclpy does not import in $VENV after installing the wheels"
 
+# The interface build needs cmake and ninja: use the machine's, else install them into the venv
+# from PyPI (their wheels carry the binaries) so a fresh machine needs nothing by hand.
+export PATH="$VENV/bin:$PATH"
+for tool in cmake ninja; do
+  if ! command -v "$tool" >/dev/null 2>&1; then
+    say "no $tool on PATH: installing it into $VENV from PyPI"
+    "$PY" -m pip install -q "$tool"
+  fi
+done
+
 # 2. The interface packages (skipped when a real nav2_msgs is importable, or nothing changed).
 t=$(date +%s)
 "$PY" "$ROOT/tools/build_interfaces.py" --venv "$VENV" ${JOBS:+--jobs "$JOBS"} \

@@ -1,0 +1,72 @@
+"""Benchmark of the shipped demos: wall time and simulated time of ``fleet run`` at ``--speed 0``.
+
+Runs each config as a user would (``fleet run CONFIG --speed 0 --duration S --report ...``,
+in a subprocess on its own loopback port) and prints one row per config: robots, simulated
+seconds, wall seconds, real-time factor, patrols assigned/completed, laps, collisions,
+deadlocks, reassignments.
+
+    python bench/bench_demo.py                       # 6- and 30-robot demos, 600 s each
+    python bench/bench_demo.py --duration 300 --configs configs/warehouse_patrol.yaml
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_CONFIGS = ("configs/warehouse_patrol.yaml", "configs/warehouse_patrol_30.yaml")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def run_demo(config: str, duration: float) -> dict:
+    """Run one demo at ``--speed 0`` and return its report (raises on a failed run)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        report = Path(tmp) / "report.json"
+        cmd = [
+            sys.executable, "-m", "fleet.cli", "run", config,
+            "--speed", "0", "--duration", str(duration), "--no-live",
+            "--endpoint", f"tcp/127.0.0.1:{_free_port()}", "--report", str(report),
+        ]  # fmt: skip
+        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1800)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}:\n{proc.stderr[-2000:]}")
+        return json.loads(report.read_text())
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--configs", nargs="+", default=list(DEFAULT_CONFIGS), help="configs to run")
+    ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds per run (default 600)")
+    args = ap.parse_args(argv)
+    head = (
+        f"{'config':<34} {'robots':>6} {'sim s':>7} {'wall s':>7} {'x real':>7} "
+        f"{'patrols':>9} {'laps':>5} {'coll':>5} {'dead':>5} {'reassign':>8}"
+    )
+    print(head)
+    print("-" * len(head))
+    for config in args.configs:
+        r = run_demo(config, args.duration)
+        factor = r["sim_time_s"] / r["wall_time_s"] if r["wall_time_s"] > 0 else float("inf")
+        patrols = f"{r['patrols_completed']}/{r['patrols_assigned']}"
+        print(
+            f"{Path(config).name:<34} {r['robots']:>6} {r['sim_time_s']:>7.0f} {r['wall_time_s']:>7.1f} "
+            f"{factor:>7.1f} {patrols:>9} {r['laps_completed']:>5} {r['collisions']:>5} "
+            f"{r['deadlocks']:>5} {r['reassignments']:>8}",
+            flush=True,
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
