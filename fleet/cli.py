@@ -9,7 +9,6 @@ down cleanly and its report and plot are still written).
 from __future__ import annotations
 
 import argparse
-import math
 import signal
 import sys
 import threading
@@ -17,6 +16,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from fleet.argtypes import non_negative_float as _non_negative_float
+from fleet.argtypes import positive_float as _positive_float
+from fleet.argtypes import positive_int as _positive_int
 from fleet.errors import BackendError, BusError, ConfigError
 
 EXIT_OK = 0
@@ -40,36 +42,6 @@ examples:
 
 exit codes: 0 ok, 2 bad usage / invalid config / bus error, 130 interrupted (Ctrl-C)
 """
-
-
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return v
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(v) or v < 0:
-        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
-    return v
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
-    return v
 
 
 def _add_config(p: argparse.ArgumentParser) -> None:

@@ -41,6 +41,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from fleet.argtypes import non_negative_float, positive_float, positive_int
 from fleet.errors import BackendError, BusError, ConfigError
 
 #: Default agent tick rate of a load test (simulated Hz).
@@ -562,47 +563,17 @@ exit codes: 0 ok, 2 bad usage / bus or backend error, 130 interrupted (report st
 """
 
 
-def _pos_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
-    return v
-
-
-def _pos_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return v
-
-
-def _nonneg_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(v) or v < 0:
-        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
-    return v
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``fleet loadtest`` (see ``docs/performance.md``)."""
-    p.add_argument("--robots", "-n", type=_pos_int, required=True, metavar="N", help="number of robots")
+    p.add_argument("--robots", "-n", type=positive_int, required=True, metavar="N", help="number of robots")
     p.add_argument(
-        "--duration", "-d", type=_pos_float, required=True, metavar="S", help="simulated seconds to run"
+        "--duration", "-d", type=positive_float, required=True, metavar="S", help="simulated seconds to run"
     )
     p.add_argument("--backend", default="sim", metavar="NAME", help="sim (default) or sumo")
     p.add_argument(
         "--speed",
         "-s",
-        type=_nonneg_float,
+        type=non_negative_float,
         default=0.0,
         metavar="X",
         help="multiple of real time; 0 = as fast as possible (default)",
@@ -614,31 +585,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot-dir", type=Path, metavar="DIR", help="where the three PNGs go (default --out)")
     p.add_argument(
         "--tick-hz",
-        type=_pos_float,
+        type=positive_float,
         default=DEFAULT_TICK_HZ,
         metavar="HZ",
         help=f"agent tick rate, simulated Hz (default {DEFAULT_TICK_HZ:g})",
     )
     p.add_argument(
         "--status-hz",
-        type=_pos_float,
+        type=positive_float,
         default=DEFAULT_STATUS_HZ,
         metavar="HZ",
         help=f"status publishing rate per robot on the bus (default {DEFAULT_STATUS_HZ:g})",
     )
     p.add_argument(
-        "--step-s", type=_pos_float, metavar="S", help="simulator step (default: the config's, 0.05 s)"
+        "--step-s", type=positive_float, metavar="S", help="simulator step (default: the config's, 0.05 s)"
     )
     p.add_argument(
         "--sample-s",
-        type=_pos_float,
+        type=positive_float,
         default=DEFAULT_SAMPLE_S,
         metavar="S",
         help=f"sampling period of the time series (default {DEFAULT_SAMPLE_S:g} s)",
     )
     p.add_argument(
         "--route-copies",
-        type=_pos_int,
+        type=positive_int,
         default=None,
         metavar="K",
         help="up to K robots patrol each generated route (default: enough for half the fleet, "
@@ -646,7 +617,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--seed", type=int, default=1, help="warehouse and simulator seed (default 1)")
     p.add_argument("--endpoint", metavar="EP", help="Zenoh endpoint to listen on (default: a free port)")
-    p.add_argument("--dpi", type=_pos_int, default=100, help="PNG resolution (default 100)")
+    p.add_argument("--dpi", type=positive_int, default=100, help="PNG resolution (default 100)")
 
 
 def add_loadtest_parser(subparsers: Any) -> argparse.ArgumentParser:

@@ -12,7 +12,6 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, field
-from typing import Union
 
 
 @dataclass(frozen=True)
@@ -104,7 +103,7 @@ class Wait:
     kind: str = field(default="wait", init=False)
 
 
-Goal = Union[NavigateThroughPoses, NavigateToPose, FollowWaypoints, Spin, BackUp, DriveOnHeading, Wait]
+Goal = NavigateThroughPoses | NavigateToPose | FollowWaypoints | Spin | BackUp | DriveOnHeading | Wait
 
 NAV_GOAL_KINDS = ("navigate_through_poses", "navigate_to_pose", "follow_waypoints")
 
