@@ -133,7 +133,7 @@ def plot_congestion(
     map's lower-left corner) over the map (shelves and walls dark) and its roadmap."""
     from matplotlib.colors import LogNorm
 
-    from fleet.plot import _map_image
+    from fleet.plot import draw_map
 
     plt = _plt()
     grid = config.grid
@@ -142,19 +142,7 @@ def plot_congestion(
     width = 10.0
     fig, ax = plt.subplots(figsize=(width, min(12.0, max(3.5, width * aspect * 0.85 + 1.2))))
     try:
-        ax.imshow(
-            _map_image(grid),
-            origin="lower",
-            extent=(xmin, xmax, ymin, ymax),
-            cmap="gray",
-            vmin=0,
-            vmax=255,
-            zorder=0,
-        )
-        rm = config.roadmap
-        for a, b in rm.edges:
-            (x0, y0), (x1, y1) = rm.pos(a), rm.pos(b)
-            ax.plot([x0, x1], [y0, y1], color="#9ab", lw=0.4, zorder=1)
+        draw_map(ax, config, edge_lw=0.4)
         h = np.asarray(heat, dtype=float)
         ny, nx = h.shape
         ext = (xmin, xmin + nx * bin_m, ymin, ymin + ny * bin_m)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -44,19 +44,8 @@ def plot_run(
     width = 11.0
     fig, ax = plt.subplots(figsize=(width, max(4.0, width * aspect * 0.8 + 1.0)))
     try:
-        ax.imshow(
-            _map_image(grid),
-            origin="lower",
-            extent=(xmin, xmax, ymin, ymax),
-            cmap="gray",
-            vmin=0,
-            vmax=255,
-            zorder=0,
-        )
+        draw_map(ax, config, edge_lw=0.6)
         rm = config.roadmap
-        for a, b in rm.edges:
-            (ax_, ay), (bx, by) = rm.pos(a), rm.pos(b)
-            ax.plot([ax_, bx], [ay, by], color="#9ab", lw=0.6, zorder=1)
         if len(rm):
             pts = np.array([rm.pos(n) for n in rm.nodes])
             ax.scatter(pts[:, 0], pts[:, 1], s=4, color="#789", zorder=1)
@@ -97,6 +86,26 @@ def plot_run(
     finally:
         plt.close(fig)
     return out
+
+
+def draw_map(ax: Any, config: FleetConfig, *, edge_lw: float = 0.6) -> None:
+    """Draw the occupancy map (free light, occupied dark, in the ``map`` frame, meters) and the
+    roadmap edges on the matplotlib axes ``ax``, below anything drawn later."""
+    grid = config.grid
+    xmin, xmax, ymin, ymax = grid.extent
+    ax.imshow(
+        _map_image(grid),
+        origin="lower",
+        extent=(xmin, xmax, ymin, ymax),
+        cmap="gray",
+        vmin=0,
+        vmax=255,
+        zorder=0,
+    )
+    rm = config.roadmap
+    for a, b in rm.edges:
+        (x0, y0), (x1, y1) = rm.pos(a), rm.pos(b)
+        ax.plot([x0, x1], [y0, y1], color="#9ab", lw=edge_lw, zorder=1)
 
 
 def _map_image(grid: OccupancyGrid) -> np.ndarray:
