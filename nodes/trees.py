@@ -299,15 +299,8 @@ def patrol_tree(
     ``backend.namespace``.
     """
     ns = normalize_namespace(namespace)
-    robot_blackboard(ns, name=f"{ns}-tree")
-    return py_trees.composites.Selector(
-        f"PatrolRobot {ns}",
-        memory=False,
-        children=[
-            battery_guard(ns, backend, clock, battery),
-            patrol_branch(ns, backend, retries=retries),
-            Idle(ns),
-        ],
+    return _robot_tree(
+        "PatrolRobot", ns, backend, clock, battery, patrol_branch(ns, backend, retries=retries)
     )
 
 
@@ -321,15 +314,18 @@ def picking_tree(
 ) -> Behaviour:
     """The picking robot's tree: ``Selector(memory=False)[battery_guard, pick_branch, Idle]``."""
     ns = normalize_namespace(namespace)
+    return _robot_tree("PickingRobot", ns, backend, clock, battery, pick_branch(ns, backend, retries=retries))
+
+
+def _robot_tree(
+    label: str, ns: str, backend: NavigationBackend, clock: Clock, battery: BatteryModel, work: Behaviour
+) -> Behaviour:
+    """``Selector(memory=False)[battery_guard, work, Idle]`` on the robot's own blackboard."""
     robot_blackboard(ns, name=f"{ns}-tree")
     return py_trees.composites.Selector(
-        f"PickingRobot {ns}",
+        f"{label} {ns}",
         memory=False,
-        children=[
-            battery_guard(ns, backend, clock, battery),
-            pick_branch(ns, backend, retries=retries),
-            Idle(ns),
-        ],
+        children=[battery_guard(ns, backend, clock, battery), work, Idle(ns)],
     )
 
 

@@ -44,6 +44,7 @@ import numpy as np
 
 from fleet.clock import SimClock
 from fleet.errors import BackendError
+from fleet.navigation import Clock
 from fleet.types import (
     BackUp,
     DriveOnHeading,
@@ -98,6 +99,21 @@ TRAJECTORY_PERIOD_S = 0.5
 PAIR_REUSE_STEPS = 4
 #: Fault names accepted by :meth:`Simulator.set_fault`.
 FAULTS = ("stalled",)
+
+
+def step_until(
+    clock: Clock, step: Callable[[], None], predicate: Callable[[], bool], timeout_s: float
+) -> bool:
+    """Call ``step()`` until ``predicate()`` is true (checked before each step) or ``clock``
+    has advanced ``timeout_s`` seconds. Returns whether the predicate became true. Shared by
+    every stepped world (the simulator, SUMO)."""
+    end = clock.now() + timeout_s - 1e-9
+    while True:
+        if predicate():
+            return True
+        if clock.now() >= end:
+            return False
+        step()
 
 
 class Simulator:
@@ -389,13 +405,7 @@ class Simulator:
     def run_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
         """Step until ``predicate()`` is true (checked before each step) or ``timeout_s``
         simulated seconds have passed. Returns whether the predicate became true."""
-        end = self.clock.now() + timeout_s - 1e-9
-        while True:
-            if predicate():
-                return True
-            if self.clock.now() >= end:
-                return False
-            self.step()
+        return step_until(self.clock, self.step, predicate, timeout_s)
 
     def step(self) -> None:
         """Advance the clock by ``params.step_s`` and move every robot (see module docstring)."""

@@ -94,6 +94,7 @@ from fleet.types import (
     normalize_angle,
 )
 from sim.params import RobotSpec, SimParams
+from sim.simulator import step_until
 from sim.sumo_net import SumoNetwork, as_graph, build_network, settings_for_robot
 
 _ACTIVE: SumoWorld | None = None
@@ -699,13 +700,7 @@ class SumoWorld:
     def run_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
         """Step until ``predicate()`` is true (checked before each step) or ``timeout_s``
         simulated seconds have passed. Returns whether the predicate became true."""
-        end = self.clock.now() + timeout_s - 1e-9
-        while True:
-            if predicate():
-                return True
-            if self.clock.now() >= end:
-                return False
-            self.step()
+        return step_until(self.clock, self.step, predicate, timeout_s)
 
     # -- stepping ---------------------------------------------------------------------
 
