@@ -12,6 +12,8 @@ and ``charger``; a ``pick`` order sets ``pick``; an ``idle`` order clears ``rout
 ``pick`` and ``task_id``. An order whose id was already applied (a duplicate, or a late copy
 of an order that has been superseded) is ignored, so a message can never be applied twice.
 Orders are queued by the bus callback thread and applied on the ticking thread only.
+With traffic management the agent also takes the robot's traffic grants
+(``fleet/<robot>/grant``, newest ``seq`` wins) into the blackboard key ``grant``.
 """
 
 from __future__ import annotations
@@ -44,6 +46,8 @@ class RobotAgent:
         tick_hz: how often the runner should call :meth:`tick` (simulated Hz).
         on_status: called with every status record published (e.g. to feed an in-process
             coordinator directly).
+        traffic: build the traffic-managed tree (``docs/traffic.md``): the robot drives only
+            what its traffic grants (``fleet/<robot>/grant``, or :meth:`deliver_grant`) allow.
     """
 
     def __init__(
@@ -56,6 +60,7 @@ class RobotAgent:
         battery_model: BatteryModel | None = None,
         tick_hz: float = 10.0,
         on_status: Callable[[Any], None] | None = None,
+        traffic: bool = False,
     ) -> None:
         from nodes import build_tree
         from nodes.blackboard import clear_robot_blackboard, robot_blackboard
@@ -73,19 +78,28 @@ class RobotAgent:
         # earlier agent of the same namespace in this process left behind
         clear_robot_blackboard(self.namespace)
         self.bb = robot_blackboard(self.namespace, name=f"agent{self.namespace}")
-        self.root = build_tree(tree_kind, self.namespace, backend, clock, battery_model or BatteryModel())
+        self.traffic = traffic
+        self.root = build_tree(
+            tree_kind, self.namespace, backend, clock, battery_model or BatteryModel(), traffic=traffic
+        )
         self.seq = 0
         self.ticks = 0
         self.charges = 0
         self.last_status: Any = None
         self._seen: dict[str, None] = {}
         self._inbox: list[Any] = []
+        self._grant: Any = None
+        self._grant_seq = 0
+        self.grants_applied = 0
         self._lock = threading.Lock()
         self._last_mode = "idle"
         self._token: Any = None
         self._sub: Any = None
+        self._grant_sub: Any = None
         if bus is not None:
             self._sub = bus.subscribe_tasks(self.name, self.deliver)
+            if traffic:
+                self._grant_sub = bus.subscribe_grants(self.name, self.deliver_grant)
             self._token = bus.declare_alive(self.name)
 
     # -- orders ------------------------------------------------------------------------
@@ -96,11 +110,26 @@ class RobotAgent:
         with self._lock:
             self._inbox.append(msg)
 
+    def deliver_grant(self, grant: Any) -> None:
+        """Keep a traffic :class:`~fleet.traffic.Grant` for the next :meth:`tick`; thread-safe.
+        Only the newest (highest ``seq``) of those received counts; older or duplicate copies
+        (the bus copy of a grant also handed over in-process) are ignored."""
+        if getattr(grant, "robot", self.name) != self.name:
+            return
+        with self._lock:
+            if self._grant is None or grant.seq > self._grant.seq:
+                self._grant = grant
+
     def _apply_orders(self) -> None:
         with self._lock:
             inbox, self._inbox = self._inbox, []
+            grant = self._grant
         for msg in inbox:
             self.apply(msg)
+        if grant is not None and grant.seq > self._grant_seq:
+            self._grant_seq = grant.seq
+            self.bb.grant = grant
+            self.grants_applied += 1
 
     def apply(self, msg: Any) -> bool:
         """Apply one order to the blackboard now; returns False if it was ignored (an id
@@ -189,14 +218,14 @@ class RobotAgent:
             self.root.stop(Status.INVALID)
         except Exception:  # noqa: BLE001 - best effort on shutdown
             pass
-        for handle in (self._token, self._sub):
+        for handle in (self._token, self._sub, self._grant_sub):
             undeclare = getattr(handle, "undeclare", None)
             if undeclare is not None:
                 try:
                     undeclare()
                 except Exception:  # noqa: BLE001
                     pass
-        self._token = self._sub = None
+        self._token = self._sub = self._grant_sub = None
 
 
 def _pose(p: Any) -> Pose2D:

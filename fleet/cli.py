@@ -63,6 +63,18 @@ def _add_endpoint(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_traffic(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument(
+        "--traffic",
+        dest="traffic",
+        action="store_true",
+        default=None,
+        help="reservation-based traffic management on the roadmap (default: the config's traffic.enabled)",
+    )
+    g.add_argument("--no-traffic", dest="traffic", action="store_false", help="no traffic management")
+
+
 def _add_outputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--report", type=Path, metavar="PATH", help="write the JSON report here at the end")
     p.add_argument("--plot", type=Path, metavar="PATH", help="write a PNG of the map and trajectories here")
@@ -120,6 +132,7 @@ examples:
     )
     _add_endpoint(run)
     _add_outputs(run)
+    _add_traffic(run)
     run.add_argument(
         "--backend", default="sim", metavar="NAME", help="navigation backend (default sim; see docs/cli.md)"
     )
@@ -171,6 +184,7 @@ examples:
         "--duration", "-d", type=_positive_float, metavar="S", help="simulated seconds (default: forever)"
     )
     _add_endpoint(agent)
+    _add_traffic(agent)
 
     coord = sub.add_parser(
         "coordinator",
@@ -190,6 +204,7 @@ examples:
     )
     _add_endpoint(coord)
     _add_outputs(coord)
+    _add_traffic(coord)
 
     simp = sub.add_parser(
         "sim",
@@ -335,6 +350,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         agents=agents,
         coordinator=not args.no_coordinator,
         live=False if args.no_live else None,
+        traffic=args.traffic,
     )
     _announce(runner, f"{len(runner.agent_names)} agents" + ("" if args.no_coordinator else " + coordinator"))
     return _finish(runner, runner.run(), args)
@@ -353,6 +369,7 @@ def _cmd_coordinator(args: argparse.Namespace) -> int:
         agents=_robot_list(args.agents),
         coordinator=True,
         live=False if args.no_live else None,
+        traffic=args.traffic,
     )
     _announce(
         runner, "coordinator" + (f" + agents {', '.join(runner.agent_names)}" if runner.agent_names else "")
@@ -374,6 +391,7 @@ def _cmd_agent(args: argparse.Namespace) -> int:
         agents=robots,
         coordinator=False,
         live=False,
+        traffic=args.traffic,
     )
     _announce(runner, f"agent {', '.join(robots)}")
     report = runner.run()

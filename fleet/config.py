@@ -50,6 +50,7 @@ TOP_LEVEL_KEYS = (
     "sim",
     "agent",
     "coordinator",
+    "traffic",
     "bus",
 )
 REQUIRED_KEYS = ("name", "map", "roadmap", "chargers", "robots")
@@ -104,6 +105,23 @@ class CoordinatorParams:
     status_timeout_s: float = 3.0
 
 
+@dataclass(frozen=True)
+class TrafficSettings:
+    """The ``traffic`` section (``docs/traffic.md``). ``enabled``: reservation-based traffic
+    management on the roadmap (``fleet run --traffic`` turns it on too); ``deadlock_s``: a
+    set of robots waiting on each other longer than this counts as a deadlock in the report;
+    ``park_idle_s``: an idle robot standing off its parking spot this long is sent to park;
+    ``horizon_m``: how much path ahead a robot is granted; ``stall_timeout_s``: a robot with
+    a grant ahead that makes no progress this long is treated as stopped (its reservations
+    ahead are released)."""
+
+    enabled: bool = False
+    deadlock_s: float = 30.0
+    park_idle_s: float = 5.0
+    horizon_m: float = 6.0
+    stall_timeout_s: float = 20.0
+
+
 @dataclass
 class FleetConfig:
     """A validated fleet configuration. See ``docs/config.md`` for the file format."""
@@ -124,6 +142,7 @@ class FleetConfig:
     endpoint: str = DEFAULT_ENDPOINT
     status_hz: float | None = None
     parking: list[Pose2D] = field(default_factory=list)
+    traffic: TrafficSettings = field(default_factory=TrafficSettings)
 
     def robot(self, name: str) -> RobotSpec:
         """The robot called ``name``. Raises ``KeyError`` if there is none."""
@@ -215,6 +234,7 @@ def load_config(path: str | Path, *, robots: int | None = None) -> FleetConfig:
         stuck_reassign_s=v.positive(coord.get("stuck_reassign_s", 30.0), "coordinator.stuck_reassign_s"),
         status_timeout_s=v.positive(coord.get("status_timeout_s", 3.0), "coordinator.status_timeout_s"),
     )
+    traffic = _traffic(v, doc.get("traffic"))
     bus = v.section(doc.get("bus"), "bus", ("endpoint", "status_hz"))
     endpoint = v.string(bus.get("endpoint", DEFAULT_ENDPOINT), "bus.endpoint")
     if not re.match(r"^[a-z][a-z0-9-]*/\S+$", endpoint):
@@ -282,6 +302,7 @@ def load_config(path: str | Path, *, robots: int | None = None) -> FleetConfig:
         endpoint=endpoint,
         status_hz=status_hz,
         parking=parking,
+        traffic=traffic,
     )
 
 
@@ -289,6 +310,19 @@ _SIM_EXTRA = ("charger_radius", "goal_tolerance", "yaw_tolerance")
 _MODEL_KEYS = ("radius", "max_linear_speed", "max_angular_speed", "max_linear_accel", "max_angular_accel")
 _DRAIN_KEYS = ("drain_per_m", "drain_per_s")
 _FRACTION_KEYS = ("low", "resume", "initial")
+
+
+def _traffic(v: _Validator, sec: Any) -> TrafficSettings:
+    d = v.section(sec, "traffic", ("enabled", "deadlock_s", "park_idle_s", "horizon_m", "stall_timeout_s"))
+    enabled = d.get("enabled", False)
+    if not isinstance(enabled, bool):
+        raise ConfigError(v.file, "traffic.enabled", f"must be true or false, got {enabled!r}")
+    kw: dict[str, float] = {
+        k: v.positive(d[k], f"traffic.{k}") for k in ("deadlock_s", "horizon_m", "stall_timeout_s") if k in d
+    }
+    if "park_idle_s" in d:
+        kw["park_idle_s"] = v.non_negative(d["park_idle_s"], "traffic.park_idle_s")
+    return TrafficSettings(enabled=enabled, **kw)
 
 
 def _robot_model(v: _Validator, sec: Any) -> RobotModel:

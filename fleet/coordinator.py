@@ -209,9 +209,15 @@ class TrafficPolicy(Protocol):
     :meth:`cycle` roughly linear in the number of robots.
     """
 
-    def on_assign(self, robot: str, route: PatrolRoute, poses: tuple[Pose2D, ...]) -> tuple[Pose2D, ...]: ...
+    def on_assign(
+        self, robot: str, route: PatrolRoute, poses: tuple[Pose2D, ...], task_id: str | None = None
+    ) -> tuple[Pose2D, ...]: ...
 
     def on_release(self, robot: str) -> None: ...
+
+    def waiting(self, robot: str) -> bool:
+        """True while the policy holds ``robot`` back (it is then not stuck, only waiting)."""
+        ...
 
     def cycle(self, now: float, robots: Mapping[str, RobotView]) -> Sequence[TaskOrder]: ...
 
@@ -219,11 +225,16 @@ class TrafficPolicy(Protocol):
 class NoTraffic:
     """The default :class:`TrafficPolicy`: robots rely on their own reactive safety layer."""
 
-    def on_assign(self, robot: str, route: PatrolRoute, poses: tuple[Pose2D, ...]) -> tuple[Pose2D, ...]:
+    def on_assign(
+        self, robot: str, route: PatrolRoute, poses: tuple[Pose2D, ...], task_id: str | None = None
+    ) -> tuple[Pose2D, ...]:
         return poses
 
     def on_release(self, robot: str) -> None:
         return None
+
+    def waiting(self, robot: str) -> bool:
+        return False
 
     def cycle(self, now: float, robots: Mapping[str, RobotView]) -> Sequence[TaskOrder]:
         return ()
@@ -370,6 +381,8 @@ class CoordinatorState:
                 continue
             if v.obs.mode == "charging":
                 out.append(self._release(v, now, REASON_CHARGING))
+            elif self.traffic.waiting(v.name):
+                v.progress_t = now  # held back by traffic management: waiting, not stuck
             elif (
                 v.obs.task_id == a.task_id
                 and v.obs.mode in DRIVING_MODES
@@ -590,8 +603,8 @@ class CoordinatorState:
             if len(kept) >= 2 and len(kept) < len(poses):
                 self._log(now, f"{route_name}: skipping {len(poses) - len(kept)} blocked waypoint(s)")
                 poses = kept
-        poses = self.traffic.on_assign(v.name, route, poses)
         tid = self._next_id("p")
+        poses = self.traffic.on_assign(v.name, route, poses, tid)
         a = Assignment(task_id=tid, route=route_name, robot=v.name, t_assigned=now, poses=poses)
         self.assignments.append(a)
         self.by_id[tid] = a
@@ -688,6 +701,11 @@ class Coordinator:
         self.state.expect([r.name for r in config.robots], config.coordinator.status_timeout_s)
         self.local_robots = set(local_robots or ())
         self.local_deliver: dict[str, Callable[[Any], None]] = {}
+        #: In-process agents' ``deliver_grant`` by robot (traffic grants skip the bus for them).
+        self.local_grant_deliver: dict[str, Callable[[Any], None]] = {}
+        self._grants: dict[str, tuple[Any, float]] = {}  # remote robot -> (latest grant, last sent)
+        if traffic is not None and getattr(traffic, "deliver", False) is None:
+            traffic.deliver = self._deliver_grant  # type: ignore[attr-defined]
         self._inbox: list[tuple[str, Any]] = []
         self._lock = threading.Lock()
         if bus is not None:
@@ -728,6 +746,7 @@ class Coordinator:
             elif kind == "leave":
                 self.state.robot_left(payload, now)
         orders = self.state.step(now)
+        self._resend_grants(now)
         for o in orders:
             msg = task_message(o)
             deliver = self.local_deliver.get(o.robot)
@@ -736,6 +755,25 @@ class Coordinator:
             if self.bus is not None:
                 self.bus.publish_task(msg)
         return orders
+
+    def _deliver_grant(self, robot: str, grant: Any) -> None:
+        """A traffic grant changed: hand it to the in-process agent, or publish it on
+        ``fleet/<robot>/grant`` (and again every :data:`RESEND_S`, as Zenoh keeps nothing)."""
+        deliver = self.local_grant_deliver.get(robot)
+        if deliver is not None:
+            deliver(grant)
+            return
+        self._grants[robot] = (grant, self.clock.now())
+        if self.bus is not None:
+            self.bus.publish_grant(grant)
+
+    def _resend_grants(self, now: float) -> None:
+        if self.bus is None:
+            return
+        for robot, (grant, sent) in list(self._grants.items()):
+            if now - sent >= RESEND_S:
+                self._grants[robot] = (grant, now)
+                self.bus.publish_grant(grant)
 
 
 def observation_from_record(rec: Any) -> Observation:

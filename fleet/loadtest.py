@@ -384,6 +384,7 @@ def loadtest_block(
     patrol_h = sum(patrol[k - 1] * (ts[k] - ts[k - 1]) for k in range(1, len(ts))) / 3600.0
     return {
         "backend": backend,
+        "traffic": report.traffic is not None,
         "tick_hz": float(tick_hz),
         "status_hz": float(status_hz),
         "step_s": float(step_s),
@@ -432,6 +433,7 @@ def run_loadtest(
     endpoint: str | None = None,
     dpi: int = 100,
     out: TextIO | None = None,
+    traffic: bool = False,
 ) -> LoadTestResult:
     """Run one load test (see the module docstring) and write its report and plots.
 
@@ -487,6 +489,7 @@ def run_loadtest(
         backend=backend,
         live=False,
         out=_DropRunnerProgress(stream),  # type: ignore[arg-type]  # a write-only TextIO
+        traffic=traffic,
     )
     runner.observers.append(sampler)
     sampler.start()
@@ -570,6 +573,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--duration", "-d", type=positive_float, required=True, metavar="S", help="simulated seconds to run"
     )
     p.add_argument("--backend", default="sim", metavar="NAME", help="sim (default) or sumo")
+    p.add_argument(
+        "--traffic", action="store_true", help="reservation-based traffic management (docs/traffic.md)"
+    )
     p.add_argument(
         "--speed",
         "-s",
@@ -663,6 +669,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         seed=args.seed,
         endpoint=args.endpoint,
         dpi=args.dpi,
+        traffic=args.traffic,
     )
     lt = res.data["loadtest"]
     r = res.report

@@ -8,12 +8,21 @@ JSON fields (``RunReport.to_dict``), units in the names:
 * ``patrols_assigned``: patrol assignments made (each with its own id);
   ``patrols_completed``: assignments whose robot finished at least one lap;
   ``laps_completed``: laps over all assignments; ``laps_by_route``: ``{route: laps}``;
-* ``collisions``: robot-robot contact events; ``deadlocks``: times a robot was reported stuck
-  with another robot within 1.5 m; ``reassignments``: routes taken back from a robot (dead,
+* ``collisions``: robot-robot contact events; ``deadlocks``: with traffic management, sets
+  of robots that waited on each other (a wait-for cycle) for more than ``traffic.deadlock_s``
+  (each set counted once while it lasts); without it (no wait-for relation exists), times a
+  robot was reported stuck with another robot within 1.5 m; ``reassignments``: routes taken back from a robot (dead,
   stuck, charging); ``reassignment_events``: one entry per reassignment (``t``, ``route``,
   ``from_robot``, ``reason``, ``old_task_id``, ``to_robot``, ``new_task_id``,
   ``t_reassigned``); ``assignments``: every assignment (``task_id``, ``route``, ``robot``,
   ``t_assigned``, ``laps``, ``t_first_lap``, ``ended``, ``end_reason``);
+* ``throughput_laps_per_robot_hour``: ``laps_completed`` per robot per simulated hour;
+  ``mean_wait_s`` (traffic management only): mean over robots of the time they waited for
+  right of way; ``traffic`` (traffic management only, else ``null``): ``robots_managed``,
+  ``deadlock_s``, ``deadlock_events`` (``t``, ``robots``), ``mean_wait_s``, ``max_wait_s``,
+  ``wait_events``, ``cycles_detected`` / ``cycles_resolved`` (wait-for cycles the manager
+  found and broke), ``reroutes``, ``sidesteps``, ``nudges``, ``stalls`` (robots treated as
+  stopped after no progress);
 * ``per_robot``: one entry per robot: ``name``, ``namespace``, ``distance_m``, ``laps``,
   ``battery_final``, ``final_state`` (the tree's mode at the end, or ``dead`` / ``unknown``),
   ``leaf``, ``task_id``, ``collisions``, ``charges`` (times it went to charge).
@@ -81,6 +90,9 @@ class RunReport:
     assignments: list[dict[str, Any]] = field(default_factory=list)
     malformed_messages: int = 0
     interrupted: bool = False
+    throughput_laps_per_robot_hour: float = 0.0
+    mean_wait_s: float | None = None
+    traffic: dict[str, Any] | None = None
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -89,6 +101,9 @@ class RunReport:
         d.pop("trajectories", None)
         d["sim_time_s"] = round(self.sim_time_s, 3)
         d["wall_time_s"] = round(self.wall_time_s, 3)
+        d["throughput_laps_per_robot_hour"] = round(self.throughput_laps_per_robot_hour, 3)
+        if self.mean_wait_s is not None:
+            d["mean_wait_s"] = round(self.mean_wait_s, 3)
         for r in d["per_robot"]:
             r["distance_m"] = round(r["distance_m"], 2)
             r["battery_final"] = round(r["battery_final"], 4)
@@ -114,8 +129,16 @@ class RunReport:
                 if self.laps_by_route
                 else ""
             ),
-            f"collisions: {self.collisions}   deadlocks: {self.deadlocks}   reassignments: {self.reassignments}",
+            f"collisions: {self.collisions}   deadlocks: {self.deadlocks}   reassignments: {self.reassignments}"
+            f"   throughput: {self.throughput_laps_per_robot_hour:.1f} laps/robot-hour",
         ]
+        if self.traffic is not None:
+            t = self.traffic
+            lines.append(
+                f"traffic: mean wait {t['mean_wait_s']:.1f} s (max {t['max_wait_s']:.1f} s), "
+                f"wait-for cycles {t['cycles_detected']} found / {t['cycles_resolved']} resolved, "
+                f"{t['reroutes']} reroutes, {t['sidesteps']} side steps, {t['stalls']} stalls"
+            )
         for e in self.reassignment_events:
             to = f"-> {e['to_robot']} at {e['t_reassigned']:.1f} s" if e.get("to_robot") else "(waiting)"
             lines.append(f"  t={e['t']:.1f} s {e['route']}: {e['from_robot']} {e['reason']} {to}")

@@ -231,6 +231,8 @@ class FleetRunner:
         out: where the live table, progress and messages go (default ``sys.stdout``).
         listen: listen on the endpoint (router) instead of connecting; default: listen for
             in-process worlds, connect for remote ones.
+        traffic: reservation-based traffic management (``docs/traffic.md``); default: the
+            config's ``traffic.enabled``.
     """
 
     def __init__(
@@ -247,6 +249,7 @@ class FleetRunner:
         tree_kind: str = "patrol",
         out: TextIO | None = None,
         listen: bool | None = None,
+        traffic: bool | None = None,
     ) -> None:
         if backend not in BACKENDS:
             raise ConfigError(
@@ -282,7 +285,15 @@ class FleetRunner:
         self.live = self.out.isatty() if live is None else live
         self.tree_kind = tree_kind
         self.listen = listen
+        self.traffic = config.traffic.enabled if traffic is None else bool(traffic)
+        if self.traffic and tree_kind != "patrol":
+            raise ConfigError(
+                str(config.path), "traffic", f"traffic management drives patrol trees only, not {tree_kind!r}"
+            )
+        #: The traffic policy (:class:`fleet.traffic.ReservationTraffic`) when traffic is on.
+        self.traffic_policy: Any = None
         self.stop_event = threading.Event()
+        self._t0 = 0.0
         self.world: World | None = None
         self.agents: list[Any] = []
         self.coordinator: Any = None
@@ -317,8 +328,16 @@ class FleetRunner:
             if self.run_coordinator:
                 from fleet.coordinator import Coordinator
 
+                if self.traffic:
+                    from fleet.traffic import traffic_from_config
+
+                    self.traffic_policy = traffic_from_config(self.config)
                 self.coordinator = Coordinator(
-                    self.config, self.bus, world.clock, local_robots=set(self.agent_names)
+                    self.config,
+                    self.bus,
+                    world.clock,
+                    traffic=self.traffic_policy,
+                    local_robots=set(self.agent_names),
                 )
             feed = self.coordinator.feed_local if self.coordinator is not None else None
             from fleet.agent import RobotAgent
@@ -333,10 +352,12 @@ class FleetRunner:
                     battery_model=self.config.sim.battery,
                     tick_hz=self.config.tick_hz,
                     on_status=feed,
+                    traffic=self.traffic,
                 )
                 self.agents.append(agent)
             if self.coordinator is not None:
                 self.coordinator.local_deliver = {a.name: a.deliver for a in self.agents}
+                self.coordinator.local_grant_deliver = {a.name: a.deliver_grant for a in self.agents}
             try:
                 self._loop(world, wall, t_wall0)
             except KeyboardInterrupt:
@@ -357,6 +378,7 @@ class FleetRunner:
         clock = world.clock
         period = 1.0 / self.config.tick_hz
         t0 = clock.now()
+        self._t0 = t0
         next_tick = t0
         end = None if self.duration is None else t0 + self.duration
         table = self._make_table()
@@ -484,6 +506,10 @@ class FleetRunner:
         if collisions is None:
             collisions = sum(r.collisions for r in rows) // 2
         clock_t = world.clock.now()
+        laps = st.laps_completed() if st is not None else sum(r.laps for r in rows)
+        robot_hours = len(rows) * max(0.0, clock_t - self._t0) / 3600.0
+        tp = self.traffic_policy
+        deadlocks = tp.deadlocks if tp is not None else (st.deadlocks if st is not None else 0)
         return RunReport(
             config=str(self.config.path),
             backend=self.backend_name,
@@ -493,9 +519,9 @@ class FleetRunner:
             speed=self.speed,
             patrols_assigned=len(st.assignments) if st is not None else 0,
             patrols_completed=st.patrols_completed() if st is not None else 0,
-            laps_completed=st.laps_completed() if st is not None else sum(r.laps for r in rows),
+            laps_completed=laps,
             collisions=int(collisions),
-            deadlocks=st.deadlocks if st is not None else 0,
+            deadlocks=int(deadlocks),
             reassignments=len(st.reassignments) if st is not None else 0,
             per_robot=rows,
             laps_by_route=st.laps_by_route() if st is not None else {},
@@ -504,6 +530,9 @@ class FleetRunner:
             malformed_messages=int(getattr(self.bus, "malformed", 0) or 0),
             interrupted=interrupted,
             trajectories=trajectories,
+            throughput_laps_per_robot_hour=laps / robot_hours if robot_hours > 0 else 0.0,
+            mean_wait_s=tp.mean_wait_s(clock_t) if tp is not None else None,
+            traffic=_traffic_dict(tp, clock_t) if tp is not None else None,
         )
 
     def collision_points(self) -> list[tuple[float, float]]:
@@ -529,6 +558,27 @@ class FleetRunner:
             session.close()
         except Exception:  # noqa: BLE001 - already closed by the bus
             pass
+
+
+def _traffic_dict(tp: Any, now: float) -> dict[str, Any]:
+    """The report's ``traffic`` block (see :mod:`fleet.report`)."""
+    m = tp.manager
+    met = m.metrics
+    waits = [m.wait_stats(r, now)[0] for r in m.robots]
+    return {
+        "robots_managed": len(m.robots),
+        "deadlock_s": tp.deadlock_s,
+        "deadlock_events": [{"t": round(t, 3), "robots": list(rs)} for t, rs in tp.deadlock_events],
+        "mean_wait_s": round(tp.mean_wait_s(now), 3),
+        "max_wait_s": round(max(waits, default=0.0), 3),
+        "wait_events": met.wait_events,
+        "cycles_detected": met.deadlocks_detected,
+        "cycles_resolved": met.deadlocks_resolved,
+        "reroutes": met.reroutes,
+        "sidesteps": met.sidesteps,
+        "nudges": met.nudges,
+        "stalls": met.deaths,
+    }
 
 
 def _reassignment_dict(r: Any) -> dict[str, Any]:

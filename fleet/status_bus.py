@@ -84,6 +84,10 @@ def task_key(robot: str) -> str:
     return f"fleet/{check_robot_name(robot)}/task"
 
 
+def grant_key(robot: str) -> str:
+    return f"fleet/{check_robot_name(robot)}/grant"
+
+
 def alive_key(robot: str) -> str:
     return f"fleet/{check_robot_name(robot)}/alive"
 
@@ -395,10 +399,11 @@ def _to_pose(p: Any) -> Pose2D:
 @dataclass(frozen=True)
 class BusEvent:
     """What :meth:`StatusBus.drain_events` returns: ``kind`` is ``status`` (``payload`` a
-    :class:`StatusRecord`), ``task`` (a :class:`TaskMessage`), ``join`` or ``leave``
+    :class:`StatusRecord`), ``task`` (a :class:`TaskMessage`), ``grant`` (a
+    :class:`~fleet.traffic.Grant`), ``join`` or ``leave``
     (``payload`` ``None``)."""
 
-    kind: Literal["status", "task", "join", "leave"]
+    kind: Literal["status", "task", "grant", "join", "leave"]
     robot: str
     payload: Any = None
 
@@ -498,6 +503,11 @@ class StatusBus:
             raise ValueError(f"task for {msg.robot!r} published to robot {name!r}")
         self._publisher(task_key(name), True).put(msg.to_json())
 
+    def publish_grant(self, grant: Any) -> None:
+        """Publish a traffic :class:`~fleet.traffic.Grant` on ``fleet/<grant.robot>/grant``
+        (JSON of ``Grant.to_dict``; congestion: block, like orders)."""
+        self._publisher(grant_key(grant.robot), True).put(_dumps(grant.to_dict()))
+
     # -- receiving -------------------------------------------------------------------
 
     def _bad(self, key: str, reason: str) -> None:
@@ -596,6 +606,38 @@ class StatusBus:
                 self.received += 1
                 self._push(BusEvent("task", robot, msg))
             self._call([callback], msg)
+
+        sub = self.session.declare_subscriber(key, on_sample)
+        h = BusHandle(sub.undeclare)
+        self._handles.append(h)
+        return h
+
+    def subscribe_grants(self, robot: str, callback: Callable[[Any], None]) -> BusHandle:
+        """Call ``callback(grant)`` (on Zenoh's thread) for every valid traffic grant on
+        ``fleet/<robot>/grant``; a malformed one is counted in ``malformed`` and dropped."""
+        from fleet.traffic import Grant
+
+        key = grant_key(robot)
+
+        def on_sample(sample: Any) -> None:
+            k = key
+            try:
+                k = str(sample.key_expr)
+                if sample.kind == zenoh.SampleKind.DELETE:
+                    return
+                d = _decode(sample.payload.to_bytes(), "grant")
+                g = Grant.from_dict(d)
+                if g.robot != robot:
+                    raise ValueError(f"grant.robot: {g.robot!r} does not match the key's robot {robot!r}")
+                if len(g.poses) != len(g.nodes):
+                    raise ValueError(f"grant: {len(g.nodes)} nodes but {len(g.poses)} poses")
+            except Exception as e:  # noqa: BLE001 - count and drop
+                self._bad(k, f"{type(e).__name__}: {e}")
+                return
+            with self._lock:
+                self.received += 1
+                self._push(BusEvent("grant", robot, g))
+            self._call([callback], g)
 
         sub = self.session.declare_subscriber(key, on_sample)
         h = BusHandle(sub.undeclare)

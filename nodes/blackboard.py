@@ -10,6 +10,8 @@ Keys written by the agent and read by the tree:
 * ``task_id``: ``str | None`` id of the current assignment.
 * ``pick``: ``PickTask | None`` (``shelf``, ``dwell_s``, ``drop``) for the picking tree.
 * ``charger``: ``Pose2D | None`` the charger to use when the battery is low.
+* ``grant``: ``fleet.traffic.Grant | None`` the robot's latest traffic grant (only with
+  traffic management; see ``docs/traffic.md``).
 
 Keys written by the tree and read by the agent:
 
@@ -41,6 +43,7 @@ INPUT_KEYS: dict[str, Any] = {
     "task_id": None,
     "pick": None,
     "charger": None,
+    "grant": None,
 }
 #: Keys the tree writes and the agent reads, with their defaults.
 OUTPUT_KEYS: dict[str, Any] = {

@@ -34,6 +34,7 @@ from nodes.leaves import (
     WaitAction,
 )
 from nodes.recovery import RecoveryNode, RestartOnChange, recovery_actions
+from nodes.traffic import FollowGrant
 from sim.params import BatteryModel
 
 #: Tree kinds accepted by :func:`build_tree`.
@@ -289,6 +290,7 @@ def patrol_tree(
     battery: BatteryModel,
     *,
     retries: int = 6,
+    traffic: bool = False,
 ) -> Behaviour:
     """The patrol robot's tree: ``Selector(memory=False)[battery_guard, patrol_branch, Idle]``.
 
@@ -296,11 +298,63 @@ def patrol_tree(
     CANCELED), the robot charges to ``battery.resume`` and resumes the route near where it
     is. Without a route the robot idles (``mode = "idle"``). Blackboard keys: see
     :mod:`nodes.blackboard`; ``namespace`` is the robot's (``/robot1``) and should equal
-    ``backend.namespace``.
+    ``backend.namespace``. With ``traffic=True`` the tree is :func:`traffic_patrol_tree`.
     """
     ns = normalize_namespace(namespace)
+    if traffic:
+        return traffic_patrol_tree(ns, backend, clock, battery)
     return _robot_tree(
         "PatrolRobot", ns, backend, clock, battery, patrol_branch(ns, backend, retries=retries)
+    )
+
+
+def traffic_patrol_tree(
+    namespace: str, backend: NavigationBackend, clock: Clock, battery: BatteryModel
+) -> Behaviour:
+    """The patrol robot's tree under traffic management (``docs/traffic.md``)::
+
+        Selector(memory=False)
+          BatteryGuard: Sequence[BatteryLow, HasCharger,
+                                 Sequence(memory)[FollowGrant(purpose=charge), Charge]]
+          Patrol:       Sequence[HasRoute, FollowGrant(mode=patrol, count_laps)]
+          FollowGrant(mode=idle)
+
+    The tree decides only what the robot wants (its ``mode``: charging, patrol, idle); the
+    coordinator's traffic policy turns that into a path (a charger, the patrol loop, a
+    parking spot) and every branch drives only the granted part of it, so even an idle
+    robot moves aside when the manager asks. No recovery behaviours: backing up or spinning
+    would leave the reserved space; a failed goal is simply sent again.
+    """
+    ns = normalize_namespace(namespace)
+    robot_blackboard(ns, name=f"{ns}-tree")
+    go_charge = py_trees.composites.Sequence(
+        "GoCharge",
+        memory=True,
+        children=[
+            FollowGrant(backend, clock, mode="charging", purpose="charge", name="GrantToCharger"),
+            Charge(backend, clock, battery.resume),
+        ],
+    )
+    guard = py_trees.composites.Sequence(
+        "BatteryGuard",
+        memory=False,
+        children=[
+            BatteryLow(backend, battery.low, battery.resume),
+            HasAssignment(ns, "charger", name="HasCharger"),
+            go_charge,
+        ],
+    )
+    patrol = py_trees.composites.Sequence(
+        "Patrol",
+        memory=False,
+        children=[
+            HasAssignment(ns, "route", name="HasRoute"),
+            FollowGrant(backend, clock, mode="patrol", count_laps=True, name="GrantPatrol"),
+        ],
+    )
+    idle = FollowGrant(backend, clock, mode="idle", name="GrantIdle")
+    return py_trees.composites.Selector(
+        f"TrafficPatrolRobot {ns}", memory=False, children=[guard, patrol, idle]
     )
 
 
@@ -337,11 +391,17 @@ def build_tree(
     battery: BatteryModel,
     *,
     retries: int = 6,
+    traffic: bool = False,
 ) -> Behaviour:
-    """Build the tree of ``kind`` (``"patrol"`` or ``"picking"``, see :data:`TREE_KINDS`).
-    Raises :class:`~fleet.errors.FleetError` for another kind."""
+    """Build the tree of ``kind`` (``"patrol"`` or ``"picking"``, see :data:`TREE_KINDS`);
+    ``traffic=True`` builds the traffic-managed variant (patrol only). Raises
+    :class:`~fleet.errors.FleetError` for another kind, or for a picking tree with traffic."""
     if kind == "patrol":
-        return patrol_tree(namespace, backend, clock, battery, retries=retries)
+        return patrol_tree(namespace, backend, clock, battery, retries=retries, traffic=traffic)
+    if kind == "picking" and traffic:
+        raise FleetError(
+            "traffic management drives patrol trees only; run picking trees without traffic management"
+        )
     if kind == "picking":
         return picking_tree(namespace, backend, clock, battery, retries=retries)
     raise FleetError(f"unknown behavior tree kind {kind!r}; known kinds: {', '.join(TREE_KINDS)}")
