@@ -21,7 +21,8 @@ center lines, ``a<i>_<j>`` in between, one per shelf bay of about 5 m) and on th
 corridors (``w_*``, ``e_*``). Every edge keeps at least 1 m from shelves and walls, so robots of
 radius 0.3 m can use it and two of them can pass in an aisle. Stations are pick poses in the
 aisles (``pick_a<i>_<j>_e`` / ``_w``, 0.4 m off the center line, facing the shelf) and
-drop-off poses (``drop<k>``) at the east wall; chargers face the west wall. Patrol routes
+drop-off poses (``drop<k>``) at the east wall; chargers face the west wall. Robots start
+with batteries spread over [0.6, 1.0] (:func:`start_battery`). Patrol routes
 loop up one aisle and down the next (``aisles_<i>_<i+1>``; with an odd aisle count the last
 aisle loops with the east corridor, ``aisle_<K>_east``), plus one ``perimeter`` loop.
 
@@ -264,7 +265,9 @@ def build_world(
             parking.append(_pose(WALL + PARK_MARGIN + s * PARK_DX, y, math.pi / 2))
     # Robots fill the row nearest the corridor first, so nobody starts boxed in.
     order = sorted(range(len(parking)), key=lambda q: (-parking[q][1], q))
-    robots = [{"name": f"robot{r + 1}", "start": parking[order[r]]} for r in range(n_robots)]
+    robots = [
+        {"name": f"robot{r + 1}", "start": parking[order[r]], "battery": start_battery(r)} for r in range(n_robots)
+    ]
     return {
         "roadmap": {"nodes": nodes, "edges": edges},
         "chargers": charger_list,
@@ -274,6 +277,13 @@ def build_world(
         "parking": parking,
         "robots": robots,
     }
+
+
+def start_battery(index: int) -> float:
+    """The start battery of the ``index``-th robot (0-based): spread over [0.6, 1.0] by the
+    golden ratio, so robots of a generated fleet do not all need a charger at once (with
+    equal batteries and equal drain the whole fleet would come to the chargers together)."""
+    return round(1.0 - 0.4 * ((index * 0.6180339887498949) % 1.0), 2)
 
 
 def _flow(v: object) -> str:
