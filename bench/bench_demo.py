@@ -3,10 +3,13 @@
 Runs each config as a user would (``fleet run CONFIG --speed 0 --duration S --report ...``,
 in a subprocess on its own loopback port) and prints one row per config: robots, simulated
 seconds, wall seconds, real-time factor, patrols assigned/completed, laps, collisions,
-deadlocks, reassignments.
+deadlocks, reassignments, and with traffic management the mean wait for right of way. Each
+config runs twice, without and with ``--traffic``, so the two can be compared in one run
+(``deadlocks`` means different things in the two modes: see ``fleet/report.py``).
 
     python bench/bench_demo.py                       # 6- and 30-robot demos, 600 s each
     python bench/bench_demo.py --duration 300 --configs configs/warehouse_patrol.yaml
+    python bench/bench_demo.py --traffic-only
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def run_demo(config: str, duration: float) -> dict:
+def run_demo(config: str, duration: float, traffic: bool = False) -> dict:
     """Run one demo at ``--speed 0`` and return its report (raises on a failed run)."""
     with tempfile.TemporaryDirectory() as tmp:
         report = Path(tmp) / "report.json"
@@ -37,6 +40,7 @@ def run_demo(config: str, duration: float) -> dict:
             sys.executable, "-m", "fleet.cli", "run", config,
             "--speed", "0", "--duration", str(duration), "--no-live",
             "--endpoint", f"tcp/127.0.0.1:{_free_port()}", "--report", str(report),
+            "--traffic" if traffic else "--no-traffic",
         ]  # fmt: skip
         proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1800)
         if proc.returncode != 0:
@@ -48,23 +52,26 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--configs", nargs="+", default=list(DEFAULT_CONFIGS), help="configs to run")
     ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds per run (default 600)")
+    ap.add_argument("--traffic-only", action="store_true", help="only the runs with traffic management")
     args = ap.parse_args(argv)
     head = (
-        f"{'config':<34} {'robots':>6} {'sim s':>7} {'wall s':>7} {'x real':>7} "
-        f"{'patrols':>9} {'laps':>5} {'coll':>5} {'dead':>5} {'reassign':>8}"
+        f"{'config':<30} {'traffic':>7} {'robots':>6} {'sim s':>6} {'wall s':>7} {'x real':>7} "
+        f"{'patrols':>8} {'laps':>5} {'coll':>5} {'dead':>5} {'reassign':>8} {'wait s':>7}"
     )
     print(head)
     print("-" * len(head))
     for config in args.configs:
-        r = run_demo(config, args.duration)
-        factor = r["sim_time_s"] / r["wall_time_s"] if r["wall_time_s"] > 0 else float("inf")
-        patrols = f"{r['patrols_completed']}/{r['patrols_assigned']}"
-        print(
-            f"{Path(config).name:<34} {r['robots']:>6} {r['sim_time_s']:>7.0f} {r['wall_time_s']:>7.1f} "
-            f"{factor:>7.1f} {patrols:>9} {r['laps_completed']:>5} {r['collisions']:>5} "
-            f"{r['deadlocks']:>5} {r['reassignments']:>8}",
-            flush=True,
-        )
+        for traffic in (True,) if args.traffic_only else (False, True):
+            r = run_demo(config, args.duration, traffic)
+            factor = r["sim_time_s"] / r["wall_time_s"] if r["wall_time_s"] > 0 else float("inf")
+            patrols = f"{r['patrols_completed']}/{r['patrols_assigned']}"
+            wait = f"{r['mean_wait_s']:.1f}" if r.get("mean_wait_s") is not None else "-"
+            print(
+                f"{Path(config).name:<30} {'on' if traffic else 'off':>7} {r['robots']:>6} "
+                f"{r['sim_time_s']:>6.0f} {r['wall_time_s']:>7.1f} {factor:>7.1f} {patrols:>8} "
+                f"{r['laps_completed']:>5} {r['collisions']:>5} {r['deadlocks']:>5} {r['reassignments']:>8} {wait:>7}",
+                flush=True,
+            )
     return 0
 
 
