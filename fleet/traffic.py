@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import networkx as nx
+import numpy as np
 
 from fleet.errors import FleetError
 from fleet.types import GoalStatus, NavigateThroughPoses, Pose2D
@@ -407,6 +408,8 @@ class TrafficManager:
         self._pos: dict[str, tuple[float, float]] = {
             str(n): (float(d["pos"][0]), float(d["pos"][1])) for n, d in g.nodes(data=True)
         }
+        self._names = list(self._pos)
+        self._xy = np.array([self._pos[n] for n in self._names], dtype=float).reshape(-1, 2)
         self._adj: dict[str, list[str]] = {str(n): [str(m) for m in g.neighbors(n)] for n in g.nodes}
         self._deg: dict[str, int] = {n: len(a) for n, a in self._adj.items()}
         self._len: dict[tuple[str, str], float] = {}
@@ -591,14 +594,10 @@ class TrafficManager:
     # ------------------------------------------------------------------ queries
 
     def nearest_node(self, x: float, y: float) -> str:
-        best, bd = "", math.inf
-        for n, (nx_, ny_) in self._pos.items():
-            d = (nx_ - x) ** 2 + (ny_ - y) ** 2
-            if d < bd:
-                best, bd = n, d
-        if not best:
+        if not self._names:
             raise TrafficError("the roadmap has no nodes")
-        return best
+        d = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
+        return self._names[int(np.argmin(d))]
 
     def holder(self, res: Resource) -> str | None:
         return self.table.holder(res)
