@@ -246,11 +246,13 @@ def load_config(path: str | Path, *, robots: int | None = None) -> FleetConfig:
     radius = model.radius
     place = _Placer(v, grid, radius)
 
-    roadmap = Roadmap.from_config_dict(doc["roadmap"], v.file)
+    roadmap = Roadmap.from_config_dict(doc["roadmap"], v.file, base_dir=p.parent)
+    net = roadmap.source_net is not None  # from roadmap.net: fields name SUMO junctions
     for n in roadmap.nodes:
-        place.check(Pose2D(*roadmap.pos(n)), f"roadmap.nodes.{n}")
+        place.check(Pose2D(*roadmap.pos(n)), f"roadmap.net.junctions.{n}" if net else f"roadmap.nodes.{n}")
     for i, (a, b) in enumerate(roadmap.edges):
-        place.check_segment(roadmap.pos(a), roadmap.pos(b), f"roadmap.edges[{i}]", f"edge {a} - {b}")
+        f = f"roadmap.net.edges[{a}, {b}]" if net else f"roadmap.edges[{i}]"
+        place.check_segment(roadmap.pos(a), roadmap.pos(b), f, f"edge {a} - {b}")
     if not roadmap.is_connected():
         first = roadmap.nodes[0]
         cut = [n for n in roadmap.nodes if not roadmap.shortest_path(first, n)]

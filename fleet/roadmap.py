@@ -3,9 +3,11 @@
 
 A :class:`Roadmap` wraps an undirected :class:`networkx.Graph` whose nodes are names (``str``)
 with attribute ``pos`` = ``(x, y)`` in meters and whose edges carry ``length`` in meters.
-Fleet configs declare it explicitly (``roadmap.nodes`` / ``roadmap.edges``, see
-``docs/config.md``); other loaders (e.g. SUMO networks) build a graph and call
-:meth:`Roadmap.from_graph`.
+Fleet configs declare it explicitly (``roadmap.nodes`` / ``roadmap.edges``) or name a SUMO
+network (``roadmap.net``, a ``.net.xml`` made in netedit, read with sumolib), see
+``docs/config.md``; other loaders build a graph and call :meth:`Roadmap.from_graph`. A
+roadmap read from a SUMO network remembers the file (:attr:`Roadmap.source_net`) so that the
+SUMO backend drives on that very network.
 
 The class is plain and read-only after construction: planning queries (shortest paths, travel
 costs, dense loops for patrol routes) never change it, so traffic management can be layered
@@ -17,13 +19,17 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import networkx as nx
 import numpy as np
 
-from fleet.errors import ConfigError
+from fleet.errors import BackendError, ConfigError
 from fleet.types import Pose2D
+
+#: Vehicle class whose edges a ``roadmap.net`` network contributes unless ``vclass`` says otherwise.
+DEFAULT_VCLASS = "passenger"
 
 
 class Roadmap:
@@ -34,7 +40,12 @@ class Roadmap:
     """
 
     def __init__(self, graph: nx.Graph) -> None:
-        """Wrap ``graph`` as is. Prefer :meth:`from_graph`, which checks the attributes."""
+        """Wrap ``graph`` as is. Prefer :meth:`from_graph`, which checks the attributes.
+
+        Graph-level attributes are kept: ``graph.graph["sumo_net"]`` (the absolute path of the
+        ``.net.xml`` the graph was read from, see :func:`sim.sumo_net.read_network`) becomes
+        :attr:`source_net`, ``graph.graph["sumo_vclass"]`` :attr:`source_vclass`.
+        """
         self._g = graph
         self._names: list[str] = [str(n) for n in graph.nodes]
         self._xy = (
@@ -51,9 +62,12 @@ class Roadmap:
 
         Node names are converted to ``str``. An edge without ``length`` gets the straight-line
         distance between its end points; an edge's own ``length`` (e.g. a curved lane) is kept.
-        Raises ``ValueError`` if a node has no valid ``pos`` or a length is negative.
+        Graph-level attributes are copied (so a graph from :func:`sim.sumo_net.read_network`
+        keeps its ``sumo_net``: :attr:`source_net`). Raises ``ValueError`` if a node has no
+        valid ``pos`` or a length is negative.
         """
         out = nx.Graph()
+        out.graph.update(g.graph)
         for n, data in g.nodes(data=True):
             pos = data.get("pos")
             if pos is None or len(pos) != 2:
@@ -68,21 +82,41 @@ class Roadmap:
         return cls(out)
 
     @classmethod
-    def from_config_dict(cls, d: Any, file: str = "<memory>", field: str = "roadmap") -> Roadmap:
+    def from_config_dict(
+        cls, d: Any, file: str = "<memory>", field: str = "roadmap", *, base_dir: str | Path | None = None
+    ) -> Roadmap:
         """Build a roadmap from the ``roadmap`` section of a fleet config.
 
-        ``d`` must be ``{"nodes": {name: [x, y], ...}, "edges": [[a, b], ...]}`` (meters, map
-        frame). Raises :class:`ConfigError` naming ``file`` and the offending field (e.g.
-        ``roadmap.edges[3]``) for a wrong shape, a duplicate or self edge, or an unknown node.
+        ``d`` is either ``{"nodes": {name: [x, y], ...}, "edges": [[a, b], ...]}`` (meters, map
+        frame) or ``{"net": path, "vclass": cls}``: a SUMO network (see :meth:`from_net_file`)
+        whose path is relative to ``base_dir`` (default: the directory of ``file``, the config).
+        Raises :class:`ConfigError` naming ``file`` and the offending field (e.g.
+        ``roadmap.edges[3]``, ``roadmap.net``) for a wrong shape, a duplicate or self edge, an
+        unknown node, or a SUMO network that cannot be used.
         """
         if not isinstance(d, Mapping):
-            raise ConfigError(file, field, f"must be a mapping with nodes and edges, got {_tname(d)}")
-        extra = set(d) - {"nodes", "edges"}
+            raise ConfigError(
+                file, field, f"must be a mapping with nodes and edges (or net), got {_tname(d)}"
+            )
+        keys = ("nodes", "edges", "net", "vclass")
+        extra = set(d) - set(keys)
         if extra:
             key = sorted(map(str, extra))[0]
-            close = difflib.get_close_matches(key, ["nodes", "edges"], n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else " (expected nodes, edges)"
+            close = difflib.get_close_matches(key, keys, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else " (expected nodes and edges, or net)"
             raise ConfigError(file, f"{field}.{key}", f"unknown key{hint}")
+        if "net" in d:
+            both = sorted(set(d) & {"nodes", "edges"})
+            if both:
+                raise ConfigError(
+                    file,
+                    f"{field}.{both[0]}",
+                    "give either net (a SUMO network) or nodes and edges, not both",
+                )
+            base = Path(base_dir) if base_dir is not None else Path(file).parent
+            return cls._from_net_section(d, file, field, base)
+        if "vclass" in d:
+            raise ConfigError(file, f"{field}.vclass", "only applies to a SUMO network (roadmap.net)")
         nodes = d.get("nodes")
         if not isinstance(nodes, Mapping) or not nodes:
             raise ConfigError(file, f"{field}.nodes", "must be a non-empty mapping of name: [x, y]")
@@ -112,6 +146,74 @@ class Roadmap:
             g.add_edge(a, b, length=math.dist(g.nodes[a]["pos"], g.nodes[b]["pos"]))
         return cls(g)
 
+    @classmethod
+    def _from_net_section(cls, d: Mapping[str, Any], file: str, field: str, base: Path) -> Roadmap:
+        rel = d["net"]
+        if not isinstance(rel, str) or not rel:
+            raise ConfigError(file, f"{field}.net", f"must be the path of a SUMO .net.xml file, got {rel!r}")
+        vclass = d.get("vclass", DEFAULT_VCLASS)
+        if not isinstance(vclass, str) or not vclass:
+            raise ConfigError(file, f"{field}.vclass", f"must be a SUMO vehicle class name, got {vclass!r}")
+        return cls.from_net_file(base / rel, vclass=vclass, file=file, field=field, shown=rel)
+
+    @classmethod
+    def from_net_file(
+        cls,
+        net_path: str | Path,
+        *,
+        vclass: str = DEFAULT_VCLASS,
+        file: str | None = None,
+        field: str = "roadmap",
+        shown: str | None = None,
+    ) -> Roadmap:
+        """Read a SUMO network (``.net.xml``, e.g. drawn in netedit) with sumolib.
+
+        Nodes are the junction ids at the junctions' SUMO ``(x, y)``, which is the ``map`` frame
+        (meters); an edge joins two junctions when a SUMO edge that vehicle class ``vclass`` may
+        use drives between them, either way; its ``length`` is the SUMO edge's node-to-node
+        length (see :func:`sim.sumo_net.read_network`). :attr:`source_net` is the absolute path
+        of the file and :attr:`source_vclass` is ``vclass``.
+
+        Raises :class:`ConfigError` with ``file`` (default: the network file itself) and field
+        ``<field>.net`` (``<field>.vclass`` for an unknown vehicle class) if the file is missing,
+        is not XML or not a SUMO network, has no edge ``vclass`` may use, or sumolib is not
+        installed. ``shown`` is how the path appears in messages (default: as given).
+        """
+        path = Path(net_path)
+        src = str(path) if file is None else file
+        f = f"{field}.net"
+        name = repr(shown if shown is not None else str(net_path))
+        if not path.is_file():
+            raise ConfigError(
+                src, f, f"SUMO network file {name} does not exist (looked for {path.resolve()})"
+            )
+        try:
+            import sumolib.net.lane  # type: ignore[import-untyped]
+        except ImportError:
+            raise ConfigError(
+                src,
+                f,
+                f"reading the SUMO network {name} needs sumolib, which is not installed: "
+                "run `make setup-sumo` (or pip install -e '.[sumo]')",
+            ) from None
+        known = sorted(sumolib.net.lane.SUMO_VEHICLE_CLASSES)
+        if vclass not in known:
+            close = difflib.get_close_matches(vclass, known, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else f" (one of {', '.join(known)})"
+            raise ConfigError(src, f"{field}.vclass", f"unknown SUMO vehicle class {vclass!r}{hint}")
+        from sim.sumo_net import read_network
+
+        try:
+            g = read_network(path, vclass=vclass)
+        except ConfigError as e:
+            raise ConfigError(src, f, f"{name}: {e.reason}") from None
+        except BackendError as e:
+            raise ConfigError(src, f, f"{name}: {e}") from None
+        try:
+            return cls.from_graph(g)
+        except ValueError as e:
+            raise ConfigError(src, f, f"{name}: {e}") from None
+
     # ------------------------------------------------------------------ queries
 
     @property
@@ -123,6 +225,22 @@ class Roadmap:
     def edges(self) -> list[tuple[str, str]]:
         """Undirected edges as ``(a, b)`` pairs in source order (a copy)."""
         return [(str(a), str(b)) for a, b in self._g.edges]
+
+    @property
+    def source_net(self) -> Path | None:
+        """Absolute path of the SUMO ``.net.xml`` this roadmap was read from, or ``None``.
+
+        The SUMO backend drives on this file instead of generating a network from the graph.
+        """
+        path = self._g.graph.get("sumo_net")
+        return Path(path) if path else None
+
+    @property
+    def source_vclass(self) -> str | None:
+        """The SUMO vehicle class whose edges were read from :attr:`source_net` (``None`` if the
+        roadmap is not from a SUMO network, or every edge was kept)."""
+        vc = self._g.graph.get("sumo_vclass")
+        return str(vc) if vc else None
 
     @property
     def graph(self) -> nx.Graph:

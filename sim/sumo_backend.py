@@ -1,7 +1,9 @@
 """Eclipse SUMO as a navigation backend: robots are SUMO vehicles on a network of the warehouse.
 
 :class:`SumoWorld` owns one libsumo simulation. It builds (or reuses, see
-:mod:`sim.sumo_net`) the SUMO network of the roadmap, adds every robot as a vehicle of one
+:mod:`sim.sumo_net`) the SUMO network of the roadmap, or, when the roadmap was read from a
+``.net.xml`` (``roadmap: {net: ...}`` in a fleet config, :attr:`fleet.roadmap.Roadmap.source_net`),
+drives on that very file, roadmap nodes being its junctions. It adds every robot as a vehicle of one
 ``robot`` vehicle type (length and width = robot diameter, ``maxSpeed``/``accel``/``decel``
 from :class:`sim.params.RobotModel`, no driver imperfection, so runs are deterministic) and
 advances SUMO by ``SimParams.step_s`` on the :class:`fleet.clock.SimClock` passed in (each
@@ -68,7 +70,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -95,7 +97,7 @@ from fleet.types import (
 )
 from sim.params import RobotSpec, SimParams
 from sim.simulator import step_until
-from sim.sumo_net import SumoNetwork, as_graph, build_network, settings_for_robot
+from sim.sumo_net import SumoNetwork, as_graph, build_network, roadmap_mapping, settings_for_robot
 
 _ACTIVE: SumoWorld | None = None
 
@@ -310,14 +312,20 @@ class SumoWorld:
 
     Args:
         roadmap: a ``fleet.roadmap.Roadmap`` or a ``networkx.Graph`` with node ``pos`` (m).
-            Ignored when ``net_file`` is given.
+            If it was read from a SUMO network (``Roadmap.source_net``, or
+            ``graph.graph["sumo_net"]``), SUMO runs on that file and :attr:`network` maps the
+            roadmap's nodes to its junctions (same ids) and its edges to the SUMO edges;
+            otherwise a network is generated from it (:func:`sim.sumo_net.build_network`).
+            Ignored when ``net_file`` is given, unless it was read from that same file.
         robots: the robots; each becomes a vehicle named after ``RobotSpec.name``, parked at
             the lane point nearest its start pose.
         params: step (``step_s``), seed, stuck time (default teleport time), chargers, robot
             and battery models.
         clock: the simulated clock; :meth:`step` advances it by ``params.step_s``. SUMO starts
             at ``clock.now()``.
-        net_file: use this ``.net.xml`` (e.g. drawn in netedit) instead of generating one.
+        net_file: use this ``.net.xml`` (e.g. drawn in netedit) instead of the roadmap's.
+        vclass: SUMO vehicle class of the robots (default: the roadmap's ``source_vclass``,
+            the class whose edges were read from its network; else SUMO's ``passenger``).
         cache_dir: cache of generated networks (default :func:`sim.sumo_net.default_cache_dir`).
         time_to_teleport: SUMO's ``--time-to-teleport`` in s (default ``params.stuck_time_s``;
             ``<= 0`` disables teleports).
@@ -334,8 +342,9 @@ class SumoWorld:
             without it SUMO's warnings are silenced.
 
     Raises:
-        BackendError: another SumoWorld is open, libsumo/eclipse-sumo are missing, or SUMO
-            refused to start (its message is included).
+        BackendError: another SumoWorld is open, libsumo/eclipse-sumo are missing, the network
+            file is missing or lacks a junction of the roadmap read from it, or SUMO refused to
+            start (its message is included).
     """
 
     def __init__(
@@ -346,6 +355,7 @@ class SumoWorld:
         clock: SimClock,
         *,
         net_file: str | Path | None = None,
+        vclass: str | None = None,
         cache_dir: str | Path | None = None,
         time_to_teleport: float | None = None,
         park_idle: bool = True,
@@ -375,9 +385,21 @@ class SumoWorld:
         self.max_snap_m = max_snap_m
         model = params.model
         self.network: SumoNetwork
+        source = _source_net(roadmap)
+        if net_file is None:
+            net_file = source
+        # the roadmap's nodes are junctions of net_file when the roadmap was read from it
+        self._mapped_graph = (
+            as_graph(roadmap)
+            if source is not None and net_file is not None and Path(net_file).resolve() == source.resolve()
+            else None
+        )
+        if self._mapped_graph is not None and vclass is None:
+            vclass = as_graph(roadmap).graph.get("sumo_vclass")
+        self.vclass = vclass
         if net_file is not None:
             self.network = SumoNetwork(net_path=Path(net_file), cached=True)
-            if not self.network.net_path.exists():
+            if not self.network.net_path.is_file():
                 raise BackendError(f"SUMO network {net_file} does not exist")
         else:
             settings = settings_for_robot(model.radius, model.max_linear_speed, internal_links=internal_links)
@@ -428,7 +450,11 @@ class SumoWorld:
         ls = self._ls
         m = self.params.model
         self.length = 2.0 * m.radius
+        if self._mapped_graph is not None:
+            self.network = self._map_roadmap(self._mapped_graph)
         ls.vehicletype.copy("DEFAULT_VEHTYPE", ROBOT_TYPE)
+        if self.vclass:
+            ls.vehicletype.setVehicleClass(ROBOT_TYPE, self.vclass)
         ls.vehicletype.setLength(ROBOT_TYPE, self.length)
         ls.vehicletype.setWidth(ROBOT_TYPE, self.length)
         ls.vehicletype.setMinGap(ROBOT_TYPE, max(0.1, 0.5 * m.radius))
@@ -461,6 +487,19 @@ class SumoWorld:
         self._next_sample = self.clock.now() + (self.trajectory_period_s or 0.0)
         for spec in robots:
             self.add_robot(spec)
+
+    def _map_roadmap(self, graph: Any) -> SumoNetwork:
+        """:attr:`network` with ``junction_of`` / ``edge_of`` of a roadmap read from its file."""
+        ls = self._ls
+        edges = [
+            (e, ls.edge.getFromJunction(e), ls.edge.getToJunction(e))
+            for e in ls.edge.getIDList()
+            if not e.startswith(":")
+        ]
+        junction_of, edge_of = roadmap_mapping(
+            graph, ls.junction.getIDList(), edges, net=str(self.network.net_path)
+        )
+        return replace(self.network, junction_of=junction_of, edge_of=edge_of)
 
     def add_robot(self, spec: RobotSpec) -> None:
         """Add ``spec`` as a vehicle parked at the lane point nearest its start pose (however
@@ -1161,8 +1200,9 @@ class SumoRunnerWorld:
     Every robot of ``config`` becomes a vehicle (like the simulator world, ``robots`` only
     selects agents elsewhere). Wire it with
     ``fleet.runner.register_backend("sumo", SumoRunnerWorld)`` (import lazily: this module
-    loads libsumo when the world opens). ``config.sumo_net`` (if the config has it) names a
-    ``.net.xml`` to drive on instead of generating a network from ``config.roadmap``.
+    loads libsumo when the world opens). A config whose roadmap is a SUMO network
+    (``roadmap: {net: ...}``) drives on that ``.net.xml``; otherwise a network is generated
+    from ``config.roadmap``.
     """
 
     remote = False
@@ -1170,10 +1210,7 @@ class SumoRunnerWorld:
     def __init__(self, config: Any, robots: Sequence[RobotSpec] = (), session: Any = None, **kw: Any) -> None:
         self.clock = SimClock()
         self.step_s = float(config.sim.step_s)
-        net_file = getattr(config, "sumo_net", None)
-        self.world = SumoWorld(
-            config.roadmap, list(config.robots), config.sim, self.clock, net_file=net_file, **kw
-        )
+        self.world = SumoWorld(config.roadmap, list(config.robots), config.sim, self.clock, **kw)
 
     def backend(self, namespace: str) -> SumoNavigationBackend:
         return self.world.backend(namespace)
@@ -1210,6 +1247,19 @@ def _reject_reason(goal: Goal) -> str | None:
         if not (math.isfinite(pose.x) and math.isfinite(pose.y) and math.isfinite(pose.theta)):
             return f"Pose {i} ({pose.x}, {pose.y}, {pose.theta}) is not finite."
     return None
+
+
+def _source_net(roadmap: Any) -> Path | None:
+    """The ``.net.xml`` a roadmap (``Roadmap`` or graph) was read from, if any."""
+    if roadmap is None:
+        return None
+    src = getattr(roadmap, "source_net", None)
+    if src is None and not hasattr(roadmap, "source_net"):
+        try:
+            src = as_graph(roadmap).graph.get("sumo_net")
+        except TypeError:
+            return None
+    return Path(src) if src else None
 
 
 def active_world() -> SumoWorld | None:

@@ -38,7 +38,7 @@ import re
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Hashable, Mapping
+from collections.abc import Hashable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -209,9 +209,12 @@ def write_plain_xml(
     return nod_path, edg_path, jid, edge_of
 
 
-def run_netconvert(nod_path: Path, edg_path: Path, net_path: Path, settings: NetSettings) -> None:
-    """Run ``netconvert`` on plain-XML node and edge files; raise :class:`BackendError` with
-    netconvert's own message if it fails."""
+def run_netconvert(
+    nod_path: Path, edg_path: Path, net_path: Path, settings: NetSettings, *, cwd: Path | None = None
+) -> None:
+    """Run ``netconvert`` on plain-XML node and edge files (relative paths are relative to
+    ``cwd``, default the current directory); raise :class:`BackendError` with netconvert's own
+    message if it fails."""
     cmd = [
         str(sumo_binary("netconvert")),
         "--node-files",
@@ -224,8 +227,8 @@ def run_netconvert(nod_path: Path, edg_path: Path, net_path: Path, settings: Net
     ]
     env = dict(os.environ)
     env.setdefault("SUMO_HOME", str(sumo_home()))
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
-    if proc.returncode != 0 or not net_path.exists():
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False, cwd=cwd)
+    if proc.returncode != 0 or not (cwd / net_path if cwd is not None else net_path).exists():
         raise BackendError(
             f"netconvert failed (exit {proc.returncode}) for {edg_path}: {proc.stderr.strip() or proc.stdout.strip()}"
         )
@@ -291,34 +294,69 @@ def _polyline_length(points: list[tuple[float, float]]) -> float:
     return sum(math.dist(a, b) for a, b in zip(points, points[1:], strict=False))
 
 
+def _root_tag(path: Path) -> str:
+    """The tag of the first element of XML file ``path`` (plain or gzip-compressed); raises
+    ``ValueError`` with the parser's message if the file is not well-formed XML."""
+    import gzip
+    import xml.etree.ElementTree as ET
+
+    with path.open("rb") as raw:
+        gz = raw.read(2) == b"\x1f\x8b"
+    try:
+        with gzip.open(path, "rb") if gz else path.open("rb") as f:
+            for _, elem in ET.iterparse(f, events=("start",)):
+                return str(elem.tag)
+    except (ET.ParseError, OSError, EOFError) as exc:
+        raise ValueError(str(exc)) from None
+    raise ValueError("no XML element")  # pragma: no cover - iterparse raises on empty input
+
+
 def read_network(net_path: Path | str, *, vclass: str | None = "passenger") -> nx.Graph:
-    """Read a SUMO ``.net.xml`` into an undirected roadmap graph.
+    """Read a SUMO ``.net.xml`` (or ``.net.xml.gz``) into an undirected roadmap graph.
 
     Nodes are junction ids (internal and dead-end-only junctions included when an edge touches
-    them) with ``pos=(x, y)``; an edge ``{u, v}`` exists when a SUMO edge drives ``u -> v`` or
-    ``v -> u`` (one-way streets become two-way in the roadmap; the SUMO backend still drives
-    them one way). ``length`` is the node-to-node length: the straight distance, scaled by how
-    much the edge's own shape is longer than its chord (curved edges drawn in netedit). Edges
-    that ``vclass`` may not use (e.g. sidewalks) are left out; ``vclass=None`` keeps them all.
-    ``graph.graph["sumo_net"]`` is the absolute path of the file. Raises :class:`ConfigError`
-    if the file is missing or is not a SUMO network.
+    them) with ``pos=(x, y)``: the junction's coordinates in the file, which are the coordinates
+    SUMO simulates in (``map`` frame). ``netOffset`` is not undone: netedit and
+    :func:`build_network` keep the coordinates they were given (no offset normalization), so
+    the file's coordinates are the map's. An edge ``{u, v}`` exists when a SUMO edge drives
+    ``u -> v`` or ``v -> u`` (one-way streets become two-way in the roadmap; the SUMO backend
+    still drives them one way); it lists those SUMO edges in ``sumo_edges``. ``length`` is the
+    node-to-node length: the straight distance, scaled by how much the edge's own shape is
+    longer than its chord (curved edges drawn in netedit). Edges that ``vclass`` may not use
+    (e.g. sidewalks) are left out; ``vclass=None`` keeps them all.
+
+    ``graph.graph["sumo_net"]`` is the absolute path of the file and
+    ``graph.graph["sumo_vclass"]`` the ``vclass`` used. Raises :class:`ConfigError` naming the
+    file if it is missing, is not XML, is not a SUMO network (root element other than
+    ``<net>``) or has no edge ``vclass`` may use; :class:`BackendError` if sumolib is missing.
     """
     path = Path(net_path)
-    if not path.exists():
+    if not path.is_file():
         raise ConfigError(str(path), "", "SUMO network file does not exist")
     try:
         import sumolib  # type: ignore[import-untyped]
-    except ImportError as exc:  # pragma: no cover - depends on the install
-        raise BackendError("reading a .net.xml needs sumolib: pip install -e '.[sumo]'") from exc
+    except ImportError as exc:
+        raise BackendError(
+            "reading a .net.xml needs sumolib: make setup-sumo (or pip install -e '.[sumo]')"
+        ) from exc
+    try:
+        root = _root_tag(path)
+    except ValueError as exc:
+        raise ConfigError(str(path), "", f"not an XML file ({exc})") from None
+    if root != "net":
+        raise ConfigError(str(path), "", f"not a SUMO network: the root element is <{root}>, expected <net>")
     try:
         net = sumolib.net.readNet(str(path), withInternal=False)
     except Exception as exc:
         raise ConfigError(str(path), "", f"not a readable SUMO network ({exc})") from exc
     g = nx.Graph()
     g.graph["sumo_net"] = str(path.resolve())
+    g.graph["sumo_vclass"] = vclass
+    n_edges = 0
     for edge in net.getEdges(withInternal=False):
         if edge.getFunction() in ("internal", "crossing", "walkingarea"):
             continue
+        n_edges += 1
         if vclass is not None and not edge.allows(vclass):
             continue
         u, v = edge.getFromNode(), edge.getToNode()
@@ -341,9 +379,67 @@ def read_network(net_path: Path | str, *, vclass: str | None = "passenger") -> n
             g.edges[a, b]["sumo_edges"].append(edge.getID())
         else:
             g.add_edge(a, b, length=length, sumo_edges=[edge.getID()])
-    if g.number_of_nodes() == 0:
-        raise ConfigError(str(path), "", "the SUMO network has no drivable edges")
+    if g.number_of_edges() == 0:
+        if n_edges == 0:
+            reason = "the SUMO network has no edges"
+        elif vclass is None:
+            reason = "the SUMO network has no edges between two different junctions"
+        else:
+            reason = (
+                f"the SUMO network has no edge that vehicle class {vclass!r} may use "
+                f"({n_edges} edges, none allowing {vclass!r})"
+            )
+        raise ConfigError(str(path), "", reason)
     return g
+
+
+def roadmap_mapping(
+    graph: nx.Graph, junctions: Iterable[str], edges: Iterable[tuple[str, str, str]], *, net: str = "<net>"
+) -> tuple[dict[Hashable, str], dict[tuple[Hashable, Hashable], str]]:
+    """Map the nodes and edges of a roadmap read from a SUMO network onto that network.
+
+    ``junctions`` are the network's junction ids, ``edges`` its ``(edge id, from junction, to
+    junction)`` triples (non-internal). Returns ``(junction_of, edge_of)`` as in
+    :class:`SumoNetwork`: each roadmap node is the junction of the same id; ``(u, v)`` maps to
+    a SUMO edge driving ``u -> v`` (the first in ``edges`` order when there are parallel
+    ones); a direction no SUMO edge drives (a one-way street) is absent. Raises
+    :class:`BackendError` (naming ``net``) if a roadmap node is not a junction of the network.
+    """
+    ids = set(junctions)
+    junction_of: dict[Hashable, str] = {}
+    for n in graph.nodes:
+        if str(n) not in ids:
+            raise BackendError(
+                f"roadmap node {n!r} is not a junction of the SUMO network {net}: "
+                "the roadmap was not read from this network"
+            )
+        junction_of[n] = str(n)
+    edge_of: dict[tuple[Hashable, Hashable], str] = {}
+    for eid, a, b in edges:
+        if graph.has_edge(a, b) and (a, b) not in edge_of:
+            edge_of[(a, b)] = eid
+    return junction_of, edge_of
+
+
+def write_network(graph: nx.Graph, out_path: Path | str, settings: NetSettings | None = None) -> Path:
+    """Write the SUMO network of roadmap ``graph`` to ``out_path`` (a ``.net.xml``), bypassing
+    the cache: e.g. to edit it in netedit or ship it with a config (``roadmap: {net: ...}``).
+
+    The network is the one :func:`build_network` makes with the same ``settings``. The
+    header comment netconvert writes names the plain-XML inputs by their bare file names.
+    Raises :class:`BackendError` if netconvert fails, :class:`ConfigError` for a bad roadmap.
+    """
+    settings = settings or NetSettings()
+    out = Path(out_path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    stem = out.name.removesuffix(".xml").removesuffix(".net") or "roadmap"
+    with tempfile.TemporaryDirectory(prefix="fleet-net-") as tmp:
+        tmpdir = Path(tmp)
+        nod, edg, _, _ = write_plain_xml(graph, tmpdir, stem, settings)
+        built = tmpdir / f"{stem}.net.xml"
+        run_netconvert(Path(nod.name), Path(edg.name), Path(built.name), settings, cwd=tmpdir)
+        shutil.copy(built, out)
+    return out
 
 
 def grid_roadmap(
@@ -374,3 +470,44 @@ def as_graph(roadmap: Any) -> nx.Graph:
         if isinstance(g, nx.Graph):
             return g
     raise TypeError(f"expected a networkx.Graph or a Roadmap wrapping one, got {type(roadmap).__name__}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m sim.sumo_net CONFIG OUT.net.xml``: write the SUMO network of a fleet config's
+    roadmap, as the SUMO backend would build it, to a file (to edit in netedit, or to ship with
+    a config as ``roadmap: {net: ...}``)."""
+    import argparse
+
+    from fleet.config import load_config
+    from fleet.errors import FleetError
+
+    p = argparse.ArgumentParser(
+        prog="python -m sim.sumo_net",
+        description="Write the SUMO network (.net.xml) of a fleet config's roadmap: one junction per "
+        "roadmap node at its map (x, y), two one-lane edges per roadmap edge, lanes as wide and as "
+        "fast as the config's robot_model allows, U-turns everywhere. Open the result in netedit "
+        "and use it as `roadmap: {net: FILE}` (docs/sumo.md).",
+        epilog="Example: python -m sim.sumo_net configs/warehouse_patrol.yaml configs/nets/warehouse_small.net.xml",
+    )
+    p.add_argument("config", help="fleet config YAML whose roadmap to convert")
+    p.add_argument("out", help="output .net.xml")
+    p.add_argument(
+        "--internal-links",
+        action="store_true",
+        help="model lanes inside junctions (off by default, like the SUMO backend; see docs/sumo.md)",
+    )
+    a = p.parse_args(argv)
+    try:
+        cfg = load_config(a.config)
+        m = cfg.sim.model
+        settings = settings_for_robot(m.radius, m.max_linear_speed, internal_links=a.internal_links)
+        out = write_network(cfg.roadmap.graph, a.out, settings)
+    except FleetError as e:
+        print(f"error: {e}")
+        return 2
+    print(f"wrote {out}: {len(cfg.roadmap)} junctions, {2 * len(cfg.roadmap.edges)} edges")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
