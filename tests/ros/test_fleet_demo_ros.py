@@ -57,3 +57,22 @@ def test_demo_over_ros_completes_patrols_like_in_process() -> None:
     assert over_ros.laps_completed >= 1
     # same trees, same coordinator, same simulator behind Nav2: comparable throughput
     assert over_ros.laps_completed >= 0.6 * in_process.laps_completed
+
+
+def test_traffic_managed_demo_over_ros_follows_grants_like_in_process() -> None:
+    """Traffic management works the same over ROS: the grants become NavigateThroughPoses
+    goals on the namespaced Nav2 servers, the robots reserve, wait and lap as in-process."""
+    if "ros" not in BACKENDS:
+        from fleet.ros.world import register
+
+        register()
+    in_process = _run("sim", traffic=True)
+    # at 4x real time, not 10x: a grant is extended on a fresh position, and at 10x a ROS round
+    # trip on a loaded machine costs many simulated seconds, which the manager's stall rule
+    # (no progress for traffic.stall_timeout_s) would take for a stopped robot
+    with ServerProcess.for_config(WAREHOUSE, "--speed", "4", "--odom-hz", "20", "--amcl-hz", "2"):
+        over_ros = _run("ros", listen=True, traffic=True)
+    assert over_ros.traffic is not None and over_ros.traffic["robots_managed"] == 6
+    assert over_ros.deadlocks == 0
+    assert over_ros.patrols_completed >= 1 and over_ros.laps_completed >= 1
+    assert over_ros.laps_completed >= 0.6 * in_process.laps_completed
