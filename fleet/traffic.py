@@ -16,10 +16,13 @@ Rules (the contract the tests check):
   only drive inside what it holds. Nodes behind it are released once it is farther than
   ``clearance_m`` from them; the edge behind it when it reaches the next node.
 * Grants grow by *blocks*: the next path node, and if that node is inside a single-lane
-  corridor (roadmap degree 2), every following node up to the corridor's far end (the next
-  node of degree other than 2) or the path's end, all or nothing. So a robot never enters an
-  aisle whose far end another robot holds, and two robots can never meet head-on inside
-  one.
+  corridor (roadmap degree 2), every following node of the corridor, all or nothing, and
+  the node at its far end (the next node of degree other than 2) or the path's end. So two
+  robots can never meet head-on inside a corridor. The far end is in the block when it is a
+  dead end or the path's end, or when another robot is about to come from it into the
+  corridor; otherwise (``TrafficParams.hold_far_end`` off, the default) the junction at the
+  far end is taken as a block of its own when the robot gets there, so robots crossing at
+  the aisle's end are not held up while it drives through the aisle.
 * The remaining waits can form cycles (two robots at both ends of one aisle, four robots
   around an intersection). The manager keeps a wait-for graph (robot -> holders of what it
   waits for), finds its strongly connected components with networkx every
@@ -77,6 +80,10 @@ def edge_key(a: str, b: str) -> tuple[str, str]:
 
 # ----------------------------------------------------------------------------- parameters
 
+#: How far ahead (path nodes) the manager looks for a robot coming the other way into a
+#: corridor (see ``TrafficParams.hold_far_end``).
+ONCOMING_NODES = 8
+
 
 @dataclass(frozen=True)
 class TrafficParams:
@@ -101,6 +108,12 @@ class TrafficParams:
     :meth:`TrafficManager.priority`). ``loop_min_nodes``: looped paths are kept at least this
     many nodes ahead of the grant. ``max_resolutions``: at most this many deadlocks and
     blocked robots are handled per detection pass (bounds the cost of one cycle).
+    ``hold_far_end``: a robot entering a single-lane corridor also takes the junction at its
+    far end, for the whole way through (the strict rule). Off (the default), it takes the far
+    junction as a block of its own when it gets there, unless another robot's next
+    :data:`ONCOMING_NODES` path nodes come from that junction into the corridor: then the
+    strict rule applies, so robots meeting at a corridor's end stay rare while crossing
+    traffic is not held up at every aisle end.
     """
 
     robot_radius: float = 0.3
@@ -122,6 +135,7 @@ class TrafficParams:
     aging_per_s: float = 1.0
     loop_min_nodes: int = 40
     max_resolutions: int = 8
+    hold_far_end: bool = False
 
     @property
     def clearance(self) -> float:
@@ -427,6 +441,7 @@ class TrafficManager:
         self._dead_nodes: dict[str, str] = {}  # node -> dead robot occupying it
         self._next_detect = -math.inf
         self._now = 0.0
+        self._dir_index: dict[tuple[str, str], set[str]] | None = None
 
     # ------------------------------------------------------------------ robots
 
@@ -713,6 +728,7 @@ class TrafficManager:
         horizon, path, ``current`` node, ``waiting`` or ``alive``): deliver those."""
         p = self.params
         self._now = now
+        self._dir_index = None
         tol2 = p.arrive_m * p.arrive_m
         clear2 = p.clearance * p.clearance
         prog2 = p.progress_m * p.progress_m
@@ -953,7 +969,31 @@ class TrafficManager:
             if deg[node] != 2 or j == n - 1 or path[j + 1] == path[j - 1] or path[j + 1] == node:
                 break
             j += 1
+        if (
+            not self.params.hold_far_end
+            and len(out) > 1
+            and deg[path[out[-1]]] > 2
+            and out[-1] < n - 1
+            and not self._oncoming(r, path[out[-1]], path[out[-2]])
+        ):
+            out.pop()  # nobody comes the other way: the far junction is taken when reached
         return out
+
+    def _oncoming(self, r: _Robot, far: str, last: str) -> bool:
+        """Whether another live robot's next :data:`ONCOMING_NODES` path nodes go from the
+        junction ``far`` into the corridor node ``last`` (the opposite way to ``r``)."""
+        idx = self._dir_index
+        if idx is None:
+            idx = {}
+            for o in self._robots.values():
+                if not o.alive:
+                    continue
+                seg = o.path[o.cur : o.cur + ONCOMING_NODES]
+                for a, b in zip(seg, seg[1:], strict=False):
+                    idx.setdefault((a, b), set()).add(o.name)
+            self._dir_index = idx
+        who = idx.get((far, last))
+        return who is not None and (len(who) > 1 or r.name not in who)
 
     def _extend(self, r: _Robot, now: float) -> None:
         if not r.alive or not r.path:

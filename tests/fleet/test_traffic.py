@@ -237,14 +237,31 @@ def _two_way_standoff() -> tuple[TrafficManager, Roadmap]:
     return tm, rm
 
 
-def test_corridor_block_is_atomic_and_far_end_is_required() -> None:
-    tm, _ = _two_way_standoff()
+def test_corridor_block_is_atomic_and_its_far_junction_is_taken_separately() -> None:
+    # a - b - c1 - c2 - d, side bay s at b (b is a junction). A stands in the corridor at c1
+    # and leaves by b; B comes from d through the corridor c2, c1 and on to b, a.
+    rm = roadmap_of(
+        {"a": (0, 0), "b": (2, 0), "c1": (4, 0), "c2": (6, 0), "d": (8, 0), "s": (2, 2)},
+        [("a", "b"), ("b", "c1"), ("c1", "c2"), ("c2", "d"), ("b", "s")],
+    )
+    tm = TrafficManager(rm, TrafficParams())
+    tm.add_robot("A", Pose2D(4, 0), 0.0)
+    tm.add_robot("B", Pose2D(8, 0), 0.0)
+    tm.set_path("A", ["c1", "b", "a"], 0.0)
+    tm.set_path("B", ["d", "c2", "c1", "b", "a"], 0.0)
     tm.cycle(0.0)
-    # A gets a->b (b is a junction); B's block is c,b all or nothing: b is A's, so B waits
-    assert tm.grant("A").nodes == ("b",)
+    # B's block is the corridor c2, c1, all or nothing: A is in it, so B waits outside
+    assert tm.grant("A").nodes[0] == "b"
     assert tm.grant("B").nodes == ()
     assert tm.blockers("B") == {"A"}
-    assert tm.holder("c") is None  # B did not take half of the corridor
+    assert tm.holder("c2") is None  # B did not take half of the corridor
+    # A reaches b and leaves c1 behind: B takes the whole corridor although A still stands on
+    # the junction at its far end (the junction is a block of its own, taken when B gets there)
+    tm.update("A", Pose2D(2, 0), 1.0)
+    tm.cycle(1.0)
+    assert tm.grant("B").nodes == ("c2", "c1")
+    assert tm.holder("b") == "A"
+    tm.check()
 
 
 def test_wait_for_cycle_detected_and_resolved_by_side_step() -> None:
