@@ -1744,6 +1744,18 @@ class ReservationTraffic:
         are collected in ``requests`` as ``(battery, robot)``: :meth:`_serve_chargers`."""
         mode = getattr(obs, "mode", None) if obs is not None else None
         purpose = self._purpose.get(name, "")
+        target = self._target.get(name)
+        if target is not None and self.manager.holder(target) not in (None, name):
+            # another robot stepped onto the dock this robot heads for (e.g. to let a third
+            # pass): choose another dock rather than wait for it, head-on on a dead-end spur
+            self._target.pop(name, None)
+            if purpose in (PURPOSE_CHARGE, PURPOSE_CHARGE_WAIT):
+                self._purpose.pop(name, None)
+                self._charge_wait.discard(name)
+                purpose = ""
+            elif purpose == PURPOSE_PARK:
+                self._go(name, self._free_dock(name, self.parking), PURPOSE_PARK)
+                return
         if mode == "charging":
             self._idle_since.pop(name, None)
             if purpose != PURPOSE_CHARGE:
