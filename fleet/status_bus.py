@@ -584,40 +584,45 @@ class StatusBus:
     def subscribe_tasks(self, robot: str, callback: TaskCallback) -> BusHandle:
         """Call ``callback(msg)`` (on Zenoh's thread) for every valid order on
         ``fleet/<robot>/task``. The handle's ``undeclare()`` ends the subscription."""
-        key = task_key(robot)
 
-        def on_sample(sample: Any) -> None:
-            k = key
-            try:
-                k = str(sample.key_expr)
-                if sample.kind == zenoh.SampleKind.DELETE:
-                    return
-                msg = TaskMessage.from_json(sample.payload.to_bytes())
-                if msg.robot is None:
-                    msg = TaskMessage(
-                        msg.task_id, msg.kind, robot, msg.route, msg.poses, msg.charger, msg.pick
-                    )
-                elif msg.robot != robot:
-                    raise ValueError(f"task.robot: {msg.robot!r} does not match the key's robot {robot!r}")
-            except Exception as e:  # noqa: BLE001
-                self._bad(k, str(e))
-                return
-            with self._lock:
-                self.received += 1
-                self._push(BusEvent("task", robot, msg))
-            self._call([callback], msg)
+        def parse(data: bytes) -> TaskMessage:
+            msg = TaskMessage.from_json(data)
+            if msg.robot is None:
+                return TaskMessage(msg.task_id, msg.kind, robot, msg.route, msg.poses, msg.charger, msg.pick)
+            if msg.robot != robot:
+                raise ValueError(f"task.robot: {msg.robot!r} does not match the key's robot {robot!r}")
+            return msg
 
-        sub = self.session.declare_subscriber(key, on_sample)
-        h = BusHandle(sub.undeclare)
-        self._handles.append(h)
-        return h
+        return self._subscribe_robot(task_key(robot), robot, "task", parse, callback)
 
     def subscribe_grants(self, robot: str, callback: Callable[[Any], None]) -> BusHandle:
         """Call ``callback(grant)`` (on Zenoh's thread) for every valid traffic grant on
         ``fleet/<robot>/grant``; a malformed one is counted in ``malformed`` and dropped."""
         from fleet.traffic import Grant
 
-        key = grant_key(robot)
+        def parse(data: bytes) -> Grant:
+            try:
+                g = Grant.from_dict(_decode(data, "grant"))
+            except (KeyError, TypeError, IndexError) as e:
+                raise ValueError(f"grant: {type(e).__name__}: {e}") from None
+            if g.robot != robot:
+                raise ValueError(f"grant.robot: {g.robot!r} does not match the key's robot {robot!r}")
+            if len(g.poses) != len(g.nodes):
+                raise ValueError(f"grant: {len(g.nodes)} nodes but {len(g.poses)} poses")
+            return g
+
+        return self._subscribe_robot(grant_key(robot), robot, "grant", parse, callback)
+
+    def _subscribe_robot(
+        self,
+        key: str,
+        robot: str,
+        kind: Literal["task", "grant"],
+        parse: Callable[[bytes], Any],
+        callback: Callable[[Any], None],
+    ) -> BusHandle:
+        """Subscribe to one robot's ``key``: ``parse`` each payload (an exception = malformed:
+        counted and dropped), record a :class:`BusEvent` of ``kind`` and call ``callback``."""
 
         def on_sample(sample: Any) -> None:
             k = key
@@ -625,19 +630,14 @@ class StatusBus:
                 k = str(sample.key_expr)
                 if sample.kind == zenoh.SampleKind.DELETE:
                     return
-                d = _decode(sample.payload.to_bytes(), "grant")
-                g = Grant.from_dict(d)
-                if g.robot != robot:
-                    raise ValueError(f"grant.robot: {g.robot!r} does not match the key's robot {robot!r}")
-                if len(g.poses) != len(g.nodes):
-                    raise ValueError(f"grant: {len(g.nodes)} nodes but {len(g.poses)} poses")
+                value = parse(sample.payload.to_bytes())
             except Exception as e:  # noqa: BLE001 - count and drop
-                self._bad(k, f"{type(e).__name__}: {e}")
+                self._bad(k, str(e))
                 return
             with self._lock:
                 self.received += 1
-                self._push(BusEvent("grant", robot, g))
-            self._call([callback], g)
+                self._push(BusEvent(kind, robot, value))
+            self._call([callback], value)
 
         sub = self.session.declare_subscriber(key, on_sample)
         h = BusHandle(sub.undeclare)

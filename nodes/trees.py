@@ -172,29 +172,32 @@ def navigate_with_recovery(
 
 
 def battery_guard(
-    namespace: str, backend: NavigationBackend, clock: Clock, battery: BatteryModel
+    namespace: str,
+    backend: NavigationBackend,
+    clock: Clock,
+    battery: BatteryModel,
+    go_to_charger: Behaviour | None = None,
 ) -> Behaviour:
     """The highest-priority branch of every robot tree.
 
     ``Sequence[BatteryLow(low, resume), HasCharger, Sequence(memory)[Recovery(
     NavigateToPose(charger)), Charge(resume)]]``. The charger pose is read from the
-    blackboard ``charger`` when the leaf starts. RUNNING while going to / standing on the
+    blackboard ``charger`` when the leaf starts; ``go_to_charger`` replaces the
+    recovery-wrapped ``NavigateToPose`` (the traffic tree drives its grant to a charger).
+    RUNNING while going to / standing on the
     charger, SUCCESS when charged to ``battery.resume``, FAILURE when the battery is fine or
     no charger is assigned (the robot then carries on with its work), or when the charger
     cannot be reached after every recovery or the robot does not charge there.
     """
-    go_charge = py_trees.composites.Sequence(
-        "GoCharge",
-        memory=True,
-        children=[
-            navigate_with_recovery(
-                NavigateToPoseAction(
-                    backend, read_key(namespace, "charger"), name="GoToCharger", mode="charging"
-                ),
-                backend,
+    if go_to_charger is None:
+        go_to_charger = navigate_with_recovery(
+            NavigateToPoseAction(
+                backend, read_key(namespace, "charger"), name="GoToCharger", mode="charging"
             ),
-            Charge(backend, clock, battery.resume),
-        ],
+            backend,
+        )
+    go_charge = py_trees.composites.Sequence(
+        "GoCharge", memory=True, children=[go_to_charger, Charge(backend, clock, battery.resume)]
     )
     return py_trees.composites.Sequence(
         "BatteryGuard",
@@ -327,23 +330,8 @@ def traffic_patrol_tree(
     """
     ns = normalize_namespace(namespace)
     robot_blackboard(ns, name=f"{ns}-tree")
-    go_charge = py_trees.composites.Sequence(
-        "GoCharge",
-        memory=True,
-        children=[
-            FollowGrant(backend, clock, mode="charging", purpose="charge", name="GrantToCharger"),
-            Charge(backend, clock, battery.resume),
-        ],
-    )
-    guard = py_trees.composites.Sequence(
-        "BatteryGuard",
-        memory=False,
-        children=[
-            BatteryLow(backend, battery.low, battery.resume),
-            HasAssignment(ns, "charger", name="HasCharger"),
-            go_charge,
-        ],
-    )
+    to_charger = FollowGrant(backend, clock, mode="charging", purpose="charge", name="GrantToCharger")
+    guard = battery_guard(ns, backend, clock, battery, go_to_charger=to_charger)
     patrol = py_trees.composites.Sequence(
         "Patrol",
         memory=False,

@@ -18,6 +18,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +47,14 @@ def temp_config(tmp_path: Path, edit: Any, name: str = "fleet.yaml") -> Path:
     path = tmp_path / name
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
+
+
+def two_routes_three_robots(doc: dict[str, Any], first_route_robot: str) -> None:
+    """Edit a config document: robots 1-3, routes aisles_1_2 (preferred robot
+    ``first_route_robot``) and aisles_3_4."""
+    doc["robots"] = doc["robots"][:3]
+    doc["routes"] = [r for r in doc["routes"] if r["name"] in ("aisles_1_2", "aisles_3_4")]
+    doc["routes"][0]["robot"] = first_route_robot
 
 
 @contextmanager
@@ -84,6 +93,68 @@ def wait_for(pred: Any, timeout: float, what: str, step: float = 0.2) -> None:
     raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
+@dataclass
+class SplitFleet:
+    """A fleet split over processes (see :func:`split_fleet`)."""
+
+    bus: StatusBus
+    sim: subprocess.Popen[str]
+    agent: subprocess.Popen[str]
+    coord: subprocess.Popen[str]
+    report: Path
+
+    def result(self, timeout: float) -> dict[str, Any]:
+        """Wait for the coordinator to finish (it must exit 0, the simulator must still run)
+        and return its JSON report."""
+        self.coord.wait(timeout=timeout)
+        assert self.coord.returncode == 0, (self.report.parent / "coord.log").read_text()
+        assert self.sim.poll() is None
+        return dict(json.loads(self.report.read_text()))
+
+
+@contextmanager
+def split_fleet(
+    tmp_path: Path, cfg: Path, victim: str, others: str, speed: float, duration: float, *extra: str
+) -> Iterator[SplitFleet]:
+    """``fleet sim`` at ``speed``, ``fleet agent`` for ``victim`` alone and ``fleet coordinator``
+    hosting the agents ``others`` for ``duration`` simulated seconds (report in
+    ``tmp_path/coord.json``), all on one free loopback endpoint with ``extra`` CLI options for
+    the agent and the coordinator, plus a bus client that sees every status. Every process is
+    terminated (then killed) and the bus closed on exit."""
+    ep = free_endpoint()
+    report = tmp_path / "coord.json"
+    with processes() as procs:
+        sim = spawn(procs, ["sim", str(cfg), "--endpoint", ep, "--speed", str(speed)], tmp_path / "sim.log")
+        wait_for(lambda: "fleet sim:" in (tmp_path / "sim.log").read_text(), 30, "fleet sim")
+        session = open_session(ep, "client", connect_timeout_s=10.0)
+        bus = StatusBus(session)
+        try:
+            bus.subscribe_statuses()
+            agent = spawn(
+                procs,
+                ["agent", str(cfg), "--robot", victim, "--endpoint", ep, *extra],
+                tmp_path / "agent.log",
+            )
+            wait_for(lambda: victim in bus.latest(), 30, f"{victim}'s first status")
+            coord = spawn(
+                procs,
+                ["coordinator", str(cfg), "--endpoint", ep, "--agents", others, "--duration", str(duration),
+                 "--no-live", "--report", str(report), *extra],
+                tmp_path / "coord.log",
+            )  # fmt: skip
+            yield SplitFleet(bus, sim, agent, coord, report)
+        finally:
+            bus.close()
+            session.close()
+
+
+def kill(p: subprocess.Popen[str], log: Path) -> None:
+    """SIGKILL a process that must still be running (else fail with its log)."""
+    assert p.poll() is None, log.read_text()
+    p.send_signal(signal.SIGKILL)
+    p.wait(timeout=10)
+
+
 @pytest.mark.slow
 def test_six_robots_patrol_every_route_without_collisions(tmp_path: Path) -> None:
     report, png = tmp_path / "r.json", tmp_path / "r.png"
@@ -109,9 +180,7 @@ def test_six_robots_patrol_every_route_without_collisions(tmp_path: Path) -> Non
 @pytest.mark.slow
 def test_low_battery_robot_charges_and_its_route_is_covered(tmp_path: Path) -> None:
     def edit(doc: dict[str, Any]) -> None:
-        doc["robots"] = doc["robots"][:3]
-        doc["routes"] = [r for r in doc["routes"] if r["name"] in ("aisles_1_2", "aisles_3_4")]
-        doc["routes"][0]["robot"] = "robot1"
+        two_routes_three_robots(doc, "robot1")
         doc["robots"][0]["battery"] = 0.32  # reaches battery.low (0.25) after ~15 m
 
     cfg = temp_config(tmp_path, edit)
@@ -160,50 +229,23 @@ def test_killed_agent_process_route_is_reassigned_and_completed(tmp_path: Path) 
     victim = "robot2"
 
     def edit(doc: dict[str, Any]) -> None:
-        doc["robots"] = doc["robots"][:3]
-        doc["routes"] = [r for r in doc["routes"] if r["name"] in ("aisles_1_2", "aisles_3_4")]
-        doc["routes"][0]["robot"] = victim
+        two_routes_three_robots(doc, victim)
         # the dead robot stops on a waypoint of its route (its last goal runs to its end); the
         # new robot gets stuck next to it, and the coordinator then skips that waypoint
         doc["coordinator"]["stuck_reassign_s"] = 10.0
 
     cfg = temp_config(tmp_path, edit)
-    ep = free_endpoint()
-    report = tmp_path / "coord.json"
     speed = 5.0
     duration = 170.0
-    with processes() as procs:
-        sim = spawn(procs, ["sim", str(cfg), "--endpoint", ep, "--speed", str(speed)], tmp_path / "sim.log")
-        wait_for(lambda: "fleet sim:" in (tmp_path / "sim.log").read_text(), 30, "fleet sim")
-        session = open_session(ep, "client", connect_timeout_s=10.0)
-        bus = StatusBus(session)
-        try:
-            bus.subscribe_statuses()
-            agent = spawn(
-                procs, ["agent", str(cfg), "--robot", victim, "--endpoint", ep], tmp_path / "agent.log"
-            )
-            wait_for(lambda: victim in bus.latest(), 30, f"{victim}'s first status")
-            coord = spawn(
-                procs,
-                ["coordinator", str(cfg), "--endpoint", ep, "--agents", "robot1,robot3", "--duration",
-                 str(duration), "--no-live", "--report", str(report)],
-                tmp_path / "coord.log",
-            )  # fmt: skip
-            # let the victim get its route and drive it for 20 simulated seconds
-            wait_for(lambda: bus.latest()[victim].task_id is not None, 30, f"{victim}'s route")
-            t_route = bus.latest()[victim].t
-            wait_for(lambda: bus.latest()[victim].t >= t_route + 20.0, 30, f"{victim} driving")
-            assert agent.poll() is None, (tmp_path / "agent.log").read_text()
-            t_kill = bus.latest()[victim].t  # simulated seconds of the victim's last status
-            agent.send_signal(signal.SIGKILL)
-            agent.wait(timeout=10)
-        finally:
-            bus.close()
-            session.close()
-        coord.wait(timeout=duration / speed + 60)
-        assert coord.returncode == 0, (tmp_path / "coord.log").read_text()
-        assert sim.poll() is None
-    r = json.loads(report.read_text())
+    with split_fleet(tmp_path, cfg, victim, "robot1,robot3", speed, duration) as f:
+        bus = f.bus
+        # let the victim get its route and drive it for 20 simulated seconds
+        wait_for(lambda: bus.latest()[victim].task_id is not None, 30, f"{victim}'s route")
+        t_route = bus.latest()[victim].t
+        wait_for(lambda: bus.latest()[victim].t >= t_route + 20.0, 30, f"{victim} driving")
+        t_kill = bus.latest()[victim].t  # simulated seconds of the victim's last status
+        kill(f.agent, tmp_path / "agent.log")
+        r = f.result(duration / speed + 60)
     (ev,) = [e for e in r["reassignment_events"] if e["from_robot"] == victim]
     assert ev["route"] == "aisles_1_2" and ev["reason"] == "dead"
     assert ev["to_robot"] in ("robot1", "robot3")

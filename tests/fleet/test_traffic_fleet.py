@@ -15,14 +15,13 @@ from __future__ import annotations
 
 import json
 import math
-import signal
 import time
 from pathlib import Path
 from typing import Any
 
 import networkx as nx
 import pytest
-from test_e2e import PATROL, free_endpoint, processes, spawn, temp_config, wait_for
+from test_e2e import PATROL, free_endpoint, kill, split_fleet, temp_config, two_routes_three_robots, wait_for
 
 from fleet.cli import main
 from fleet.config import load_config
@@ -149,9 +148,7 @@ def test_fleet_run_with_traffic_patrols_every_route_without_collisions_or_deadlo
 @pytest.mark.slow
 def test_low_battery_robot_charges_through_traffic_and_its_route_is_covered(tmp_path: Path) -> None:
     def edit(doc: dict[str, Any]) -> None:
-        doc["robots"] = doc["robots"][:3]
-        doc["routes"] = [r for r in doc["routes"] if r["name"] in ("aisles_1_2", "aisles_3_4")]
-        doc["routes"][0]["robot"] = "robot1"
+        two_routes_three_robots(doc, "robot1")
         doc["robots"][0]["battery"] = 0.32
 
     r = run_cli(tmp_path, temp_config(tmp_path, edit), "--duration", "200")
@@ -178,45 +175,15 @@ def test_agent_process_follows_grants_over_the_bus_and_its_death_releases_the_ro
     victim = "robot2"
 
     def edit(doc: dict[str, Any]) -> None:
-        doc["robots"] = doc["robots"][:3]
-        doc["routes"] = [r for r in doc["routes"] if r["name"] in ("aisles_1_2", "aisles_3_4")]
-        doc["routes"][0]["robot"] = victim
+        two_routes_three_robots(doc, victim)
 
     cfg = temp_config(tmp_path, edit)
-    ep = free_endpoint()
-    report = tmp_path / "coord.json"
     speed, duration = 5.0, 200.0
-    with processes() as procs:
-        sim = spawn(procs, ["sim", str(cfg), "--endpoint", ep, "--speed", str(speed)], tmp_path / "sim.log")
-        wait_for(lambda: "fleet sim:" in (tmp_path / "sim.log").read_text(), 30, "fleet sim")
-        session = open_session(ep, "client", connect_timeout_s=10.0)
-        bus = StatusBus(session)
-        try:
-            bus.subscribe_statuses()
-            agent = spawn(
-                procs,
-                ["agent", str(cfg), "--robot", victim, "--endpoint", ep, "--traffic"],
-                tmp_path / "agent.log",
-            )
-            wait_for(lambda: victim in bus.latest(), 30, f"{victim}'s first status")
-            coord = spawn(
-                procs,
-                ["coordinator", str(cfg), "--endpoint", ep, "--agents", "robot1,robot3", "--traffic",
-                 "--duration", str(duration), "--no-live", "--report", str(report)],
-                tmp_path / "coord.log",
-            )  # fmt: skip
-            # the victim drives its route by the grants it receives over the bus: a first lap
-            wait_for(lambda: bus.latest()[victim].laps >= 1, 90, f"{victim}'s first lap")
-            assert agent.poll() is None, (tmp_path / "agent.log").read_text()
-            agent.send_signal(signal.SIGKILL)
-            agent.wait(timeout=10)
-        finally:
-            bus.close()
-            session.close()
-        coord.wait(timeout=duration / speed + 60)
-        assert coord.returncode == 0, (tmp_path / "coord.log").read_text()
-        assert sim.poll() is None
-    r = json.loads(report.read_text())
+    with split_fleet(tmp_path, cfg, victim, "robot1,robot3", speed, duration, "--traffic") as f:
+        # the victim drives its route by the grants it receives over the bus: a first lap
+        wait_for(lambda: f.bus.latest()[victim].laps >= 1, 90, f"{victim}'s first lap")
+        kill(f.agent, tmp_path / "agent.log")
+        r = f.result(duration / speed + 60)
     (ev,) = [e for e in r["reassignment_events"] if e["from_robot"] == victim]
     assert ev["route"] == "aisles_1_2" and ev["reason"] == "dead" and ev["to_robot"] in ("robot1", "robot3")
     assert ev["t_reassigned"] - ev["t"] < 5.0
