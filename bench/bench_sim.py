@@ -10,7 +10,8 @@ their trees. Generating the world, adding the robots and planning every robot's 
 excluded from the timing (``setup_wall_s``); later goals (re-planned patrol laps) are inside
 the timed loop. The headline figure is ``N * K / wall seconds of the K timed steps`` including
 the goal polling (``goal_state`` of every robot at ``poll_hz``), as in ``bench/sumo_steps.py``;
-``step_only_*`` counts the time inside ``Simulator.step()`` alone.
+``step_only_*`` counts the time inside ``Simulator.step()`` alone and ``poll_wall_s`` the time in
+the polling rounds (``goal_state`` calls and the goals re-sent).
 
 Command line::
 
@@ -51,6 +52,7 @@ class SimBenchResult:
     real_time_factor: float
     step_only_wall_s: float
     step_only_robot_steps_per_s: float
+    poll_wall_s: float
     goals_succeeded: int
     goals_failed: int
     collisions: int
@@ -124,13 +126,24 @@ def run_sim_steps(
             setattr(owner, name, wrapper)
 
         timed(simmod, "neighbor_pairs")
-        for name in ("_follow", "_free_dynamic", "_footprint_free", "_count_contacts"):
+        for name in (
+            "_update_pairs",
+            "_follow",
+            "_corridor_free",
+            "_detour",
+            "_detour_blocks",
+            "_footprint_free",
+            "_count_contacts",
+        ):
             timed(sim, name)
     step_only = 0.0
+    poll = 0.0
     t1 = time.perf_counter()
     for k in range(steps):
         if k % poll_every == 0:
+            tp = time.perf_counter()
             dispatch()
+            poll += time.perf_counter() - tp
         ts = time.perf_counter()
         if prof is not None:
             prof.enable()
@@ -146,7 +159,10 @@ def run_sim_steps(
         pstats.Stats(prof, stream=sys.stderr).sort_stats("tottime").print_stats(20)
     if stages:
         parts = ", ".join(f"{k} {v / steps * 1000:.2f}" for k, v in stage_s.items())
-        print(f"  stage ms/step (nested: _follow includes its _free_dynamic calls): {parts}", file=sys.stderr)
+        print(
+            f"  stage ms/step (nested: _follow includes _corridor_free, _detour (which includes _detour_blocks) and _footprint_free; _update_pairs includes neighbor_pairs): {parts}",
+            file=sys.stderr,
+        )
     xmin, xmax, ymin, ymax = cfg.grid.extent
     return SimBenchResult(
         robots=len(nss),
@@ -159,6 +175,7 @@ def run_sim_steps(
         real_time_factor=steps * step_s / elapsed,
         step_only_wall_s=step_only,
         step_only_robot_steps_per_s=len(nss) * steps / step_only,
+        poll_wall_s=poll,
         goals_succeeded=counts["ok"],
         goals_failed=counts["failed"],
         collisions=sim.collisions,
@@ -172,7 +189,8 @@ def describe(res: SimBenchResult) -> str:
         f"{res.map_size_m[0]:g} x {res.map_size_m[1]:g} m warehouse: {res.robot_steps_per_s:,.0f} robot-steps/s "
         f"({res.step_wall_s / res.steps * 1000:.2f} ms/step, {res.real_time_factor:.1f}x real time; "
         f"Simulator.step() alone {res.step_only_robot_steps_per_s:,.0f} robot-steps/s, "
-        f"{res.step_only_wall_s / res.steps * 1000:.2f} ms/step; setup "
+        f"{res.step_only_wall_s / res.steps * 1000:.2f} ms/step; polling "
+        f"{res.poll_wall_s / res.steps * 1000:.2f} ms/step; setup "
         f"{res.setup_wall_s:.1f} s; goals ok {res.goals_succeeded}, failed {res.goals_failed}; "
         f"collisions {res.collisions}; {res.distance_m:,.0f} m driven)"
     )

@@ -67,7 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"SUMO: {sumo_res.robots} robots x {sumo_res.steps} steps of {sumo_res.step_s:g} s on the same "
         f"warehouse roadmap ({sumo_res.junctions} junctions, {sumo_res.lanes} lanes): "
-        f"{sumo_res.robot_steps_per_s:,.0f} robot-steps/s ({sumo_res.real_time_factor:.1f}x real time; "
+        f"{sumo_res.robot_steps_per_s:,.0f} robot-steps/s "
+        f"({sumo_res.step_wall_s / sumo_res.steps * 1000:.2f} ms/step, {sumo_res.real_time_factor:.1f}x real time; "
         f"setup {sumo_res.setup_wall_s:.1f} s; goals ok {sumo_res.goals_succeeded}, failed "
         f"{sumo_res.goals_failed}; collisions {sumo_res.collisions}, teleports {sumo_res.teleports})"
     )

@@ -43,6 +43,8 @@ Point = tuple[float, float]
 COARSE_CELL_M = 0.3
 #: Clearance added to the robot radius when searching paths, in meters.
 PLAN_MARGIN_M = 0.15
+#: Plan results kept for repeated requests (oldest dropped first).
+RESULT_CACHE = 4096
 _SQRT2 = math.sqrt(2.0)
 
 
@@ -111,6 +113,7 @@ class GridPlanner:
         self._free_flat: list[bool] = padded.ravel().tolist()
         self._cw, self._ch = cw, ch
         self._cache: dict[tuple[tuple[int, int], tuple[int, int]], tuple[Point, ...] | None] = {}
+        self._results: dict[tuple[float, ...], PlanResult] = {}
 
     # -- cell queries -------------------------------------------------------------------
 
@@ -160,8 +163,23 @@ class GridPlanner:
 
         Error codes: ``START_OUTSIDE_MAP`` / ``START_OCCUPIED`` for a bad start,
         ``GOAL_OUTSIDE_MAP`` / ``GOAL_OCCUPIED`` for a bad goal, ``NO_VALID_PATH`` when the
-        free space of the start does not connect to the goal.
+        free space of the start does not connect to the goal. A plan depends only on its two
+        points, so the last :data:`RESULT_CACHE` results for float coordinates are kept and
+        returned again for the same points (patrol legs between the same poses).
         """
+        key = (*start, *goal)
+        # (a key of nonzero floats: -0.0 == 0.0 would hand back the other zero in the path)
+        if all(type(v) is float and v != 0.0 for v in key):
+            hit = self._results.get(key)
+            if hit is None:
+                hit = self._plan(start, goal)
+                if len(self._results) >= RESULT_CACHE:
+                    del self._results[next(iter(self._results))]
+                self._results[key] = hit
+            return hit
+        return self._plan(start, goal)
+
+    def _plan(self, start: Point, goal: Point) -> PlanResult:
         sx, sy = start
         gx, gy = goal
         if not self.in_map(sx, sy):

@@ -20,8 +20,10 @@ ends, so a terminal goal keeps its last feedback.
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from typing import TYPE_CHECKING, Protocol
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from fleet.types import (
     ErrorCode,
@@ -37,6 +39,42 @@ from sim.planner import GridPlanner, PlanResult
 if TYPE_CHECKING:
     from fleet.clock import SimClock
     from sim.state import FleetState
+
+_T = TypeVar("_T")
+
+
+def frozen_factory(cls: type[_T]) -> Callable[..., _T]:
+    """A keyword-only constructor of the dataclass ``cls`` that builds the very instance
+    ``cls(**fields)`` would (same class, same attribute dict in field order) without the
+    generated ``__init__``, whose one ``object.__setattr__`` per field of a frozen dataclass
+    is most of the cost of the goal and robot snapshots polled every tick (about 1 µs each).
+    Every field without a default must be passed. For anything but a plain dataclass (slots,
+    ``__post_init__``, default factories, fields outside ``__init__``) it returns ``cls``."""
+    fields = dataclasses.fields(cls) if dataclasses.is_dataclass(cls) else ()  # type: ignore[arg-type]
+    plain = (
+        bool(fields)
+        and "__slots__" not in vars(cls)
+        and not hasattr(cls, "__post_init__")
+        and all(f.init and f.default_factory is dataclasses.MISSING for f in fields)
+    )
+    if not plain:
+        return cls
+    template = {f.name: None if f.default is dataclasses.MISSING else f.default for f in fields}
+    new = object.__new__
+
+    def make(**values: Any) -> _T:
+        obj = new(cls)
+        state = obj.__dict__
+        state.update(template)
+        state.update(values)
+        return obj
+
+    return make
+
+
+#: Fast constructors of the snapshot types (see :func:`frozen_factory`).
+make_feedback = frozen_factory(Feedback)
+make_goal_state = frozen_factory(GoalState)
 
 #: Heading error (rad) above which a path-following robot stops and rotates in place.
 ROTATE_IN_PLACE_RAD = 0.8
@@ -72,7 +110,8 @@ class Robot:
     applied during the last step. ``battery`` is a fraction in [0, 1]; ``distance_m`` is the
     odometer (absolute distance driven); ``collisions`` counts contact events this robot took
     part in. ``fault`` is ``None`` or ``"stalled"`` (wheels do not respond). Reading or writing
-    an attribute reads or writes the arrays, so tasks see the same state as the vectorized step.
+    an attribute reads or writes the arrays, so tasks see the same state as the vectorized step
+    (a write counts as a change of the state's ``version``).
     """
 
     __slots__ = ("name", "namespace", "index", "state", "task", "fault")
@@ -97,6 +136,7 @@ class Robot:
     @x.setter
     def x(self, value: float) -> None:
         self.state.x[self.index] = value
+        self.state.version += 1
 
     @property
     def y(self) -> float:
@@ -105,6 +145,7 @@ class Robot:
     @y.setter
     def y(self, value: float) -> None:
         self.state.y[self.index] = value
+        self.state.version += 1
 
     @property
     def theta(self) -> float:
@@ -113,6 +154,7 @@ class Robot:
     @theta.setter
     def theta(self, value: float) -> None:
         self.state.th[self.index] = value
+        self.state.version += 1
 
     @property
     def v(self) -> float:
@@ -121,6 +163,7 @@ class Robot:
     @v.setter
     def v(self, value: float) -> None:
         self.state.v[self.index] = value
+        self.state.version += 1
 
     @property
     def w(self) -> float:
@@ -129,6 +172,7 @@ class Robot:
     @w.setter
     def w(self, value: float) -> None:
         self.state.w[self.index] = value
+        self.state.version += 1
 
     @property
     def battery(self) -> float:
@@ -137,6 +181,7 @@ class Robot:
     @battery.setter
     def battery(self, value: float) -> None:
         self.state.battery[self.index] = value
+        self.state.version += 1
 
     @property
     def charging(self) -> bool:
@@ -145,6 +190,7 @@ class Robot:
     @charging.setter
     def charging(self, value: bool) -> None:
         self.state.charging[self.index] = value
+        self.state.version += 1
 
     @property
     def stuck(self) -> bool:
@@ -153,6 +199,7 @@ class Robot:
     @stuck.setter
     def stuck(self, value: bool) -> None:
         self.state.stuck[self.index] = value
+        self.state.version += 1
 
     @property
     def distance_m(self) -> float:
@@ -161,6 +208,7 @@ class Robot:
     @distance_m.setter
     def distance_m(self, value: float) -> None:
         self.state.dist[self.index] = value
+        self.state.version += 1
 
     @property
     def collisions(self) -> int:
@@ -169,6 +217,7 @@ class Robot:
     @collisions.setter
     def collisions(self, value: int) -> None:
         self.state.collisions[self.index] = value
+        self.state.version += 1
 
     @property
     def progress_x(self) -> float:
@@ -177,6 +226,7 @@ class Robot:
     @progress_x.setter
     def progress_x(self, value: float) -> None:
         self.state.px[self.index] = value
+        self.state.version += 1
 
     @property
     def progress_y(self) -> float:
@@ -185,6 +235,7 @@ class Robot:
     @progress_y.setter
     def progress_y(self, value: float) -> None:
         self.state.py[self.index] = value
+        self.state.version += 1
 
     @property
     def progress_t(self) -> float:
@@ -193,6 +244,7 @@ class Robot:
     @progress_t.setter
     def progress_t(self, value: float) -> None:
         self.state.pt[self.index] = value
+        self.state.version += 1
 
 
 class World(Protocol):
@@ -230,10 +282,16 @@ class World(Protocol):
         """Poses of the followed path not yet passed (0 once the final position is reached)."""
         ...
 
+    def path_progress(self, robot: Robot) -> tuple[float, float, float, float, int]:
+        """``(x, y, theta)`` of the robot with :meth:`path_remaining` and
+        :meth:`poses_remaining`, read together."""
+        ...
+
 
 class GoalRecord:
     """Lifecycle of one goal id. ``status`` moves from EXECUTING (or REJECTED) to exactly one
-    terminal status and never changes again."""
+    terminal status and never changes again (``terminal`` tells which side it is on). A
+    terminal record does not change any more, so its snapshot is made once."""
 
     __slots__ = (
         "goal_id",
@@ -241,10 +299,12 @@ class GoalRecord:
         "goal",
         "namespace",
         "status",
+        "terminal",
         "error_code",
         "error_msg",
         "missed",
         "feedback",
+        "final",
     )
 
     def __init__(self, goal_id: str, goal: Goal, namespace: str) -> None:
@@ -253,25 +313,37 @@ class GoalRecord:
         self.goal = goal
         self.namespace = namespace
         self.status = GoalStatus.EXECUTING
+        self.terminal = False
         self.error_code = int(ErrorCode.NONE)
         self.error_msg = ""
         self.missed: tuple[int, ...] = ()
         self.feedback = Feedback()
+        self.final: GoalState | None = None
 
     def finish(self, status: GoalStatus, code: int = 0, msg: str = "") -> None:
         """Move to terminal ``status`` once; later calls are ignored."""
-        if self.status.terminal:
+        if self.terminal:
             return
         self.status = status
+        self.terminal = status.terminal
         self.error_code = int(code)
         self.error_msg = msg
 
     def snapshot(self, live: Feedback | None = None) -> GoalState:
-        return GoalState(
+        """The goal's state with feedback ``live`` (default: the feedback stored when the goal
+        ended)."""
+        if live is None and self.terminal:
+            if self.final is None:
+                self.final = self._state(self.feedback)
+            return self.final
+        return self._state(live if live is not None else self.feedback)
+
+    def _state(self, feedback: Feedback) -> GoalState:
+        return make_goal_state(
             goal_id=self.goal_id,
             kind=self.kind,
             status=self.status,
-            feedback=live if live is not None else self.feedback,
+            feedback=feedback,
             error_code=self.error_code,
             error_msg=self.error_msg,
             missed_waypoints=self.missed,
@@ -294,7 +366,7 @@ class Task:
 
     @property
     def done(self) -> bool:
-        return self.record.status.terminal
+        return self.record.terminal
 
     def control(self, now: float, dt: float) -> tuple[float, float]:
         """Return the desired ``(v, w)`` for the next step; may end the goal instead."""
@@ -399,18 +471,18 @@ class NavigateTask(Task):
         )
 
     def feedback(self) -> Feedback:
-        r = self.robot
-        rem = self.world.path_remaining(r) if self.planned else 0.0
-        through = self.record.kind == "navigate_through_poses"
-        return Feedback(
-            current_pose=r.pose,
-            navigation_time_s=self.world.clock.now() - self.started,
-            estimated_time_remaining_s=rem / self.world.params.model.max_linear_speed,
+        world = self.world
+        x, y, th, rem, left = world.path_progress(self.robot)
+        if not self.planned:
+            rem = 0.0
+            left = 0
+        return make_feedback(
+            current_pose=Pose2D(x, y, th),
+            navigation_time_s=world.clock.now() - self.started,
+            estimated_time_remaining_s=rem / world.params.model.max_linear_speed,
             distance_remaining_m=rem,
             number_of_recoveries=0,
-            number_of_poses_remaining=(self.world.poses_remaining(r) if self.planned else 0)
-            if through
-            else None,
+            number_of_poses_remaining=left if self.record.kind == "navigate_through_poses" else None,
         )
 
 
@@ -476,7 +548,7 @@ class FollowWaypointsTask(Task):
         self.world.detach_path(self.robot)
 
     def feedback(self) -> Feedback:
-        return Feedback(
+        return make_feedback(
             current_pose=self.robot.pose, current_waypoint=min(self.index, max(len(self.poses) - 1, 0))
         )
 
@@ -515,7 +587,7 @@ class SpinTask(Task):
         self.turned += dtheta if self.target >= 0 else -dtheta
 
     def feedback(self) -> Feedback:
-        return Feedback(angular_distance_traveled=abs(self.turned))
+        return make_feedback(angular_distance_traveled=abs(self.turned))
 
 
 class DriveTask(Task):
@@ -594,7 +666,7 @@ class DriveTask(Task):
         self.traveled += ds * self.direction
 
     def feedback(self) -> Feedback:
-        return Feedback(distance_traveled=max(0.0, self.traveled))
+        return make_feedback(distance_traveled=max(0.0, self.traveled))
 
 
 class WaitTask(Task):
@@ -611,4 +683,4 @@ class WaitTask(Task):
         return (0.0, 0.0)
 
     def feedback(self) -> Feedback:
-        return Feedback(time_left_s=max(0.0, self.duration - (self.now - self.started)))
+        return make_feedback(time_left_s=max(0.0, self.duration - (self.now - self.started)))

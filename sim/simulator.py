@@ -27,8 +27,18 @@ Each step moves all robots together; the state lives in NumPy arrays
 
 Then robot-robot contacts (center distance < 2 * radius) are counted: a pair that starts
 touching is one collision event. Robot pairs that can matter (closer than about 2.2 m) come
-from a uniform-grid spatial hash (:func:`sim.spatial.neighbor_pairs`), and robots see each
-other where they were at the start of the step.
+from a uniform-grid spatial hash (:func:`sim.spatial.neighbor_pairs`, a Verlet list rebuilt
+every :data:`PAIR_REUSE_STEPS` steps), and robots see each other where they were at the start
+of the step.
+
+The cost of a step is NumPy calls, so the step keeps their number and size down without
+changing a single float of the result: the path follower reads each robot's current segment
+from a cache refreshed only when the segment changes and runs later rounds of its cursor loops
+only over the robots that advanced; corridor checks run over all pairs at once with a zero
+heading for robots outside the set checked; the detour search judges most (pair, heading)
+combinations in closed form (:meth:`Simulator._detour_blocks`) and skips the static footprint
+samples for robots far from any obstacle. Snapshots for polling (:meth:`Simulator.goal_state`,
+:meth:`Simulator.robot_state`) read one row copied out of the arrays once per step.
 
 Goals are addressed by ids ``"<namespace>#<n>"``, never reused. See ``docs/simulator.md``
 for the action semantics and error codes.
@@ -62,7 +72,7 @@ from fleet.types import (
 )
 from sim.occupancy import OccupancyGrid
 from sim.params import RobotSpec, SimParams
-from sim.planner import GridPlanner
+from sim.planner import GridPlanner, inflate
 from sim.robot import (
     APPROACH_FACTOR,
     APPROACH_M,
@@ -79,6 +89,7 @@ from sim.robot import (
     SpinTask,
     Task,
     WaitTask,
+    frozen_factory,
 )
 from sim.spatial import neighbor_pairs
 from sim.state import FleetState
@@ -147,7 +158,6 @@ class Simulator:
         self._samples_xy: list[np.ndarray] = []
         self._traj_start: list[tuple[float, float, float, int]] = []
         self._backends: dict[str, SimNavigationBackend] = {}
-        self._fp_flat = self.planner.footprint.ravel()
         self._chargers = np.array([(c.x, c.y) for c in params.chargers], dtype=float).reshape(-1, 2)
         m = params.model
         vmax = m.max_linear_speed
@@ -169,6 +179,39 @@ class Simulator:
         self._pdx = np.zeros(0)
         self._pdy = np.zeros(0)
         self._pd2 = np.zeros(0)
+        contact = 2.0 * m.radius
+        lat = contact + CORRIDOR_MARGIN_M
+        #: pairs closer than this (detour and safety-stop corridors, contacts) are also kept
+        #: in a shorter list every step
+        self._short_r = (
+            max(
+                math.hypot(AVOID_CLEAR_M + contact, lat),
+                math.hypot(look_max + contact, lat),
+                contact + 2.0 * vmax * params.step_s + 1e-6,
+            )
+            + 1e-6
+        )
+        self._sa = self._sb = self._pi
+        self._sdx = self._sdy = self._sd2 = self._pd2
+        self._obst = np.zeros((0, 3))
+        padded = np.zeros((grid.height + 2, grid.width + 2), dtype=bool)
+        padded[1:-1, 1:-1] = ~self.planner.footprint
+        #: footprint-free cells with a blocked border (off the map is not free)
+        self._fp_free_padded = padded.ravel()
+        self._clear_free: np.ndarray | None = None
+        #: the closed-form judgement of detour headings (:meth:`_detour_blocks`) holds when the
+        #: corridor is narrower than the detour clearance; pairs are judged that way unless
+        #: their distance is within _DIST_MARGIN of where the blocked intervals change shape
+        #: (a table over the distance, conservative by a bin on either side)
+        self._judged: np.ndarray | None = None
+        if 0.0 < contact and lat < AVOID_CLEAR_M and lat < math.hypot(contact, AVOID_CLEAR_M):
+            reach_d = math.hypot(AVOID_CLEAR_M + contact, lat)
+            lo = (np.arange(int(reach_d / _JUDGED_BIN) + 3) - 1.0) * _JUDGED_BIN
+            hi = lo + 3.0 * _JUDGED_BIN
+            judged = lo > _DIST_MARGIN
+            for crit in (lat, math.hypot(contact, AVOID_CLEAR_M), contact + AVOID_CLEAR_M):
+                judged &= (hi < crit - _DIST_MARGIN) | (lo > crit + _DIST_MARGIN)
+            self._judged = judged
         self.collisions = 0
         self.collision_events: list[tuple[float, str, str, float, float]] = []
         self.steps = 0
@@ -213,17 +256,18 @@ class Simulator:
 
     def robot_state(self, namespace: str) -> RobotState:
         """Current state of the robot ``namespace`` (pose always known in the sim)."""
-        r = self._robot(namespace)
-        s, i = self.state, r.index
-        return RobotState(
-            pose=Pose2D(float(s.x[i]), float(s.y[i]), float(s.th[i])),
-            linear_velocity=float(s.v[i]),
-            angular_velocity=float(s.w[i]),
-            battery=float(s.battery[i]),
-            charging=bool(s.charging[i]),
-            stuck=bool(s.stuck[i]),
-            distance_m=float(s.dist[i]),
-            collisions=int(s.collisions[i]),
+        x, y, th, v, w, battery, charging, stuck, dist, collisions = self.state.row(
+            self._robot(namespace).index
+        )[:10]
+        return _make_robot_state(
+            pose=Pose2D(x, y, th),
+            linear_velocity=v,
+            angular_velocity=w,
+            battery=battery,
+            charging=bool(charging),
+            stuck=bool(stuck),
+            distance_m=dist,
+            collisions=int(collisions),
         )
 
     def trajectory(self, namespace: str) -> list[tuple[float, float, float]]:
@@ -266,11 +310,13 @@ class Simulator:
         oid = self._next_obstacle
         self._next_obstacle += 1
         self._obstacles[oid] = (float(x), float(y), float(radius))
+        self._obst = self._obstacle_array()
         return oid
 
     def remove_obstacle(self, obstacle_id: int) -> None:
         """Remove a dynamic obstacle; unknown ids are ignored."""
         self._obstacles.pop(obstacle_id, None)
+        self._obst = self._obstacle_array()
 
     def _obstacle_array(self) -> np.ndarray:
         return np.array(list(self._obstacles.values()), dtype=float).reshape(-1, 3)
@@ -358,7 +404,7 @@ class Simulator:
     def goal_state(self, goal_id: str) -> GoalState:
         """Snapshot of goal ``goal_id`` (pure read). Raises ``KeyError`` for an id never issued."""
         record = self._goals[goal_id]
-        if not record.status.terminal:
+        if not record.terminal:
             task = self._robots[record.namespace].task
             if task is not None and task.record is record:
                 return record.snapshot(task.feedback())
@@ -368,7 +414,7 @@ class Simulator:
         """Cancel ``goal_id``: it ends CANCELED at once and the robot decelerates to a stop.
         A no-op for a finished or unknown goal."""
         record = self._goals.get(goal_id)
-        if record is None or record.status.terminal:
+        if record is None or record.terminal:
             return
         robot = self._robots[record.namespace]
         task = robot.task
@@ -400,6 +446,10 @@ class Simulator:
         """Poses of the followed path not yet passed."""
         return self.state.poses_left(robot.index)
 
+    def path_progress(self, robot: Robot) -> tuple[float, float, float, float, int]:
+        """Pose, remaining path length and poses left of ``robot`` (see :class:`sim.robot.World`)."""
+        return self.state.progress(robot.index)
+
     # -- stepping ---------------------------------------------------------------------
 
     def run_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
@@ -409,6 +459,16 @@ class Simulator:
 
     def step(self) -> None:
         """Advance the clock by ``params.step_s`` and move every robot (see module docstring)."""
+        s = self.state
+        s.version += 1
+        s.busy = True
+        try:
+            self._step()
+        finally:
+            s.version += 1
+            s.busy = False
+
+    def _step(self) -> None:
         p = self.params
         dt = p.step_s
         now = self.clock.advance(dt)
@@ -417,22 +477,14 @@ class Simulator:
         n = s.n
         if n == 0:
             return
-        if n != self._pairs_n or self.steps - self._pairs_step >= PAIR_REUSE_STEPS:
-            # a Verlet list: pairs within the radius plus what PAIR_REUSE_STEPS steps can close
-            skin = 2.0 * p.model.max_linear_speed * dt * PAIR_REUSE_STEPS
-            self._pi, self._pj = neighbor_pairs(s.x[:n], s.y[:n], self._pair_radius + skin)
-            self._pairs_n, self._pairs_step = n, self.steps
-        pi, pj = self._pi, self._pj
-        self._pdx = s.x[pj] - s.x[pi]
-        self._pdy = s.y[pj] - s.y[pi]
-        self._pd2 = self._pdx * self._pdx + self._pdy * self._pdy
-        obst = self._obstacle_array()
+        self._update_pairs(n, dt)
+        obst = self._obst
         vd = s.vd[:n]
         wd = s.wd[:n]
         vd[:] = 0.0
         wd[:] = 0.0
         # 1. commands: Python tasks (rare: Spin, BackUp, Wait, between waypoints) ...
-        py_robots = [self._py[i] for i in sorted(self._py)]
+        py_robots = [self._py[i] for i in sorted(self._py)] if self._py else []
         for robot in py_robots:
             task = robot.task
             assert task is not None
@@ -443,18 +495,25 @@ class Simulator:
         # ... and the vectorized path follower for every robot driving along a path
         fol = np.flatnonzero(s.fol[:n])
         if fol.size:
-            self._follow(fol, now, pi, pj, obst)
+            self._follow(fol, now, obst)
         # 2. acceleration and speed limits, faults
         m = p.model
         dv = m.max_linear_accel * dt
         dw = m.max_angular_accel * dt
         v0 = s.v[:n]
         w0 = s.w[:n]
-        v = np.clip(np.minimum(np.maximum(vd, v0 - dv), v0 + dv), -m.max_linear_speed, m.max_linear_speed)
-        w = np.clip(np.minimum(np.maximum(wd, w0 - dw), w0 + dw), -m.max_angular_speed, m.max_angular_speed)
+        v = np.maximum(vd, v0 - dv)
+        np.minimum(v, v0 + dv, out=v)
+        np.maximum(v, -m.max_linear_speed, out=v)
+        np.minimum(v, m.max_linear_speed, out=v)
+        w = np.maximum(wd, w0 - dw)
+        np.minimum(w, w0 + dw, out=w)
+        np.maximum(w, -m.max_angular_speed, out=w)
+        np.minimum(w, m.max_angular_speed, out=w)
         dead = s.stalled[:n] | (s.battery[:n] <= 0.0)
-        v[dead] = 0.0
-        w[dead] = 0.0
+        if dead.any():
+            v[dead] = 0.0
+            w[dead] = 0.0
         x = s.x[:n]
         y = s.y[:n]
         th = s.th[:n]
@@ -464,9 +523,10 @@ class Simulator:
             vm = v[mv]
             direction = np.where(vm > 0, 1.0, -1.0)
             look = vm * vm / (2.0 * m.max_linear_accel) + STOP_GAP_M + np.abs(vm) * dt + 0.05
-            hx = np.cos(th[mv]) * direction
-            hy = np.sin(th[mv]) * direction
-            free = self._free_dynamic(mv, hx, hy, look, pi, pj, obst, n)
+            thm = th[mv]
+            hx = np.cos(thm) * direction
+            hy = np.sin(thm) * direction
+            free = self._corridor_free(mv, hx, hy, look, obst)
             lim = free < look
             if lim.any():
                 room = np.maximum(free - STOP_GAP_M, 0.0)
@@ -481,9 +541,12 @@ class Simulator:
         if mv.size:
             mid = th[mv] + 0.5 * dth[mv]
             ox, oy = x[mv], y[mv]
-            nx = ox + ds[mv] * np.cos(mid)
-            ny = oy + ds[mv] * np.sin(mid)
-            ok = self._footprint_free(nx, ny) & ~self._enters(ox, oy, nx, ny, obst)
+            dsm = ds[mv]
+            nx = ox + dsm * np.cos(mid)
+            ny = oy + dsm * np.sin(mid)
+            ok = self._footprint_free(nx, ny)
+            if obst.size:
+                ok &= ~self._enters(ox, oy, nx, ny, obst)
             bad = np.flatnonzero(~ok)
             if bad.size:
                 ex, ey = nx[bad] - ox[bad], ny[bad] - oy[bad]
@@ -495,28 +558,29 @@ class Simulator:
                     use_x = xfirst if first else ~xfirst
                     cx = np.where(use_x, bx + ex, bx)
                     cy = np.where(use_x, by, by + ey)
-                    good = (
-                        ~found
-                        & ((cx != bx) | (cy != by))
-                        & self._footprint_free(cx, cy)
-                        & ~self._enters(bx, by, cx, cy, obst)
-                    )
+                    good = ~found & ((cx != bx) | (cy != by)) & self._footprint_free(cx, cy)
+                    if obst.size:
+                        good &= ~self._enters(bx, by, cx, cy, obst)
                     rx = np.where(good, cx, rx)
                     ry = np.where(good, cy, ry)
                     found |= good
                 nx[bad] = rx
                 ny[bad] = ry
                 ok[bad] = found
-            okm = mv[ok]
-            step_len = np.hypot(nx[ok] - ox[ok], ny[ok] - oy[ok])
-            ds[okm] = np.copysign(step_len, ds[okm])
-            v[okm] = ds[okm] / dt
-            x[okm] = nx[ok]
-            y[okm] = ny[ok]
+                okm = mv[ok]
+                nx, ny, ox, oy = nx[ok], ny[ok], ox[ok], oy[ok]
+                nok = mv[~ok]
+                ds[nok] = 0.0
+                v[nok] = 0.0
+            else:
+                okm = mv
+            step_len = np.hypot(nx - ox, ny - oy)
+            dsk = np.copysign(step_len, ds[okm])
+            ds[okm] = dsk
+            v[okm] = dsk / dt
+            x[okm] = nx
+            y[okm] = ny
             moved[okm] = True
-            nok = mv[~ok]
-            ds[nok] = 0.0
-            v[nok] = 0.0
         s.th[:n] = (th + dth + math.pi) % (2.0 * math.pi) - math.pi
         s.v[:n] = v
         s.w[:n] = w
@@ -544,15 +608,17 @@ class Simulator:
         )
         s.charging[:n] = charging
         # 6. stuck detector (progress checker)
-        far = np.hypot(x - s.px[:n], y - s.py[:n]) > PROGRESS_RADIUS_M
+        px, py, pt = s.px[:n], s.py[:n], s.pt[:n]
+        far = np.hypot(x - px, y - py) > PROGRESS_RADIUS_M
         if far.any():
-            s.px[:n][far] = x[far]
-            s.py[:n][far] = y[far]
-            s.pt[:n][far] = now
+            np.copyto(px, x, where=far)
+            np.copyto(py, y, where=far)
+            pt[far] = now
             s.stuck[:n][far] = False
+        near_p = ~far
         trying = s.has_task[:n] & s.drives[:n]
-        s.pt[:n][~far & ~trying] = now
-        stuck = np.flatnonzero(~far & trying & (now - s.pt[:n] >= p.stuck_time_s - 1e-9))
+        pt[near_p & ~trying] = now
+        stuck = np.flatnonzero(near_p & trying & (now - pt >= p.stuck_time_s - 1e-9))
         for i in stuck.tolist():
             robot = self._order[i]
             s.stuck[i] = True
@@ -562,7 +628,7 @@ class Simulator:
                 task.on_stuck()
                 self._task_changed(robot)
         # 7. contacts
-        self._count_contacts(now, pi, pj)
+        self._count_contacts(now)
         if now >= self._next_sample - 1e-9:
             self._samples_t.append(now)
             self._samples_xy.append(np.stack((x, y), axis=1))
@@ -571,13 +637,58 @@ class Simulator:
 
     # -- vectorized pieces ----------------------------------------------------------
 
+    def _update_pairs(self, n: int, dt: float) -> None:
+        """Refresh the neighbor pairs (a Verlet list, rebuilt every :data:`PAIR_REUSE_STEPS`
+        steps) and their offsets ``x[j] - x[i]`` at the start of the step; keep the pairs
+        closer than the short radius (corridor checks of the detour search and the safety
+        stop, contacts) in a second, shorter list."""
+        s = self.state
+        if n != self._pairs_n or self.steps - self._pairs_step >= PAIR_REUSE_STEPS:
+            # pairs within the radius plus what PAIR_REUSE_STEPS steps can close
+            skin = 2.0 * self.params.model.max_linear_speed * dt * PAIR_REUSE_STEPS
+            self._pi, self._pj = neighbor_pairs(s.x[:n], s.y[:n], self._pair_radius + skin)
+            self._pairs_n, self._pairs_step = n, self.steps
+        pi, pj = self._pi, self._pj
+        x = s.x[:n]
+        y = s.y[:n]
+        self._pdx = x[pj] - x[pi]
+        self._pdy = y[pj] - y[pi]
+        self._pd2 = self._pdx * self._pdx + self._pdy * self._pdy
+        if self._short_r < self._pair_radius:
+            near = np.flatnonzero(self._pd2 < self._short_r * self._short_r)
+            self._sa, self._sb = pi[near], pj[near]
+            self._sdx, self._sdy, self._sd2 = self._pdx[near], self._pdy[near], self._pd2[near]
+        else:
+            self._sa, self._sb, self._sdx, self._sdy, self._sd2 = pi, pj, self._pdx, self._pdy, self._pd2
+
+    def _pairs_within(self, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(i, dx, dy, d2)`` of the directed pairs ``(i, j)`` that can matter to a corridor
+        check reaching ``reach`` m: those with ``d2 < reach**2`` (every pair when the reach
+        is beyond the pair radius)."""
+        if reach >= self._pair_radius:
+            return self._pi, self._pdx, self._pdy, self._pd2
+        if reach <= self._short_r:
+            a, dx, dy, d2 = self._sa, self._sdx, self._sdy, self._sd2
+        else:
+            a, dx, dy, d2 = self._pi, self._pdx, self._pdy, self._pd2
+        near = np.flatnonzero(d2 < reach * reach)
+        if near.size == a.size:
+            return a, dx, dy, d2
+        return a[near], dx[near], dy[near], d2[near]
+
     def _footprint_free(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """True where a robot centered at ``(x, y)`` overlaps no static obstacle and is on the
+        map (element-wise; the padded footprint grid makes off-map cells blocked)."""
         g = self.grid
         ix = np.floor((x - g.origin_x) / g.resolution).astype(np.int64)
         iy = np.floor((y - g.origin_y) / g.resolution).astype(np.int64)
-        inside = (ix >= 0) & (iy >= 0) & (ix < g.width) & (iy < g.height)
-        flat = np.where(inside, iy * g.width + ix, 0)
-        return inside & ~self._fp_flat[flat]
+        np.minimum(np.maximum(ix, -1, out=ix), g.width, out=ix)
+        np.minimum(np.maximum(iy, -1, out=iy), g.height, out=iy)
+        iy += 1
+        iy *= g.width + 2
+        iy += ix
+        iy += 1
+        return self._fp_free_padded[iy]
 
     def _enters(
         self, ox: np.ndarray, oy: np.ndarray, nx: np.ndarray, ny: np.ndarray, obst: np.ndarray
@@ -591,114 +702,327 @@ class Simulator:
             out |= (d_new < r + qr) & (d_new < np.hypot(ox - qx, oy - qy))
         return out
 
-    def _free_dynamic(
-        self,
-        idx: np.ndarray,
-        hx: np.ndarray,
-        hy: np.ndarray,
-        cap: np.ndarray,
-        pi: np.ndarray,
-        pj: np.ndarray,
-        obst: np.ndarray,
-        n: int,
+    def _corridor_free(
+        self, idx: np.ndarray, hx: np.ndarray, hy: np.ndarray, cap: np.ndarray, obst: np.ndarray
     ) -> np.ndarray:
-        """For robots ``idx`` heading along unit ``(hx, hy)`` (arrays over ``idx``, any extra
-        trailing shape broadcast against ``cap``): distance to the first robot or dynamic
-        obstacle in the corridor ahead, capped at ``cap``."""
+        """For robots ``idx`` (increasing indices) heading along unit ``(hx, hy)`` (arrays over
+        ``idx``): distance (m) to the first robot or dynamic obstacle in the corridor ahead,
+        capped at ``cap`` (an array over ``idx``).
+
+        Works on every neighbor pair at once: a robot outside ``idx`` gets the heading
+        ``(0, 0)``, so nothing is ahead of it and its pairs find nothing."""
+        s = self.state
+        n = s.n
         r = self.params.model.radius
         contact = 2.0 * r
-        best = np.array(np.broadcast_to(cap, hx.shape), dtype=float)
-        if pi.size:
-            reach = math.hypot(float(best.max()) + contact, contact + CORRIDOR_MARGIN_M)
-            near = self._pd2 < reach * reach if reach < self._pair_radius else None
-            if idx.size == n:
-                a, dx, dy = pi, self._pdx, self._pdy
-                if near is not None:
-                    a, dx, dy = a[near], dx[near], dy[near]
-            else:
-                loc = np.full(n, -1, dtype=np.int64)
-                loc[idx] = np.arange(idx.size)
-                a = loc[pi]
-                sel = a >= 0 if near is None else (a >= 0) & near
-                a, dx, dy = a[sel], self._pdx[sel], self._pdy[sel]
-            if a.size:
-                extra = hx.ndim - 1
-                if extra:
-                    dx = dx.reshape(dx.shape + (1,) * extra)
-                    dy = dy.reshape(dy.shape + (1,) * extra)
-                hxa, hya = hx[a], hy[a]
-                along = dx * hxa + dy * hya
-                lateral = np.abs(dx * hya - dy * hxa)
-                # only what is ahead, in the corridor and closer than the cap can limit
-                hit = np.nonzero(
-                    (along > 0.0) & (lateral < contact + CORRIDOR_MARGIN_M) & (along < best[a] + contact)
-                )
-                if hit[0].size:
+        lat = contact + CORRIDOR_MARGIN_M
+        reach = math.hypot(float(cap.max()) + contact, lat)
+        a, dx, dy, _ = self._pairs_within(reach)
+        if idx.size == n:
+            hxf, hyf, capf = hx, hy, cap
+        else:
+            hxf = np.zeros(n)
+            hyf = np.zeros(n)
+            capf = np.zeros(n)
+            hxf[idx] = hx
+            hyf[idx] = hy
+            capf[idx] = cap
+        best = capf.copy()
+        if a.size:
+            hxa = hxf[a]
+            hya = hyf[a]
+            along = dx * hxa + dy * hya
+            lateral = np.abs(dx * hya - dy * hxa)
+            # only what is ahead, in the corridor and closer than the cap can limit
+            hit = np.flatnonzero((along > 0.0) & (lateral < lat) & (along < capf[a] + contact))
+            if hit.size:
+                al, la = along[hit], lateral[hit]
+                inner = al - np.sqrt(np.maximum(contact * contact - la * la, 0.0))
+                gap = np.maximum(0.0, np.where(la >= contact, al - contact, inner))
+                np.minimum.at(best, a[hit], gap)
+        if idx.size != n:
+            best = best[idx]
+        if obst.size:
+            sx = s.x[idx]
+            sy = s.y[idx]
+            for qx, qy, qr in obst.tolist():
+                best = np.minimum(best, _corridor_gaps(qx - sx, qy - sy, hx, hy, r + qr, best))
+        return best
+
+    def _detour(self, fb: np.ndarray, db: np.ndarray, side: np.ndarray, obst: np.ndarray) -> np.ndarray:
+        """The detour of each blocked robot ``fb[r]`` that wants to go along ``db[r]`` (rad):
+        the index in ``_OFFSETS`` of the first offset, in the order ``_ORDERS[side[r] + 1]``,
+        whose heading ``db[r] + offset`` is free of robots and dynamic obstacles for
+        :data:`AVOID_CLEAR_M` and keeps the footprint off static obstacles along the way
+        (footprint samples every half cell); -1 if there is none. "Free" is exactly what the
+        corridor test of :meth:`_corridor_free` capped at ``AVOID_CLEAR_M`` decides.
+
+        The blocked headings of each robot are a bit mask over the sorted offsets. Neighbor
+        pairs are judged in the angle between a heading and the neighbor's bearing
+        (:meth:`_detour_blocks`): for a neighbor at distance ``d`` the blocked headings form at
+        most three intervals with closed-form ends, so a pair sets the bits of the offsets well
+        inside them without any per-heading arithmetic; offsets within :data:`_ANGLE_MARGIN`
+        of an end, and every heading of a pair whose ``d`` is near a distance where the
+        intervals change shape, get the exact test. A robot whose cell has no blocked
+        footprint cell within ``AVOID_CLEAR_M`` + a cell diagonal cannot meet a static obstacle
+        on any heading; only the others sample their free headings on the footprint grid.
+        The first free offset in order comes from a table over (side, mask)."""
+        s = self.state
+        n = s.n
+        nb = fb.size
+        kk = _OFFSETS.size
+        r = self.params.model.radius
+        contact = 2.0 * r
+        lat = contact + CORRIDOR_MARGIN_M
+        cap = AVOID_CLEAR_M
+
+        def unit(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            """``(cos, sin)`` of the headings ``db[r] + _OFFSETS[k]`` at ``flat = r * K + k``."""
+            h = db[flat // kk] + _OFFSETS[flat % kk]
+            return np.cos(h), np.sin(h)
+
+        blocked = np.zeros(nb, dtype=np.int64)  # bit j: the j-th smallest offset is blocked
+        a_all, dx_all, dy_all, d2_all = self._pairs_within(math.hypot(cap + contact, lat))
+        loc = np.full(n, -1, dtype=np.int64)
+        loc[fb] = np.arange(nb)
+        a = loc[a_all]
+        sel = np.flatnonzero(a >= 0)
+        if sel.size:
+            a = a[sel]
+            dx = dx_all[sel]
+            dy = dy_all[sel]
+            d = np.sqrt(d2_all[sel])
+            rho = np.arctan2(dy, dx) - db[a]  # bearing of the neighbor from db, in [-2 pi, 2 pi]
+            sure, slots_p, slots = self._detour_blocks(d, rho)
+            if sure is not None:
+                np.bitwise_or.at(blocked, a, sure)
+            if slots.size:
+                # the exact corridor test of _corridor_free for the (pair, heading) left over
+                ap = a[slots_p]
+                hxc, hyc = unit(ap * kk + _EXT_K[slots])
+                dxc = dx[slots_p]
+                dyc = dy[slots_p]
+                along = dxc * hxc + dyc * hyc
+                lateral = np.abs(dxc * hyc - dyc * hxc)
+                hit = np.flatnonzero((along > 0.0) & (lateral < lat) & (along < cap + contact))
+                if hit.size:
                     al, la = along[hit], lateral[hit]
                     inner = al - np.sqrt(np.maximum(contact * contact - la * la, 0.0))
                     gap = np.maximum(0.0, np.where(la >= contact, al - contact, inner))
-                    rows = (a[hit[0]],) + hit[1:]
-                    np.minimum.at(best, rows, gap)
-        sx = self.state.x[idx]
-        sy = self.state.y[idx]
-        extra = hx.ndim - 1
-        for qx, qy, qr in obst.tolist():
-            dx = (qx - sx).reshape(sx.shape + (1,) * extra)
-            dy = (qy - sy).reshape(sy.shape + (1,) * extra)
-            best = np.minimum(best, _corridor_gaps(dx, dy, hx, hy, r + qr, best))
-        return best
+                    bad = hit[gap < cap]
+                    np.bitwise_or.at(blocked, ap[bad], np.left_shift(1, slots[bad] % kk))
+        if obst.size:
+            hx, hy = unit(np.arange(nb * kk))
+            hx2 = hx.reshape(nb, kk)
+            hy2 = hy.reshape(nb, kk)
+            best = np.full((nb, kk), cap)
+            sx = s.x[fb][:, None]
+            sy = s.y[fb][:, None]
+            for qx, qy, qr in obst.tolist():
+                best = np.minimum(best, _corridor_gaps(qx - sx, qy - sy, hx2, hy2, r + qr, best))
+            blocked |= ((best < cap)[:, _SORTED_K] * _BIT[None, :]).sum(axis=1)
+        # static obstacles along the free headings, for robots not in the clear
+        xb = s.x[fb]
+        yb = s.y[fb]
+        nc = np.flatnonzero(~self._in_clear(xb, yb))
+        if nc.size:
+            free = ((blocked[nc, None] >> _SORTED_POS[None, :]) & 1) == 0
+            rb, ro = np.nonzero(free)
+            if rb.size:
+                rb = nc[rb]
+                hx, hy = unit(rb * kk + ro)
+                smp = self._clear_samples
+                cx = xb[rb][:, None] + hx[:, None] * smp[None, :]
+                cy = yb[rb][:, None] + hy[:, None] * smp[None, :]
+                off = np.flatnonzero(~self._footprint_free(cx, cy).all(axis=1))
+                if off.size:
+                    np.bitwise_or.at(blocked, rb[off], _BIT[_SORTED_POS[ro[off]]])
+        return _FIRST_FREE[side + 1, blocked]
 
-    def _follow(self, F: np.ndarray, now: float, pi: np.ndarray, pj: np.ndarray, obst: np.ndarray) -> None:
-        """The path follower of every robot in ``F`` (indices), vectorized: progress along the
-        path, passed vias, arrival, lookahead target, avoidance detours, turn-then-drive
-        command and the approach timer. Arrivals and approach timeouts call the robot's task."""
+    def _detour_blocks(
+        self, d: np.ndarray, rho: np.ndarray
+    ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+        """Which detour offsets the neighbor of each pair blocks, for neighbors at distance
+        ``d`` (m) and bearing ``rho`` (rad) relative to the robot's wanted heading. Returns
+        ``(sure, pair, slot)``: ``sure[p]`` a bit mask over the sorted offsets that pair ``p``
+        certainly blocks (``None`` if no pair was judged this way), and the (pair, slot of
+        ``_EXT``) the exact test must still decide.
+
+        With ``c`` the contact distance, ``lat`` the corridor half-width, ``cap`` =
+        :data:`AVOID_CLEAR_M` and ``beta`` the angle from the neighbor's bearing to a heading,
+        the corridor test blocks the heading iff (``t1 = d cos beta - sqrt(c^2 - d^2 sin^2
+        beta)``, the distance at which the robot's disc touches the neighbor's; it grows with
+        ``|beta|`` when ``d > c``):
+
+        * ``d < lat``: ``|beta| < pi / 2``;
+        * ``lat < d < hypot(c, cap)``: ``|beta| < asin(lat / d)``;
+        * ``hypot(c, cap) < d < c + cap``: ``|beta| < acos((d^2 + cap^2 - c^2) / (2 cap d))``
+          (where ``t1 = cap``) or ``asin(c / d) <= |beta| < asin(lat / d)`` (the band where
+          the neighbor only grazes the corridor, blocked if it is closer than ``c + cap``
+          along it, always here);
+        * ``d > c + cap``: ``max(asin(c / d), acos((c + cap) / d)) <= |beta| < asin(lat / d)``.
+
+        Offsets farther than :data:`_ANGLE_MARGIN` inside these intervals are blocked, those
+        farther outside are not, whatever the rounding of the floats (it is below 1e-14 rad);
+        the offsets within the margin of an end, and all offsets in the window of a pair whose
+        ``d`` is within :data:`_DIST_MARGIN` of ``0``, ``lat``, ``hypot(c, cap)`` or ``c +
+        cap`` (where the intervals change shape or an end moves fast with ``d``), go to the
+        exact test."""
+        contact = 2.0 * self.params.model.radius
+        lat = contact + CORRIDOR_MARGIN_M
+        cap = AVOID_CLEAR_M
+        mid = math.hypot(contact, cap)
+        far = contact + cap
+        if self._judged is not None:
+            # a table over d in bins of _JUDGED_BIN m: False near 0, lat, mid and far
+            judged = self._judged[
+                np.minimum((d * (1.0 / _JUDGED_BIN)).astype(np.int64), self._judged.size - 1)
+            ]
+            jp = np.flatnonzero(judged)
+            xp = np.flatnonzero(~judged)
+        else:
+            jp = _EMPTY_INT
+            xp = np.arange(d.size)
+        sure: np.ndarray | None = None
+        pairs: list[np.ndarray] = []
+        slots: list[np.ndarray] = []
+        if xp.size:
+            # every offset in the window where the neighbor can be in the corridor at all
+            dx_ = d[xp]
+            w = np.where(dx_ > lat, np.arcsin(lat / np.maximum(dx_, lat)), 0.5 * math.pi) + _ANGLE_MARGIN
+            rx = rho[xp]
+            i0 = _EXT_BELOW[_ext_bin(rx - w)]
+            cnt = _EXT_UPTO[_ext_bin(rx + w)] - i0
+            tot = int(cnt.sum())
+            if tot:
+                pairs.append(np.repeat(xp, cnt))
+                slots.append(np.repeat(i0 - (np.cumsum(cnt) - cnt), cnt) + np.arange(tot))
+        if jp.size:
+            dj = d[jp]
+            b_lat = np.arcsin(np.minimum(lat / dj, 1.0))
+            b_c = np.arcsin(np.minimum(contact / dj, 1.0))
+            b_t1 = np.arccos(
+                np.minimum((dj * dj + (cap * cap - contact * contact)) / ((2.0 * cap) * dj), 1.0)
+            )
+            b_along = np.arccos(np.minimum(far / dj, 1.0))
+            c1 = dj < lat
+            c4 = dj > far
+            # central interval |beta| < half (0: none) and band lo <= |beta| < hi (lo >= hi: none)
+            half = np.where(c1, 0.5 * math.pi, np.where(dj < mid, b_lat, np.where(c4, 0.0, b_t1)))
+            band_lo = np.where(dj > mid, np.where(c4, np.maximum(b_c, b_along), b_c), b_lat + 1.0)
+            m = _ANGLE_MARGIN
+            inv = 1.0 / _EXT_BIN
+            centre = (rho[jp] - _EXT_LO) * inv
+            # a band down to nothing still gets its ends tested (it may hold an offset exactly)
+            has_c = half > 0.0
+            has_b = band_lo < b_lat + 2.0 * m
+            # the three intervals in the angle of _EXT: the centre and the band on both sides;
+            # the slots strictly inside by the margin (and the bin) are sure, the slots near
+            # either end (by _NEAR_LO / _NEAR_HI) go to the exact test
+            valid = np.stack((has_c, has_b, has_b))
+            b0 = (centre + (np.stack((-half, band_lo, -b_lat)) + m) * inv).astype(np.int64)
+            b1 = (centre + (np.stack((half, b_lat, -band_lo)) - m) * inv).astype(np.int64)
+            s0 = _EXT_UPTO[b0]
+            s1 = np.where(valid, np.maximum(_EXT_BELOW[b1], s0), s0)
+            bits = np.left_shift(1, s1) - np.left_shift(1, s0)
+            masks = bits[0] | bits[1] | bits[2]
+            # fold the three copies of the offsets onto the sorted offsets
+            k = _OFFSETS.size
+            sure = (masks | (masks >> k) | (masks >> (2 * k))) & ((1 << k) - 1)
+            near = np.concatenate((_NEAR_LO[b0], _NEAR_HI[b1]))
+            q = np.flatnonzero((near >= 0) & np.concatenate((valid, valid)))
+            if q.size:
+                pairs.append(jp[q % jp.size])
+                slots.append(near.ravel()[q])
+            if jp.size != d.size:
+                full = np.zeros(d.size, dtype=np.int64)
+                full[jp] = sure
+                sure = full
+        if not pairs:
+            return sure, _EMPTY_INT, _EMPTY_INT
+        return sure, np.concatenate(pairs), np.concatenate(slots)
+
+    def _in_clear(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """True where the cell of ``(x, y)`` has no blocked footprint cell (nor the map edge)
+        within ``AVOID_CLEAR_M`` + a cell diagonal (center to center): every detour sample of
+        a robot there is on a free cell. The grid is built on first use."""
+        g = self.grid
+        if self._clear_free is None:
+            radius_cells = AVOID_CLEAR_M / g.resolution + math.sqrt(2.0) + 1e-3
+            blocked = inflate(self.planner.footprint, radius_cells)
+            padded = np.zeros((g.height + 2, g.width + 2), dtype=bool)
+            padded[1:-1, 1:-1] = ~blocked
+            self._clear_free = padded.ravel()
+        ix = np.floor((x - g.origin_x) / g.resolution).astype(np.int64)
+        iy = np.floor((y - g.origin_y) / g.resolution).astype(np.int64)
+        np.minimum(np.maximum(ix, -1, out=ix), g.width, out=ix)
+        np.minimum(np.maximum(iy, -1, out=iy), g.height, out=iy)
+        return self._clear_free[(iy + 1) * (g.width + 2) + ix + 1]
+
+    def _follow(self, F: np.ndarray, now: float, obst: np.ndarray) -> None:
+        """The path follower of every robot in ``F`` (increasing indices), vectorized:
+        progress along the path, passed vias, arrival, lookahead target, avoidance detours,
+        turn-then-drive command and the approach timer. Arrivals and approach timeouts call
+        the robot's task. Loops that advance a cursor (segment, via, lookahead) run their
+        later rounds only over the robots that advanced."""
         s = self.state
         p = self.params
         m = p.model
         tol = p.goal_tolerance
         n = s.n
-        X, Y, TH = s.x[F], s.y[F], s.th[F]
-        PX, PY, SL, SUF = s.pts_x, s.pts_y, s.seg_len, s.suffix
-        off = s.f_off[F]
-        last = s.f_len[F] - 2
-        seg = s.f_seg[F].copy()
-        xy = s.f_xy[F].copy()
+        full = F.size == n
+
+        def get(arr: np.ndarray) -> np.ndarray:
+            return arr[:n] if full else arr[F]
+
+        X, Y = get(s.x), get(s.y)
+        seg = get(s.f_seg).copy()
+        last = get(s.f_len) - 2
+        xy = get(s.f_xy).copy()
         act = ~xy
         # progress along the path: next segment once past the segment's end or within the
         # goal tolerance of it (so sharp turns cannot make the robot orbit the corner)
-        while True:
-            k = off + seg
-            ax, ay, bx, by = PX[k], PY[k], PX[k + 1], PY[k + 1]
-            L = SL[k]
-            ex, ey = bx - ax, by - ay
-            t = np.where(L > 1e-9, ((X - ax) * ex + (Y - ay) * ey) / np.maximum(L * L, 1e-18), 1.0)
-            adv = act & (seg < last) & ((t >= 1.0) | (np.hypot(bx - X, by - Y) <= tol))
-            if not adv.any():
-                break
-            seg += adv
-        proj = np.clip(t, 0.0, 1.0)
+        ax, ay, bx, by, ex, ey = (get(c) for c in (s.c_ax, s.c_ay, s.c_bx, s.c_by, s.c_ex, s.c_ey))
+        t = np.where(get(s.c_long), ((X - ax) * ex + (Y - ay) * ey) / get(s.c_den), 1.0)
+        A = np.flatnonzero(act & (seg < last) & ((t >= 1.0) | (np.hypot(bx - X, by - Y) <= tol)))
+        if A.size:
+            while A.size:
+                seg[A] += 1
+                FA = F[A]
+                s.f_seg[FA] = seg[A]
+                s.load_segments(FA)
+                XA, YA = X[A], Y[A]
+                num = (XA - s.c_ax[FA]) * s.c_ex[FA] + (YA - s.c_ay[FA]) * s.c_ey[FA]
+                tA = np.where(s.c_long[FA], num / s.c_den[FA], 1.0)
+                t[A] = tA
+                A = A[
+                    (seg[A] < last[A]) & ((tA >= 1.0) | (np.hypot(s.c_bx[FA] - XA, s.c_by[FA] - YA) <= tol))
+                ]
+            if not full:
+                ax, ay, bx, by, ex, ey = (get(c) for c in (s.c_ax, s.c_ay, s.c_bx, s.c_by, s.c_ex, s.c_ey))
+        proj = np.minimum(np.maximum(t, 0.0), 1.0)
         # vias passed: the path reached them, or the robot came within the tolerance
-        nv = s.f_nv[F].copy()
-        vn = s.f_vn[F]
-        voff = s.f_voff[F]
-        while True:
-            can = act & (nv < vn - 1)
-            if not can.any():
-                break
-            vi = s.vias[voff + np.minimum(nv, vn - 1)]
-            adv = can & ((seg >= vi) | (np.hypot(PX[off + vi] - X, PY[off + vi] - Y) <= tol))
-            if not adv.any():
-                break
-            nv += adv
-        gk = off + last + 1
-        xy |= act & (nv >= vn - 1) & (np.hypot(PX[gk] - X, PY[gk] - Y) <= tol)
+        nv = get(s.f_nv).copy()
+        can = act & get(s.c_vmore)
+        A = np.flatnonzero(
+            can & ((seg >= get(s.c_vseg)) | (np.hypot(get(s.c_vx) - X, get(s.c_vy) - Y) <= tol))
+        )
+        while A.size:
+            nv[A] += 1
+            FA = F[A]
+            s.f_nv[FA] = nv[A]
+            s.load_vias(FA)
+            near = np.hypot(s.c_vx[FA] - X[A], s.c_vy[FA] - Y[A]) <= tol
+            A = A[s.c_vmore[FA] & ((seg[A] >= s.c_vseg[FA]) | near)]
+        xy |= act & ~get(s.c_vmore) & (np.hypot(get(s.c_gx) - X, get(s.c_gy) - Y) <= tol)
         vcmd = np.zeros(F.size)
         wcmd = np.zeros(F.size)
         arrived = np.zeros(F.size, dtype=bool)
         # final yaw
         yi = np.flatnonzero(xy)
         if yi.size:
-            err = (s.f_yaw[F[yi]] - TH[yi] + math.pi) % (2.0 * math.pi) - math.pi
+            fy = F[yi]
+            err = (s.f_yaw[fy] - s.th[fy] + math.pi) % (2.0 * math.pi) - math.pi
             done = np.abs(err) <= p.yaw_tolerance
             arrived[yi[done]] = True
             turn = np.minimum(m.max_angular_speed, np.sqrt(2.0 * m.max_angular_accel * np.abs(err)))
@@ -706,95 +1030,126 @@ class Simulator:
         # driving along the path
         di = np.flatnonzero(~xy)
         rem = np.zeros(F.size)
-        side = s.f_side[F].copy()
+        side = get(s.f_side).copy()
         if di.size:
-            k = off[di] + seg[di]
-            ax, ay, bx, by = PX[k], PY[k], PX[k + 1], PY[k + 1]
-            tq = proj[di]
-            qx, qy = ax + tq * (bx - ax), ay + tq * (by - ay)
-            Xd, Yd = X[di], Y[di]
-            rem_d = np.hypot(bx - qx, by - qy) + SUF[k + 1] + np.hypot(qx - Xd, qy - Yd)
-            rem[di] = rem_d
+            alld = di.size == F.size
+
+            def sub(arr: np.ndarray) -> np.ndarray:
+                return arr if alld else arr[di]
+
+            fi = F if alld else F[di]
+            tq = sub(proj)
+            axd, ayd, bxd, byd = sub(ax), sub(ay), sub(bx), sub(by)
+            qx = axd + tq * sub(ex)
+            qy = ayd + tq * sub(ey)
+            Xd, Yd = sub(X), sub(Y)
+            left = np.hypot(bxd - qx, byd - qy)
+            rem_d = left + sub(get(s.c_suf)) + np.hypot(qx - Xd, qy - Yd)
+            if alld:
+                rem = rem_d
+            else:
+                rem[di] = rem_d
             # lookahead point 0.3 + 0.3 |v| ahead along the path
-            dist = 0.3 + 0.3 * np.abs(s.v[F[di]])
-            left = np.hypot(bx - qx, by - qy)
-            lastd = last[di]
-            segk = seg[di].copy()
-            while True:
-                more = (dist > left) & (segk < lastd)
-                if not more.any():
-                    break
-                dist = np.where(more, dist - left, dist)
-                segk += more
-                kk = off[di] + segk
-                qx = np.where(more, PX[kk], qx)
-                qy = np.where(more, PY[kk], qy)
-                bx = np.where(more, PX[kk + 1], bx)
-                by = np.where(more, PY[kk + 1], by)
-                left = np.where(more, SL[kk], left)
+            dist = 0.3 + 0.3 * np.abs(s.v[fi])
+            segd = sub(seg)
+            lastd = sub(last)
+            M = np.flatnonzero((dist > left) & (segd < lastd))
+            if M.size:
+                PX, PY, SL = s.pts_x, s.pts_y, s.seg_len
+                dM, lM, sM = dist[M], left[M], segd[M].copy()
+                lastM = lastd[M]
+                offM = s.f_off[fi[M]]
+                qxM, qyM, bxM, byM = qx[M], qy[M], bxd[M], byd[M]
+                more = np.ones(M.size, dtype=bool)
+                while True:
+                    dM = np.where(more, dM - lM, dM)
+                    sM += more
+                    kM = offM + sM
+                    qxM = np.where(more, PX[kM], qxM)
+                    qyM = np.where(more, PY[kM], qyM)
+                    bxM = np.where(more, PX[kM + 1], bxM)
+                    byM = np.where(more, PY[kM + 1], byM)
+                    lM = np.where(more, SL[kM], lM)
+                    more = (dM > lM) & (sM < lastM)
+                    if not more.any():
+                        break
+                dist = dist.copy()
+                left = left.copy()
+                qx, qy, bxd, byd = qx.copy(), qy.copy(), bxd.copy(), byd.copy()
+                dist[M], left[M], qx[M], qy[M], bxd[M], byd[M] = dM, lM, qxM, qyM, bxM, byM
             f = np.where(dist >= left, 1.0, dist / np.maximum(left, 1e-12))
-            tx, ty = qx + f * (bx - qx), qy + f * (by - qy)
+            tx, ty = qx + f * (bxd - qx), qy + f * (byd - qy)
             desired = np.arctan2(ty - Yd, tx - Xd)
             # local avoidance: detour around robots / dynamic obstacles in the way
-            fi = F[di]
-            blk = self._free_dynamic(
-                fi, np.cos(desired), np.sin(desired), np.full(di.size, AVOID_LOOKAHEAD_M), pi, pj, obst, n
+            blk = self._corridor_free(
+                fi, np.cos(desired), np.sin(desired), np.full(di.size, AVOID_LOOKAHEAD_M), obst
             )
             blocked = (blk < AVOID_LOOKAHEAD_M) & (blk + 2.0 * m.radius + tol < rem_d)
-            sd = side[di]
+            sd = side if alld else side[di]
             sd[~blocked] = 0
             bi = np.flatnonzero(blocked)
             if bi.size:
-                fb = fi[bi]
-                heads = desired[bi, None] + _OFFSETS[None, :]
-                hx, hy = np.cos(heads), np.sin(heads)
-                free = self._free_dynamic(fb, hx, hy, np.full(heads.shape, AVOID_CLEAR_M), pi, pj, obst, n)
-                ok = free >= AVOID_CLEAR_M
-                rb, ro = np.nonzero(ok)
-                if rb.size:
-                    smp = self._clear_samples
-                    cx = s.x[fb[rb]][:, None] + hx[rb, ro][:, None] * smp[None, :]
-                    cy = s.y[fb[rb]][:, None] + hy[rb, ro][:, None] * smp[None, :]
-                    ok[rb, ro] = self._footprint_free(cx, cy).all(axis=1)
-                order = _ORDERS[sd[bi] + 1]
-                ok_ord = np.take_along_axis(ok, order, axis=1)
-                anyok = ok_ord.any(axis=1)
-                first = np.argmax(ok_ord, axis=1)
-                chosen = _OFFSETS[order[np.arange(bi.size), first]]
-                desired[bi] = np.where(anyok, desired[bi] + chosen, desired[bi])
-                sd[bi] = np.where(anyok, np.where(chosen > 0, 1, -1), sd[bi])
-            side[di] = sd
-            err = (desired - TH[di] + math.pi) % (2.0 * math.pi) - math.pi
+                db = desired[bi]
+                sdb = sd[bi]
+                k = self._detour(fi[bi], db, sdb, obst)
+                anyok = k >= 0
+                chosen = _OFFSETS[k]
+                desired[bi] = np.where(anyok, db + chosen, db)
+                sd[bi] = np.where(anyok, np.where(chosen > 0, 1, -1), sdb)
+            if not alld:
+                side[di] = sd
+            err = (desired - sub(get(s.th)) + math.pi) % (2.0 * math.pi) - math.pi
             aerr = np.abs(err)
             rot = aerr > ROTATE_IN_PLACE_RAD
             turn = np.minimum(m.max_angular_speed, np.sqrt(2.0 * m.max_angular_accel * aerr))
             vdrive = m.max_linear_speed * (1.0 - 0.6 * aerr / ROTATE_IN_PLACE_RAD)
             vdrive = np.minimum(vdrive, np.sqrt(2.0 * m.max_linear_accel * 0.8 * rem_d))
             wdrive = np.clip(HEADING_GAIN * err, -m.max_angular_speed, m.max_angular_speed)
-            vcmd[di] = np.where(rot, 0.0, vdrive)
-            wcmd[di] = np.where(rot, np.copysign(turn, err), wdrive)
+            vc = np.where(rot, 0.0, vdrive)
+            wc = np.where(rot, np.copysign(turn, err), wdrive)
+            if alld:
+                vcmd, wcmd = vc, wc
+            else:
+                vcmd[di] = vc
+                wcmd[di] = wc
         # approach timer: the remaining path must shrink by APPROACH_M every window
-        best = s.f_best[F]
-        btime = s.f_btime[F]
+        best = get(s.f_best)
+        btime = get(s.f_btime)
         better = xy | (rem < best - APPROACH_M)
         best = np.where(better, rem, best)
         btime = np.where(better, now, btime)
         window = APPROACH_FACTOR * p.stuck_time_s
         timeout = ~arrived & (now - btime >= window - 1e-9)
-        # write back
-        s.f_seg[F] = seg
-        s.f_t[F] = proj
-        s.f_nv[F] = nv
-        s.f_xy[F] = xy
-        s.f_side[F] = side
-        s.f_best[F] = best
-        s.f_btime[F] = btime
         stop = arrived | timeout
-        vcmd[stop] = 0.0
-        wcmd[stop] = 0.0
-        s.vd[F] = vcmd
-        s.wd[F] = wcmd
-        s.drives[F] = vcmd != 0.0
+        any_stop = bool(stop.any())
+        if any_stop:
+            vcmd[stop] = 0.0
+            wcmd[stop] = 0.0
+        # write back
+        if full:
+            s.f_seg[:n] = seg
+            s.f_t[:n] = proj
+            s.f_nv[:n] = nv
+            s.f_xy[:n] = xy
+            s.f_side[:n] = side
+            s.f_best[:n] = best
+            s.f_btime[:n] = btime
+            s.vd[:n] = vcmd
+            s.wd[:n] = wcmd
+            np.not_equal(vcmd, 0.0, out=s.drives[:n])
+        else:
+            s.f_seg[F] = seg
+            s.f_t[F] = proj
+            s.f_nv[F] = nv
+            s.f_xy[F] = xy
+            s.f_side[F] = side
+            s.f_best[F] = best
+            s.f_btime[F] = btime
+            s.vd[F] = vcmd
+            s.wd[F] = wcmd
+            s.drives[F] = vcmd != 0.0
+        if not any_stop:
+            return
         for a in np.flatnonzero(stop).tolist():
             robot = self._order[int(F[a])]
             task = robot.task
@@ -845,16 +1200,20 @@ class Simulator:
                 sd += stepd
         return best
 
-    def _count_contacts(self, now: float, pi: np.ndarray, pj: np.ndarray) -> None:
+    def _count_contacts(self, now: float) -> None:
         s = self.state
         d2 = 2.0 * self.params.model.radius
         m = self.params.model
         # a pair touching now was closer than 2 * radius + both robots' longest step before it
         before = d2 + 2.0 * m.max_linear_speed * self.params.step_s + 1e-6
-        half = (pi < pj) & (self._pd2 < before * before)
-        a, b = pi[half], pj[half]
+        if before <= self._short_r:
+            pa, pb, pd2 = self._sa, self._sb, self._sd2
+        else:
+            pa, pb, pd2 = self._pi, self._pj, self._pd2
+        half = np.flatnonzero((pa < pb) & (pd2 < before * before))
+        a, b = pa[half], pb[half]
         close = np.hypot(s.x[b] - s.x[a], s.y[b] - s.y[a]) < d2
-        touching = set(zip(a[close].tolist(), b[close].tolist(), strict=True))
+        touching = set(zip(a[close].tolist(), b[close].tolist(), strict=True)) if close.any() else set()
         new = touching - self._touching
         if new:
             named = []
@@ -871,6 +1230,8 @@ class Simulator:
         self._touching = touching
 
 
+_make_robot_state = frozen_factory(RobotState)
+
 #: Detour offsets and the order they are tried in, by the side already chosen (-1, 0, +1).
 _OFFSETS = np.array(AVOID_OFFSETS)
 _ORDERS = np.array(
@@ -881,6 +1242,57 @@ _ORDERS = np.array(
     ],
     dtype=np.int64,
 )
+#: The detour offsets sorted (``_SORTED_K``: the index in ``_OFFSETS`` of each; ``_SORTED_POS``
+#: the inverse) and all their copies 2 pi below and above: ``_EXT``, sorted, is the three
+#: sorted copies one after the other, so slot ``s`` is sorted offset ``s % K``.
+_SORTED_K = np.argsort(_OFFSETS, kind="stable")
+_SORTED_POS = np.argsort(_SORTED_K, kind="stable")
+_EXT = np.concatenate(
+    (_OFFSETS[_SORTED_K] - 2.0 * math.pi, _OFFSETS[_SORTED_K], _OFFSETS[_SORTED_K] + 2.0 * math.pi)
+)
+_EXT_K = np.tile(_SORTED_K, 3)
+assert bool(np.all(np.diff(_EXT) > 0.0)), "the detour offsets must span less than 2 pi"
+#: Angular margin (rad) far above the rounding of the angles involved (below 1e-14 rad): an
+#: offset this far inside or outside an interval of blocked headings is judged without the
+#: exact test; the window of a neighbor is widened by it.
+_ANGLE_MARGIN = 1e-5
+#: Distance margin (m) around the distances where the blocked intervals change shape, and the
+#: bin of the table that finds the distances outside it.
+_DIST_MARGIN = 1e-3
+_JUDGED_BIN = 1e-4
+#: Lookup tables over angles in [-4 pi, 4 pi], in bins of ``_EXT_BIN`` rad from ``_EXT_LO``:
+#: ``_EXT_BELOW[b]`` / ``_EXT_UPTO[b]`` count the slots below the start / end of bin ``b``, so
+#: ``[_EXT_BELOW[bin(lo)], _EXT_UPTO[bin(hi)])`` holds every slot in ``[lo, hi]`` (a few
+#: more, maybe) and ``[_EXT_UPTO[bin(lo)], _EXT_BELOW[bin(hi)])`` only slots inside it;
+#: ``_NEAR_LO[b]`` / ``_NEAR_HI[b]`` is the slot within ``3 * _ANGLE_MARGIN`` below / above
+#: bin ``b`` (or in it, or one bin beyond, for rounding), -1 if none (slots are 0.35 rad apart).
+_EXT_LO = -4.0 * math.pi
+_EXT_BIN = 1.0 / 1024.0
+_EXT_NBINS = int(8.0 * math.pi / _EXT_BIN) + 1
+_EXT_EDGES = _EXT_LO + _EXT_BIN * np.arange(_EXT_NBINS + 1)
+_EXT_BELOW = np.searchsorted(_EXT, _EXT_EDGES[:-1], "left")
+_EXT_UPTO = np.searchsorted(_EXT, _EXT_EDGES[1:], "left")
+_NEAR_LO = np.full(_EXT_NBINS, -1, dtype=np.int64)
+_NEAR_HI = np.full(_EXT_NBINS, -1, dtype=np.int64)
+for _s, _v in enumerate(_EXT.tolist()):
+    _b = int((_v - _EXT_LO) / _EXT_BIN)
+    _NEAR_LO[max(_b - 1, 0) : int((_v + 3.0 * _ANGLE_MARGIN - _EXT_LO) / _EXT_BIN) + 2] = _s
+    _NEAR_HI[max(int((_v - 3.0 * _ANGLE_MARGIN - _EXT_LO) / _EXT_BIN) - 1, 0) : _b + 2] = _s
+_EMPTY_INT = np.zeros(0, dtype=np.int64)
+#: ``_BIT[j] = 1 << j``; ``_FIRST_FREE[side + 1, mask]``: the index in ``_OFFSETS`` of the first
+#: offset in the order ``_ORDERS[side + 1]`` whose sorted position is not set in ``mask``, -1
+#: if every one is.
+_BIT = np.left_shift(1, np.arange(_OFFSETS.size, dtype=np.int64))
+_FIRST_FREE = np.full((3, 1 << _OFFSETS.size), -1, dtype=np.int64)
+for _i, _order in enumerate(_ORDERS):
+    _free = ((np.arange(1 << _OFFSETS.size)[:, None] >> _SORTED_POS[_order][None, :]) & 1) == 0
+    _FIRST_FREE[_i] = np.where(_free.any(axis=1), _order[_free.argmax(axis=1)], -1)
+
+
+def _ext_bin(angle: np.ndarray) -> np.ndarray:
+    """Bin of ``angle`` (rad, within [-4 pi, 4 pi]) in the ``_EXT_*`` tables."""
+    b = ((angle - _EXT_LO) * (1.0 / _EXT_BIN)).astype(np.int64)
+    return np.minimum(np.maximum(b, 0, out=b), _EXT_NBINS - 1, out=b)
 
 
 def _corridor_gaps(

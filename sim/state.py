@@ -9,6 +9,20 @@ segment starting there (``seg_len``) and the path length from there to the path'
 (``suffix``); robot ``i`` follows points ``f_off[i] .. f_off[i] + f_len[i] - 1``. The indices of
 the poses to pass (vias) live in a second flat buffer. Units meters, radians, seconds; frame
 ``map``.
+
+The follower's per-step arithmetic reads a per-robot cache of what it needs from those
+buffers (``c_*``: the current segment's end points ``c_ax .. c_by``, its vector ``c_ex``,
+``c_ey``, ``c_den = max(length**2, 1e-18)``, ``c_long = length > 1e-9``, the path length after
+it ``c_suf``; the next via's point ``c_vx``, ``c_vy``, its point index ``c_vseg`` and
+``c_vmore``, whether a via other than the last is still to pass; the path's last point ``c_gx``,
+``c_gy``). The values are the same floats the buffers give; :meth:`FleetState.load_segments`
+and :meth:`FleetState.load_vias` refresh them whenever ``f_seg`` / ``f_nv`` change.
+
+Snapshots (goal feedback, robot state) read one robot at a time through :meth:`FleetState.row`.
+Between steps every robot's row is copied out of the arrays at once, on the first read after
+a change (``version`` counts the changes: the simulator's step, :meth:`FleetState.attach`,
+:meth:`FleetState.add`, the :class:`sim.robot.Robot` setters); while a step runs (``busy``)
+rows are read from the arrays directly.
 """
 
 from __future__ import annotations
@@ -17,9 +31,16 @@ import math
 
 import numpy as np
 
-_FLOAT = ("x y th v w battery dist px py pt f_t f_yaw f_best f_btime vd wd").split()
-_INT = ("collisions", "f_seg", "f_off", "f_len", "f_voff", "f_vn", "f_nv", "f_side")
-_BOOL = ("charging", "stuck", "stalled", "has_task", "drives", "fol", "f_xy")
+_FLOAT = (
+    "x y th v w battery dist px py pt f_t f_yaw f_best f_btime vd wd "
+    "c_ax c_ay c_bx c_by c_ex c_ey c_den c_suf c_vx c_vy c_gx c_gy"
+).split()
+_INT = ("collisions", "f_seg", "f_off", "f_len", "f_voff", "f_vn", "f_nv", "f_side", "c_vseg")
+_BOOL = ("charging", "stuck", "stalled", "has_task", "drives", "fol", "f_xy", "c_long", "c_vmore")
+#: The arrays of a :meth:`FleetState.row`, in order.
+ROW = (
+    "x y th v w battery charging stuck dist collisions f_t c_ax c_ay c_bx c_by c_suf f_xy f_len f_nv f_vn"
+).split()
 
 
 class FleetState:
@@ -41,6 +62,10 @@ class FleetState:
         self.n_pts = 0
         self.vias = np.zeros(256, dtype=np.int64)
         self.n_vias = 0
+        self.version = 0
+        self.busy = False
+        self._rows = np.zeros((0, len(ROW)))
+        self._rows_version = -1
 
     # typed views for mypy (set dynamically above)
     x: np.ndarray
@@ -67,6 +92,21 @@ class FleetState:
     f_vn: np.ndarray
     f_nv: np.ndarray
     f_side: np.ndarray
+    c_ax: np.ndarray
+    c_ay: np.ndarray
+    c_bx: np.ndarray
+    c_by: np.ndarray
+    c_ex: np.ndarray
+    c_ey: np.ndarray
+    c_den: np.ndarray
+    c_suf: np.ndarray
+    c_vx: np.ndarray
+    c_vy: np.ndarray
+    c_gx: np.ndarray
+    c_gy: np.ndarray
+    c_vseg: np.ndarray
+    c_long: np.ndarray
+    c_vmore: np.ndarray
     charging: np.ndarray
     stuck: np.ndarray
     stalled: np.ndarray
@@ -86,6 +126,7 @@ class FleetState:
                 setattr(self, name, new)
         i = self.n
         self.n += 1
+        self.version += 1
         self.x[i], self.y[i], self.th[i] = x, y, theta
         self.battery[i] = battery
         self.px[i], self.py[i], self.pt[i] = x, y, now
@@ -97,6 +138,7 @@ class FleetState:
         self, i: int, path: list[tuple[float, float]], vias: list[int], final_yaw: float, now: float
     ) -> None:
         """Make robot ``i`` follow ``path`` (at least 2 points) through ``vias``."""
+        self.version += 1
         k = len(path)
         self._reserve_points(k)
         self._reserve_vias(len(vias))
@@ -126,25 +168,75 @@ class FleetState:
         self.f_yaw[i] = final_yaw
         self.f_best[i] = math.inf
         self.f_btime[i] = now
+        self.c_gx[i], self.c_gy[i] = xs[-1], ys[-1]
+        one = np.array([i], dtype=np.int64)
+        self.load_segments(one)
+        self.load_vias(one)
+
+    def load_segments(self, idx: np.ndarray) -> None:
+        """Refresh the cached current-segment geometry (``c_ax`` .. ``c_suf``) of robots
+        ``idx`` (an index array) from ``f_off`` / ``f_seg`` and the point buffers."""
+        k = self.f_off[idx] + self.f_seg[idx]
+        ax, ay = self.pts_x[k], self.pts_y[k]
+        bx, by = self.pts_x[k + 1], self.pts_y[k + 1]
+        length = self.seg_len[k]
+        self.c_ax[idx], self.c_ay[idx], self.c_bx[idx], self.c_by[idx] = ax, ay, bx, by
+        self.c_ex[idx] = bx - ax
+        self.c_ey[idx] = by - ay
+        self.c_den[idx] = np.maximum(length * length, 1e-18)
+        self.c_long[idx] = length > 1e-9
+        self.c_suf[idx] = self.suffix[k + 1]
+
+    def load_vias(self, idx: np.ndarray) -> None:
+        """Refresh the cached next via (``c_vx``, ``c_vy``, ``c_vseg``, ``c_vmore``) of robots
+        ``idx`` from ``f_voff`` / ``f_nv`` / ``f_vn`` and the via buffer."""
+        vn = self.f_vn[idx]
+        nv = self.f_nv[idx]
+        vi = self.vias[self.f_voff[idx] + np.minimum(nv, vn - 1)]
+        k = self.f_off[idx] + vi
+        self.c_vseg[idx] = vi
+        self.c_vx[idx] = self.pts_x[k]
+        self.c_vy[idx] = self.pts_y[k]
+        self.c_vmore[idx] = nv < vn - 1
 
     def detach(self, i: int) -> None:
+        self.version += 1
         self.fol[i] = False
+
+    def row(self, i: int) -> list[float]:
+        """Robot ``i``'s values of the :data:`ROW` arrays, as Python floats (flags as 0.0 /
+        1.0, counts as whole numbers): the same values ``.item(i)`` gives. Between steps the
+        rows of all robots are copied out once per ``version``; during a step they are read
+        from the arrays."""
+        if self._rows_version != self.version:
+            if self.busy:
+                return [float(getattr(self, name).item(i)) for name in ROW]
+            n = self.n
+            self._rows = np.column_stack([getattr(self, name)[:n] for name in ROW]).astype(float, copy=False)
+            self._rows_version = self.version
+        return self._rows[i].tolist()  # type: ignore[no-any-return]
+
+    def progress(self, i: int) -> tuple[float, float, float, float, int]:
+        """``(x, y, theta, remaining, poses_left)`` of robot ``i``: its pose, the path length
+        (m) from its projection on its path to the end plus its distance to the projection,
+        and the poses of the path not passed yet; 0 and 0 once the final position was
+        reached (or without a path)."""
+        x, y, th, _, _, _, _, _, _, _, t, ax, ay, bx, by, suf, xy, ln, nv, vn = self.row(i)
+        if xy:
+            return x, y, th, 0.0, 0
+        left = int(vn - nv)
+        if ln < 2.0:
+            return x, y, th, 0.0, left
+        qx, qy = ax + t * (bx - ax), ay + t * (by - ay)
+        return x, y, th, math.hypot(bx - qx, by - qy) + suf + math.hypot(qx - x, qy - y), left
 
     def remaining(self, i: int) -> float:
         """Path length (m) from robot ``i``'s projection on its path to the end, plus its
         distance to the projection; 0 once the final position was reached."""
-        if self.f_xy.item(i) or self.f_len.item(i) < 2:
-            return 0.0
-        k = self.f_off.item(i) + self.f_seg.item(i)
-        px, py = self.pts_x, self.pts_y
-        ax, ay, bx, by = px.item(k), py.item(k), px.item(k + 1), py.item(k + 1)
-        t = self.f_t.item(i)
-        qx, qy = ax + t * (bx - ax), ay + t * (by - ay)
-        x, y = self.x.item(i), self.y.item(i)
-        return math.hypot(bx - qx, by - qy) + self.suffix.item(k + 1) + math.hypot(qx - x, qy - y)
+        return self.progress(i)[3]
 
     def poses_left(self, i: int) -> int:
-        return 0 if self.f_xy.item(i) else self.f_vn.item(i) - self.f_nv.item(i)
+        return self.progress(i)[4]
 
     def _live(self) -> np.ndarray:
         return np.flatnonzero(self.fol[: self.n])
