@@ -208,6 +208,7 @@ class RobotAgent:
             distance_m=float(st.distance_m),
             collisions=int(st.collisions),
             seq=self.seq,
+            picks_done=int(bb.picks_done or 0),
         )
 
     def close(self) -> None:

@@ -109,6 +109,8 @@ examples:
   fleet run configs/warehouse_patrol_30.yaml --speed 0 --duration 600 --report r.json --plot r.png
   fleet run configs/warehouse_patrol.yaml --agents robot1,robot2 --backend remote
       (robots of a `fleet sim` in another process; the other robots run `fleet agent`)
+  fleet run configs/warehouse_picking.yaml --tree picking --speed 0 --duration 300
+      (picking trees: the coordinator hands out the config's tasks instead of its routes)
 
 --duration and --speed are in simulated seconds; --speed 0 runs as fast as the CPU allows.
 """,
@@ -144,6 +146,13 @@ examples:
     )
     run.add_argument(
         "--no-coordinator", action="store_true", help="do not run the coordinator in this process"
+    )
+    run.add_argument(
+        "--tree",
+        choices=("patrol", "picking"),
+        default="patrol",
+        help="behavior tree of every robot: patrol (the coordinator assigns the config's routes; "
+        "default) or picking (it assigns the config's tasks, each done once; not with --traffic)",
     )
 
     status = sub.add_parser(
@@ -350,6 +359,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         agents=agents,
         coordinator=not args.no_coordinator,
         live=False if args.no_live else None,
+        tree_kind=args.tree,
         traffic=args.traffic,
     )
     _announce(runner, f"{len(runner.agent_names)} agents" + ("" if args.no_coordinator else " + coordinator"))

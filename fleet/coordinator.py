@@ -42,6 +42,26 @@ Rules (all times in seconds of the fleet clock):
   the least-loaded charger, nearest first among equally loaded ones, so two robots share a
   charger only when there are more robots than chargers.
 
+Picking (a fleet whose robots run picking trees, ``task_kind="picking"``; see
+:func:`state_from_config`): the config's ``tasks`` are assigned instead of its routes, by the
+same rules where not said otherwise.
+
+* The picks form a queue in config order; each pick is done once. Every cycle, each eligible
+  robot (alive, ``mode == "idle"``, no assignment, battery at least ``low``
+  + :data:`BATTERY_MARGIN`) gets the nearest waiting pick: travel cost from the robot to the
+  pick's shelf along the roadmap, matched globally greedily like routes (same charger bonus,
+  stuck cooldown, preferred robot ``PickTask.robot``; config order breaks ties). The order is a
+  :class:`TaskOrder` of kind ``"pick"`` with a fresh id ``k-0007`` from the same counter.
+* Completion: status records carry the robot's cumulative ``picks_done`` (the tree's
+  ``CompletePick`` increments it). A pick assignment takes as its baseline the ``picks_done``
+  of the first record from its robot that carries its id, and is *completed* by a later record
+  from that robot, with that id, with a higher ``picks_done``. Only an active assignment can
+  complete, so a late status of a robot the pick was taken from cannot complete it.
+* A pick is taken back (a :class:`Reassignment` whose ``route`` is the pick's name) when its
+  robot dies, goes to charge, or is stuck (no progress for ``stuck_reassign_s`` plus the pick's
+  ``dwell_s`` in mode ``picking`` / ``recovery``); it waits for the next eligible robot and
+  starts again from the shelf. Unacknowledged pick orders are resent like patrols.
+
 Traffic management plugs in through :class:`TrafficPolicy` (the default, :class:`NoTraffic`,
 does nothing): it sees every assignment and release and runs once per cycle.
 """
@@ -61,7 +81,7 @@ import numpy as np
 from fleet.types import Pose2D
 
 if TYPE_CHECKING:
-    from fleet.config import FleetConfig
+    from fleet.config import FleetConfig, PickTask
     from fleet.navigation import Clock
     from fleet.roadmap import Roadmap
 
@@ -75,6 +95,10 @@ BATTERY_MARGIN = 0.05
 DEADLOCK_RADIUS_M = 1.5
 #: Modes in which a robot is expected to drive (used by the stuck check).
 DRIVING_MODES = ("patrol", "recovery")
+#: Modes in which a robot with a pick is expected to drive (or dwell at the shelf).
+PICK_DRIVING_MODES = ("picking", "recovery")
+#: Kinds of fleet the coordinator serves: robots running patrol trees, or picking trees.
+TASK_KINDS = ("patrol", "picking")
 
 #: Added to the travel cost (m) of a robot recently taken off a route for being stuck.
 COOLDOWN_PENALTY = 1e6
@@ -112,7 +136,8 @@ class Observation:
 
     ``t``: the record's timestamp (s); ``pose``: map frame or ``None``; ``battery`` in [0, 1];
     ``mode``: the tree's mode (``idle``, ``patrol``, ``charging``, ``recovery``, ``picking``);
-    ``task_id``: the assignment the robot is executing; ``laps``: laps completed for that id.
+    ``task_id``: the assignment the robot is executing; ``laps``: laps completed for that id;
+    ``picks_done``: picks the robot completed since its agent started (cumulative).
     """
 
     t: float
@@ -123,13 +148,15 @@ class Observation:
     task_id: str | None = None
     laps: int = 0
     charging: bool = False
+    picks_done: int = 0
 
 
 @dataclass(frozen=True)
 class TaskOrder:
     """A message for one robot (published on ``fleet/<robot>/task``).
 
-    ``kind`` is ``"patrol"`` (``route`` and ``poses`` set) or ``"idle"`` (drop any route).
+    ``kind`` is ``"patrol"`` (``route`` and ``poses`` set), ``"pick"`` (``pick`` set: a
+    :class:`fleet.config.PickTask`) or ``"idle"`` (drop any route or pick).
     ``charger`` is the charger pose the robot should use when its battery runs low.
     """
 
@@ -139,6 +166,7 @@ class TaskOrder:
     route: str | None
     poses: tuple[Pose2D, ...]
     charger: Pose2D | None
+    pick: PickTask | None = None
 
 
 @dataclass
@@ -166,10 +194,35 @@ class Assignment:
 
 
 @dataclass
+class PickAssignment:
+    """One pick assignment: the config's pick ``task`` (named ``pick``) given to ``robot`` at
+    ``t_assigned`` under ``task_id``.
+
+    ``base`` is the robot's ``picks_done`` in the first status carrying ``task_id`` (``None``
+    until then); ``t_done`` when a later status showed the pick done; ``ended`` /
+    ``end_reason`` when the pick was taken back (``None`` otherwise).
+    """
+
+    task_id: str
+    pick: str
+    robot: str
+    t_assigned: float
+    task: PickTask
+    base: int | None = None
+    t_done: float | None = None
+    ended: float | None = None
+    end_reason: str | None = None
+
+    @property
+    def completed(self) -> bool:
+        return self.t_done is not None
+
+
+@dataclass
 class Reassignment:
-    """A route taken from ``from_robot`` at ``t`` for ``reason`` (``dead``, ``stuck``,
-    ``charging``). ``to_robot`` / ``new_task_id`` / ``t_reassigned`` are filled when the route
-    is given to another robot (``None`` while it waits)."""
+    """A route (or a pick: ``route`` is then the pick's name) taken from ``from_robot`` at ``t``
+    for ``reason`` (``dead``, ``stuck``, ``charging``). ``to_robot`` / ``new_task_id`` /
+    ``t_reassigned`` are filled when it is given to another robot (``None`` while it waits)."""
 
     t: float
     route: str
@@ -197,6 +250,7 @@ class RobotView:
     last_order: TaskOrder | None = None
     last_sent: float = -math.inf
     was_stuck: bool = False
+    pick: PickAssignment | None = None
 
 
 class TrafficPolicy(Protocol):
@@ -287,6 +341,12 @@ class CoordinatorState:
         roadmap: the roadmap used for travel costs.
         params: thresholds.
         traffic: the traffic policy (default :class:`NoTraffic`).
+        picks: the picks to do once each (:class:`fleet.config.PickTask`, unique names), in
+            queue order. A robot runs one tree kind, so give routes (patrol trees) or picks
+            (picking trees), not both: :func:`state_from_config` chooses by ``task_kind``.
+
+    Raises:
+        ValueError: both routes and picks were given, or two picks share a name.
     """
 
     def __init__(
@@ -296,7 +356,12 @@ class CoordinatorState:
         roadmap: Roadmap,
         params: CoordinatorParams | None = None,
         traffic: TrafficPolicy | None = None,
+        picks: Sequence[PickTask] = (),
     ) -> None:
+        if routes and picks:
+            raise ValueError(
+                "CoordinatorState: give routes (patrol fleet) or picks (picking fleet), not both"
+            )
         self.routes: dict[str, PatrolRoute] = {r.name: r for r in routes}
         self.chargers = list(chargers)
         self.roadmap = roadmap
@@ -318,6 +383,27 @@ class CoordinatorState:
         self.expected: set[str] = set()
         self.settle_s = 0.0
         self._t_start: float | None = None
+        self.picks: dict[str, PickTask] = {}
+        for t in picks:
+            if t.name in self.picks:
+                raise ValueError(f"CoordinatorState: duplicate pick name {t.name!r}")
+            self.picks[t.name] = t
+        #: pick name -> robot holding it (``None``: waiting or done)
+        self.pick_holder: dict[str, str | None] = {n: None for n in self.picks}
+        self.done_picks: set[str] = set()
+        self.pick_assignments: list[PickAssignment] = []
+        self.picks_by_id: dict[str, PickAssignment] = {}
+        self._pending_pick_reassign: dict[str, Reassignment] = {}
+        nodes: list[int] = []
+        offsets: list[float] = []
+        for t in self.picks.values():  # each shelf's roadmap node and its distance to the shelf
+            node = roadmap.nearest_node(t.shelf.x, t.shelf.y)
+            px, py = roadmap.pos(node)
+            nodes.append(self._dist.index[node])
+            offsets.append(math.hypot(t.shelf.x - px, t.shelf.y - py))
+        self._pick_node = np.array(nodes, dtype=np.int64)
+        self._pick_offset = np.array(offsets, dtype=float)
+        self._pick_col = {n: j for j, n in enumerate(self.picks)}
 
     def expect(self, robots: Iterable[str], settle_s: float) -> None:
         """Hold the first assignment until every robot in ``robots`` has reported or
@@ -356,6 +442,12 @@ class CoordinatorState:
                 if a.t_first_lap is None:
                     a.t_first_lap = now
                 a.laps = obs.laps
+            pa = self.picks_by_id.get(obs.task_id)
+            if pa is not None and pa.robot == robot and v.pick is pa:
+                if pa.base is None:
+                    pa.base = obs.picks_done
+                elif obs.picks_done > pa.base:
+                    self._complete_pick(v, now)
         if obs.pose is not None:
             if v.progress_pose is None or v.progress_pose.distance_to(obs.pose) > PROGRESS_M:
                 v.progress_pose = obs.pose
@@ -376,6 +468,8 @@ class CoordinatorState:
             if v.alive and v.last_seen is not None and now - v.last_seen > p.status_timeout_s:
                 self._die(v, now, f"no status for {now - v.last_seen:.1f} s")
                 continue
+            if v.pick is not None and v.alive and v.obs is not None:
+                out.extend(self._check_pick(v, now))
             a = v.assignment
             if a is None or not v.alive or v.obs is None:
                 continue
@@ -398,6 +492,7 @@ class CoordinatorState:
         )
         if settled:
             out.extend(self._assign(now))
+            out.extend(self._assign_picks(now))
         out.extend(self.traffic.cycle(now, self.robots))
         sent = {o.robot for o in out}
         for v in self.robots.values():
@@ -410,6 +505,11 @@ class CoordinatorState:
                         last
                         if last is not None and last.task_id == v.assignment.task_id
                         else self._patrol_order(v)
+                    )
+            elif v.pick is not None:
+                if v.obs.task_id != v.pick.task_id:
+                    out.append(
+                        last if last is not None and last.task_id == v.pick.task_id else self._pick_order(v)
                     )
             elif v.obs.task_id is not None and (last is None or v.obs.task_id != last.task_id):
                 out.append(last if last is not None and last.kind == "idle" else self._idle_order(v))
@@ -451,6 +551,21 @@ class CoordinatorState:
             out[a.robot] = out.get(a.robot, 0) + a.laps
         return out
 
+    @property
+    def waiting_picks(self) -> list[str]:
+        """Picks neither held by a robot nor done, in config order."""
+        return [n for n, h in self.pick_holder.items() if h is None and n not in self.done_picks]
+
+    def picks_completed(self) -> int:
+        return sum(1 for a in self.pick_assignments if a.completed)
+
+    def picks_by_robot(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for a in self.pick_assignments:
+            if a.completed:
+                out[a.robot] = out.get(a.robot, 0) + 1
+        return out
+
     # -- internals ---------------------------------------------------------------------
 
     def _view(self, robot: str, now: float) -> RobotView:
@@ -473,6 +588,8 @@ class CoordinatorState:
         self._log(now, f"{v.name} dead ({why})")
         if v.assignment is not None:
             self._release(v, now, REASON_DEAD)
+        if v.pick is not None:
+            self._release_pick(v, now, REASON_DEAD)
         if v.charger is not None:
             self._charger_load[v.charger] -= 1
             v.charger = None
@@ -518,6 +635,7 @@ class CoordinatorState:
         return (
             v.alive
             and v.assignment is None
+            and v.pick is None
             and o is not None
             and o.pose is not None
             and o.mode == "idle"
@@ -647,6 +765,114 @@ class CoordinatorState:
                 return True
         return False
 
+    # -- picking -----------------------------------------------------------------------
+
+    def pick_cost_matrix(self, robots: Sequence[RobotView], picks: Sequence[str]) -> np.ndarray:
+        """Travel costs (m) ``[robot, pick]``: robot pose -> nearest roadmap node -> along the
+        roadmap -> the node nearest the pick's shelf -> the shelf (``inf`` if unreachable)."""
+        cols = np.array([self._pick_col[n] for n in picks], dtype=np.int64)
+        nodes, offsets = self._pick_node[cols], self._pick_offset[cols]
+        costs = np.full((len(robots), len(picks)), np.inf)
+        for i, v in enumerate(robots):
+            assert v.obs is not None and v.obs.pose is not None
+            pose = v.obs.pose
+            start = self.roadmap.nearest_node(pose.x, pose.y)
+            sx, sy = self.roadmap.pos(start)
+            costs[i] = math.hypot(sx - pose.x, sy - pose.y) + self._dist.row(start)[nodes] + offsets
+        return costs
+
+    def _assign_picks(self, now: float) -> list[TaskOrder]:
+        waiting = self.waiting_picks
+        if not waiting:
+            return []
+        idle = [v for v in self.robots.values() if self._eligible(v, now)]
+        if not idle:
+            return []
+        rank = self.pick_cost_matrix(idle, waiting)
+        for i, v in enumerate(idle):
+            if self._on_charger(v):
+                rank[i] -= CHARGER_BONUS_M
+            if now < v.cooldown_until:
+                rank[i] += COOLDOWN_PENALTY
+        names = {v.name: i for i, v in enumerate(idle)}
+        for j, pname in enumerate(waiting):
+            pref = self.picks[pname].robot
+            if pref is not None and pref in names and math.isfinite(rank[names[pref], j]):
+                rank[names[pref], j] = -math.inf  # a pick's preferred robot goes first
+        out: list[TaskOrder] = []
+        used_r: set[int] = set()
+        used_c: set[int] = set()
+        n = min(len(idle), len(waiting))
+        for f in np.argsort(rank, axis=None, kind="stable"):
+            i, j = divmod(int(f), len(waiting))
+            if i in used_r or j in used_c or rank[i, j] == math.inf:
+                continue
+            used_r.add(i)
+            used_c.add(j)
+            out.append(self._give_pick(idle[i], waiting[j], now))
+            if len(used_r) == n:
+                break
+        return out
+
+    def _give_pick(self, v: RobotView, name: str, now: float) -> TaskOrder:
+        tid = self._next_id("k")
+        pa = PickAssignment(task_id=tid, pick=name, robot=v.name, t_assigned=now, task=self.picks[name])
+        self.pick_assignments.append(pa)
+        self.picks_by_id[tid] = pa
+        v.pick = pa
+        v.progress_t = now
+        self.pick_holder[name] = v.name
+        r = self._pending_pick_reassign.pop(name, None)
+        if r is not None:
+            r.to_robot, r.new_task_id, r.t_reassigned = v.name, tid, now
+            self._log(now, f"{name} reassigned to {v.name} as {tid}")
+        else:
+            self._log(now, f"{name} assigned to {v.name} as {tid}")
+        return self._pick_order(v)
+
+    def _pick_order(self, v: RobotView) -> TaskOrder:
+        pa = v.pick
+        assert pa is not None
+        return TaskOrder(v.name, pa.task_id, "pick", None, (), self._charger_for(v), pick=pa.task)
+
+    def _complete_pick(self, v: RobotView, now: float) -> None:
+        pa = v.pick
+        assert pa is not None
+        pa.t_done = now
+        v.pick = None
+        self.pick_holder[pa.pick] = None
+        self.done_picks.add(pa.pick)
+        self._log(now, f"{pa.pick} done by {v.name} ({pa.task_id})")
+
+    def _check_pick(self, v: RobotView, now: float) -> list[TaskOrder]:
+        """Take the pick back from a robot that went to charge or is stuck."""
+        pa, obs = v.pick, v.obs
+        assert pa is not None and obs is not None
+        if obs.mode == "charging":
+            return [self._release_pick(v, now, REASON_CHARGING)]
+        allowed = self.params.stuck_reassign_s + pa.task.dwell_s  # standing at the shelf is no stall
+        if (
+            obs.task_id == pa.task_id
+            and obs.mode in PICK_DRIVING_MODES
+            and now - max(v.progress_t, pa.t_assigned) > allowed
+        ):
+            v.cooldown_until = now + self.params.stuck_reassign_s
+            return [self._release_pick(v, now, REASON_STUCK)]
+        return []
+
+    def _release_pick(self, v: RobotView, now: float, reason: str) -> TaskOrder:
+        pa = v.pick
+        assert pa is not None
+        pa.ended = now
+        pa.end_reason = reason
+        v.pick = None
+        self.pick_holder[pa.pick] = None
+        r = Reassignment(t=now, route=pa.pick, from_robot=v.name, reason=reason, old_task_id=pa.task_id)
+        self.reassignments.append(r)
+        self._pending_pick_reassign[pa.pick] = r
+        self._log(now, f"{pa.pick} taken from {v.name} ({reason})")
+        return self._idle_order(v)
+
 
 def patrol_routes(config: FleetConfig) -> list[PatrolRoute]:
     """The config's routes as :class:`PatrolRoute` values (one lap each, roadmap node per pose)."""
@@ -658,15 +884,27 @@ def patrol_routes(config: FleetConfig) -> list[PatrolRoute]:
     return out
 
 
-def state_from_config(config: FleetConfig, traffic: TrafficPolicy | None = None) -> CoordinatorState:
-    """A :class:`CoordinatorState` for the routes, chargers and thresholds of ``config``."""
+def state_from_config(
+    config: FleetConfig, traffic: TrafficPolicy | None = None, task_kind: str = "patrol"
+) -> CoordinatorState:
+    """A :class:`CoordinatorState` for the chargers and thresholds of ``config``, and its routes
+    (``task_kind="patrol"``: the robots run patrol trees) or its picking ``tasks``
+    (``task_kind="picking"``: picking trees). Raises ``ValueError`` for another kind."""
+    if task_kind not in TASK_KINDS:
+        raise ValueError(f"task_kind {task_kind!r}: expected one of {', '.join(TASK_KINDS)}")
     params = CoordinatorParams(
         stuck_reassign_s=config.coordinator.stuck_reassign_s,
         status_timeout_s=config.coordinator.status_timeout_s,
         battery_low=config.sim.battery.low,
     )
+    picking = task_kind == "picking"
     return CoordinatorState(
-        patrol_routes(config), [c.pose for c in config.chargers], config.roadmap, params, traffic
+        [] if picking else patrol_routes(config),
+        [c.pose for c in config.chargers],
+        config.roadmap,
+        params,
+        traffic,
+        picks=list(config.tasks) if picking else (),
     )
 
 
@@ -684,6 +922,9 @@ class Coordinator:
     :meth:`feed_local` (their bus copies and liveliness events are ignored) and their orders
     are also handed to ``local_deliver[robot]`` at once, so an in-process run does not depend
     on network timing. Their orders are still published, for observers and for robustness.
+
+    ``task_kind`` is the tree kind the fleet's robots run: ``"patrol"`` (the config's routes
+    are assigned) or ``"picking"`` (its tasks are); see :func:`state_from_config`.
     """
 
     def __init__(
@@ -693,11 +934,12 @@ class Coordinator:
         clock: Clock,
         traffic: TrafficPolicy | None = None,
         local_robots: set[str] | None = None,
+        task_kind: str = "patrol",
     ) -> None:
         self.config = config
         self.bus = bus
         self.clock = clock
-        self.state = state_from_config(config, traffic)
+        self.state = state_from_config(config, traffic, task_kind)
         self.state.expect([r.name for r in config.robots], config.coordinator.status_timeout_s)
         self.local_robots = set(local_robots or ())
         self.local_deliver: dict[str, Callable[[Any], None]] = {}
@@ -790,6 +1032,7 @@ def observation_from_record(rec: Any) -> Observation:
         task_id=getattr(rec, "task_id", None),
         laps=int(getattr(rec, "laps", 0) or 0),
         charging=bool(getattr(rec, "charging", False)),
+        picks_done=int(getattr(rec, "picks_done", 0) or 0),
     )
 
 
@@ -804,4 +1047,5 @@ def task_message(order: TaskOrder) -> Any:
         route=order.route,
         poses=order.poses,
         charger=order.charger,
+        pick=order.pick,
     )

@@ -8,11 +8,13 @@ JSON fields (``RunReport.to_dict``), units in the names:
 * ``patrols_assigned``: patrol assignments made (each with its own id);
   ``patrols_completed``: assignments whose robot finished at least one lap;
   ``laps_completed``: laps over all assignments; ``laps_by_route``: ``{route: laps}``;
+* ``picks_assigned``: pick assignments made (picking trees only; each with its own id, a
+  reassigned pick counts again); ``picks_completed``: picks done (each pick at most once);
 * ``collisions``: robot-robot contact events; ``deadlocks``: with traffic management, sets
   of robots that waited on each other (a wait-for cycle) for more than ``traffic.deadlock_s``
   (each set counted once while it lasts); without it (no wait-for relation exists), times a
-  robot was reported stuck with another robot within 1.5 m; ``reassignments``: routes taken back from a robot (dead,
-  stuck, charging); ``reassignment_events``: one entry per reassignment (``t``, ``route``,
+  robot was reported stuck with another robot within 1.5 m; ``reassignments``: routes (or
+  picks) taken back from a robot (dead, stuck, charging); ``reassignment_events``: one entry per reassignment (``t``, ``route``,
   ``from_robot``, ``reason``, ``old_task_id``, ``to_robot``, ``new_task_id``,
   ``t_reassigned``); ``assignments``: every assignment (``task_id``, ``route``, ``robot``,
   ``t_assigned``, ``laps``, ``t_first_lap``, ``ended``, ``end_reason``);
@@ -93,6 +95,8 @@ class RunReport:
     throughput_laps_per_robot_hour: float = 0.0
     mean_wait_s: float | None = None
     traffic: dict[str, Any] | None = None
+    picks_assigned: int = 0
+    picks_completed: int = 0
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -129,6 +133,10 @@ class RunReport:
                 if self.laps_by_route
                 else ""
             ),
+        ]
+        if self.picks_assigned:
+            lines.append(f"picks: {self.picks_assigned} assigned, {self.picks_completed} completed")
+        lines += [
             f"collisions: {self.collisions}   deadlocks: {self.deadlocks}   reassignments: {self.reassignments}"
             f"   throughput: {self.throughput_laps_per_robot_hour:.1f} laps/robot-hour",
         ]

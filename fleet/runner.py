@@ -338,6 +338,7 @@ class FleetRunner:
                     world.clock,
                     traffic=self.traffic_policy,
                     local_robots=set(self.agent_names),
+                    task_kind=self.tree_kind,
                 )
             feed = self.coordinator.feed_local if self.coordinator is not None else None
             from fleet.agent import RobotAgent
@@ -533,6 +534,8 @@ class FleetRunner:
             throughput_laps_per_robot_hour=laps / robot_hours if robot_hours > 0 else 0.0,
             mean_wait_s=tp.mean_wait_s(clock_t) if tp is not None else None,
             traffic=_traffic_dict(tp, clock_t) if tp is not None else None,
+            picks_assigned=len(st.pick_assignments) if st is not None else 0,
+            picks_completed=st.picks_completed() if st is not None else 0,
         )
 
     def collision_points(self) -> list[tuple[float, float]]:

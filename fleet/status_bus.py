@@ -26,7 +26,7 @@ import re
 import threading
 from collections import deque
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import zenoh
@@ -209,7 +209,9 @@ class StatusRecord:
 
     ``t`` is simulated seconds; ``pose`` ``(x, y, theta)`` in the ``map`` frame or ``None``;
     ``battery`` a fraction; ``bt`` the root status name (``RUNNING``...); ``leaf`` the active
-    leaf; ``progress`` through the current lap in [0, 1]; ``seq`` increases per record.
+    leaf; ``progress`` through the current lap in [0, 1]; ``seq`` increases per record;
+    ``picks_done`` picks the robot completed since its agent started (optional on the wire,
+    ``0`` when absent).
     """
 
     robot: str
@@ -228,10 +230,13 @@ class StatusRecord:
     distance_m: float
     collisions: int
     seq: int
+    picks_done: int = 0
     v: int = BUS_VERSION
 
     def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
+        # a shallow copy of the fields (all plain values): dataclasses.asdict deep-copies
+        # recursively and was half the cost of publishing a status
+        d = dict(vars(self))
         d["pose"] = None if self.pose is None else [float(x) for x in self.pose]
         return d
 
@@ -273,6 +278,7 @@ class StatusRecord:
             distance_m=as_float(req(d, "distance_m", p), "status.distance_m"),
             collisions=as_int(req(d, "collisions", p), "status.collisions", minimum=0),
             seq=as_int(req(d, "seq", p), "status.seq", minimum=0),
+            picks_done=as_int(d.get("picks_done", 0), "status.picks_done", minimum=0),
             v=BUS_VERSION,
         )
 
