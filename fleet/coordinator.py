@@ -106,6 +106,8 @@ COOLDOWN_PENALTY = 1e6
 #: every route, so that they leave the charger to robots that need it.
 CHARGER_BONUS_M = 20.0
 ON_CHARGER_M = 0.5
+#: The rank (m) of a task's preferred robot: below any travel cost, so it is matched first.
+PREFERRED_RANK = -1e9
 #: A robot stuck this close (m) to a waypoint of its lap marks the waypoint blocked ...
 BLOCKED_RADIUS_M = 1.5
 #: ... and new assignments skip it for this long (s).
@@ -681,32 +683,52 @@ class CoordinatorState:
         if not idle:
             return []
         costs, entry = self.cost_matrix(idle, waiting)
+        pairs = self._match(idle, costs, [self.routes[r].robot for r in waiting], now)
+        return [self._give(idle[i], waiting[j], int(entry[i, j]), now) for i, j in pairs]
+
+    def _match(
+        self, idle: Sequence[RobotView], costs: np.ndarray, preferred: Sequence[str | None], now: float
+    ) -> list[tuple[int, int]]:
+        """Greedy min-cost matching of ``idle`` robots (rows of ``costs``) to tasks (columns):
+        the cheapest pair first, then the next among the rest. Robots idling on a charger look
+        :data:`CHARGER_BONUS_M` closer (it frees the charger), robots just taken off a task for
+        being stuck :data:`COOLDOWN_PENALTY` farther, and a task's ``preferred[j]`` robot comes
+        first. Infinite costs (unreachable) never match."""
         rank = costs.copy()
         for i, v in enumerate(idle):
             if self._on_charger(v):
-                rank[i] -= CHARGER_BONUS_M  # send robots idling on a charger first: frees the charger
+                rank[i] -= CHARGER_BONUS_M
             if now < v.cooldown_until:
-                rank[i] += COOLDOWN_PENALTY  # a robot just taken off a route for being stuck goes last
+                rank[i] += COOLDOWN_PENALTY
         names = {v.name: i for i, v in enumerate(idle)}
-        for j, rname in enumerate(waiting):
-            pref = self.routes[rname].robot
+        for j, pref in enumerate(preferred):
             if pref is not None and pref in names and math.isfinite(rank[names[pref], j]):
-                rank[names[pref], j] = -1.0  # a route's preferred robot goes first
-        out: list[TaskOrder] = []
-        flat = np.argsort(rank, axis=None, kind="stable")
+                rank[names[pref], j] = PREFERRED_RANK
+        pairs: list[tuple[int, int]] = []
         used_r: set[int] = set()
         used_c: set[int] = set()
-        n = min(len(idle), len(waiting))
-        for f in flat:
-            i, j = divmod(int(f), len(waiting))
+        n = min(len(idle), len(preferred))
+        for f in np.argsort(rank, axis=None, kind="stable"):
+            i, j = divmod(int(f), len(preferred))
             if i in used_r or j in used_c or not math.isfinite(rank[i, j]):
                 continue
             used_r.add(i)
             used_c.add(j)
-            out.append(self._give(idle[i], waiting[j], int(entry[i, j]), now))
-            if len(used_r) == n:
+            pairs.append((i, j))
+            if len(pairs) == n:
                 break
-        return out
+        return pairs
+
+    def _handed_over(
+        self, pending: dict[str, Reassignment], name: str, robot: str, tid: str, now: float
+    ) -> None:
+        """Log a new assignment of ``name``; complete its pending :class:`Reassignment`, if any."""
+        r = pending.pop(name, None)
+        if r is not None:
+            r.to_robot, r.new_task_id, r.t_reassigned = robot, tid, now
+            self._log(now, f"{name} reassigned to {robot} as {tid}")
+        else:
+            self._log(now, f"{name} assigned to {robot} as {tid}")
 
     def _give(self, v: RobotView, route_name: str, k: int, now: float) -> TaskOrder:
         route = self.routes[route_name]
@@ -729,12 +751,7 @@ class CoordinatorState:
         v.assignment = a
         v.progress_t = now
         self.holder[route_name] = v.name
-        r = self._pending_reassign.pop(route_name, None)
-        if r is not None:
-            r.to_robot, r.new_task_id, r.t_reassigned = v.name, tid, now
-            self._log(now, f"{route_name} reassigned to {v.name} as {tid}")
-        else:
-            self._log(now, f"{route_name} assigned to {v.name} as {tid}")
+        self._handed_over(self._pending_reassign, route_name, v.name, tid, now)
         return self._patrol_order(v)
 
     def _patrol_order(self, v: RobotView) -> TaskOrder:
@@ -788,31 +805,9 @@ class CoordinatorState:
         idle = [v for v in self.robots.values() if self._eligible(v, now)]
         if not idle:
             return []
-        rank = self.pick_cost_matrix(idle, waiting)
-        for i, v in enumerate(idle):
-            if self._on_charger(v):
-                rank[i] -= CHARGER_BONUS_M
-            if now < v.cooldown_until:
-                rank[i] += COOLDOWN_PENALTY
-        names = {v.name: i for i, v in enumerate(idle)}
-        for j, pname in enumerate(waiting):
-            pref = self.picks[pname].robot
-            if pref is not None and pref in names and math.isfinite(rank[names[pref], j]):
-                rank[names[pref], j] = -math.inf  # a pick's preferred robot goes first
-        out: list[TaskOrder] = []
-        used_r: set[int] = set()
-        used_c: set[int] = set()
-        n = min(len(idle), len(waiting))
-        for f in np.argsort(rank, axis=None, kind="stable"):
-            i, j = divmod(int(f), len(waiting))
-            if i in used_r or j in used_c or rank[i, j] == math.inf:
-                continue
-            used_r.add(i)
-            used_c.add(j)
-            out.append(self._give_pick(idle[i], waiting[j], now))
-            if len(used_r) == n:
-                break
-        return out
+        costs = self.pick_cost_matrix(idle, waiting)
+        pairs = self._match(idle, costs, [self.picks[p].robot for p in waiting], now)
+        return [self._give_pick(idle[i], waiting[j], now) for i, j in pairs]
 
     def _give_pick(self, v: RobotView, name: str, now: float) -> TaskOrder:
         tid = self._next_id("k")
@@ -822,12 +817,7 @@ class CoordinatorState:
         v.pick = pa
         v.progress_t = now
         self.pick_holder[name] = v.name
-        r = self._pending_pick_reassign.pop(name, None)
-        if r is not None:
-            r.to_robot, r.new_task_id, r.t_reassigned = v.name, tid, now
-            self._log(now, f"{name} reassigned to {v.name} as {tid}")
-        else:
-            self._log(now, f"{name} assigned to {v.name} as {tid}")
+        self._handed_over(self._pending_pick_reassign, name, v.name, tid, now)
         return self._pick_order(v)
 
     def _pick_order(self, v: RobotView) -> TaskOrder:
