@@ -266,7 +266,8 @@ def build_world(
     # Robots fill the row nearest the corridor first, so nobody starts boxed in.
     order = sorted(range(len(parking)), key=lambda q: (-parking[q][1], q))
     robots = [
-        {"name": f"robot{r + 1}", "start": parking[order[r]], "battery": start_battery(r)} for r in range(n_robots)
+        {"name": f"robot{r + 1}", "start": parking[order[r]], "battery": start_battery(r)}
+        for r in range(n_robots)
     ]
     return {
         "roadmap": {"nodes": nodes, "edges": edges},

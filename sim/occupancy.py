@@ -150,7 +150,9 @@ def load_map(yaml_path: str | Path) -> OccupancyGrid:
     if not isinstance(res, (int, float)) or res <= 0:
         raise MapError(src, "resolution", f"must be a positive number of meters per cell, got {res!r}")
     origin = meta["origin"]
-    if not (isinstance(origin, list) and len(origin) == 3 and all(isinstance(v, (int, float)) for v in origin)):
+    if not (
+        isinstance(origin, list) and len(origin) == 3 and all(isinstance(v, (int, float)) for v in origin)
+    ):
         raise MapError(src, "origin", f"must be [x, y, yaw], got {origin!r}")
     mode = meta.get("mode", "trinary")
     if mode != "trinary":
@@ -158,7 +160,9 @@ def load_map(yaml_path: str | Path) -> OccupancyGrid:
     occ_t = float(meta.get("occupied_thresh", 0.65))
     free_t = float(meta.get("free_thresh", 0.25))
     if not 0.0 <= free_t < occ_t <= 1.0:
-        raise MapError(src, "free_thresh", f"need 0 <= free_thresh < occupied_thresh <= 1, got {free_t}, {occ_t}")
+        raise MapError(
+            src, "free_thresh", f"need 0 <= free_thresh < occupied_thresh <= 1, got {free_t}, {occ_t}"
+        )
     image_path = (yaml_path.parent / str(meta["image"])).resolve()
     if not image_path.exists():
         raise MapError(src, "image", f"map image {image_path} does not exist")
