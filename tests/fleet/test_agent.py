@@ -4,7 +4,6 @@ Zenoh, the real simulator and the real tree."""
 
 from __future__ import annotations
 
-import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -12,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from ports import free_endpoint
 
 from fleet.agent import RobotAgent
 from fleet.clock import SimClock
@@ -21,13 +21,6 @@ from fleet.types import Pose2D
 from sim.simulator import Simulator
 
 PATROL = Path(__file__).resolve().parents[2] / "configs" / "warehouse_patrol.yaml"
-
-
-def free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    return f"tcp/127.0.0.1:{port}"
 
 
 @pytest.fixture(scope="module")

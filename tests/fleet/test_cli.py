@@ -11,19 +11,13 @@ from pathlib import Path
 
 import pytest
 import yaml
+from ports import free_endpoint
 
 from fleet.cli import EXIT_ERROR, main
 from fleet.report import REQUIRED_FIELDS, ROBOT_FIELDS
 
 ROOT = Path(__file__).resolve().parents[2]
 PATROL = ROOT / "configs" / "warehouse_patrol.yaml"
-
-
-def free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    return f"tcp/127.0.0.1:{port}"
 
 
 def test_help_lists_commands_with_examples(capsys: pytest.CaptureFixture[str]) -> None:

@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -24,6 +23,7 @@ from typing import Any
 
 import pytest
 import yaml
+from ports import free_endpoint
 
 from fleet.cli import main
 from fleet.status_bus import StatusBus, open_session
@@ -31,13 +31,6 @@ from fleet.status_bus import StatusBus, open_session
 ROOT = Path(__file__).resolve().parents[2]
 PATROL = ROOT / "configs" / "warehouse_patrol.yaml"
 FLEET = [sys.executable, "-m", "fleet.cli"]
-
-
-def free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    return f"tcp/127.0.0.1:{port}"
 
 
 def temp_config(tmp_path: Path, edit: Any, name: str = "fleet.yaml") -> Path:

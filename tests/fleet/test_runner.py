@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from ports import free_endpoint
 
 from fleet.config import FleetConfig, load_config
 from fleet.errors import BusError, ConfigError
@@ -17,13 +18,6 @@ from fleet.runner import BACKENDS, FleetRunner, SimWorld, register_backend
 from fleet.status_bus import open_session
 
 PATROL = Path(__file__).resolve().parents[2] / "configs" / "warehouse_patrol.yaml"
-
-
-def free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    return f"tcp/127.0.0.1:{port}"
 
 
 def assert_endpoint_free(ep: str) -> None:
