@@ -54,29 +54,21 @@ from rclpy.action import ActionClient  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.signals import SignalHandlerOptions  # noqa: E402
 
 from fleet.errors import BackendError  # noqa: E402
-from fleet.ros.conversions import ACTION_TYPES, goal_to_msg, msg_to_feedback, pose_to_pose2d  # noqa: E402
+from fleet.ros.conversions import (  # noqa: E402
+    ACTION_TYPES,
+    AMCL_POSE_QOS,
+    NAVIGATION_ACTIONS,
+    goal_to_msg,
+    msg_to_feedback,
+    pose_to_pose2d,
+)
 from fleet.types import ErrorCode, Feedback, Goal, GoalState, GoalStatus, Pose2D, RobotState  # noqa: E402
 
 #: Goal kinds (= Nav2 action names) the backend sends.
-BACKEND_KINDS = (
-    "navigate_through_poses",
-    "navigate_to_pose",
-    "follow_waypoints",
-    "spin",
-    "backup",
-    "drive_on_heading",
-    "wait",
-)
-_AMCL_QOS = QoSProfile(
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-    reliability=ReliabilityPolicy.RELIABLE,
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-)
+BACKEND_KINDS = NAVIGATION_ACTIONS
 _STATUS_MAP = {
     RosGoalStatus.STATUS_SUCCEEDED: GoalStatus.SUCCEEDED,
     RosGoalStatus.STATUS_CANCELED: GoalStatus.CANCELED,
@@ -154,7 +146,7 @@ class RosNavigationBackend:
         self._distance = 0.0
         self._battery = 1.0
         self._charging = False
-        self.node.create_subscription(PoseWithCovarianceStamped, "amcl_pose", self._on_amcl, _AMCL_QOS)
+        self.node.create_subscription(PoseWithCovarianceStamped, "amcl_pose", self._on_amcl, AMCL_POSE_QOS)
         self.node.create_subscription(Odometry, "odom", self._on_odom, 10)
         try:
             from sensor_msgs.msg import BatteryState

@@ -39,6 +39,7 @@ from nav2_msgs.action import (
     Wait as WaitAction,
 )
 from nav2_msgs.msg import MissedWaypoint
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from fleet.types import (
     BackUp,
@@ -54,7 +55,26 @@ from fleet.types import (
     Wait,
 )
 
-#: Nav2 action type of each goal kind (the kind is also the action server's name).
+#: The navigation actions a robot serves and the fleet's backend drives (Nav2's server names).
+NAVIGATION_ACTIONS = (
+    "navigate_through_poses",
+    "navigate_to_pose",
+    "follow_waypoints",
+    "spin",
+    "backup",
+    "drive_on_heading",
+    "wait",
+)
+#: QoS of ``amcl_pose`` as Nav2's AMCL publishes it (and BasicNavigator subscribes).
+AMCL_POSE_QOS = QoSProfile(
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    reliability=ReliabilityPolicy.RELIABLE,
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+)
+
+#: Nav2 action type of each goal kind (the kind is also the action server's name): the
+#: :data:`NAVIGATION_ACTIONS` first, then the controller and planner actions.
 ACTION_TYPES: dict[str, Any] = {
     "navigate_through_poses": NavigateThroughPosesAction,
     "navigate_to_pose": NavigateToPoseAction,
@@ -150,14 +170,8 @@ def goal_to_msg(goal: Goal) -> Any:
         g.target_yaw = float(goal.target_yaw)
         g.time_allowance = seconds_to_duration(goal.time_allowance_s)
         return g
-    if isinstance(goal, BackUp):
-        g = BackUpAction.Goal()
-        g.target = Point(x=float(goal.distance_m), y=0.0, z=0.0)
-        g.speed = float(goal.speed_mps)
-        g.time_allowance = seconds_to_duration(goal.time_allowance_s)
-        return g
-    if isinstance(goal, DriveOnHeading):
-        g = DriveOnHeadingAction.Goal()
+    if isinstance(goal, (BackUp, DriveOnHeading)):  # the same goal fields, two actions
+        g = (BackUpAction if isinstance(goal, BackUp) else DriveOnHeadingAction).Goal()
         g.target = Point(x=float(goal.distance_m), y=0.0, z=0.0)
         g.speed = float(goal.speed_mps)
         g.time_allowance = seconds_to_duration(goal.time_allowance_s)

@@ -74,7 +74,6 @@ from rclpy.action.server import ServerGoalHandle  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.signals import SignalHandlerOptions  # noqa: E402
 from rclpy.task import Future  # noqa: E402
 
@@ -86,6 +85,8 @@ except ImportError:  # optional: without it no battery_state is published
 from fleet.errors import BackendError, FleetError  # noqa: E402
 from fleet.ros.conversions import (  # noqa: E402
     ACTION_TYPES,
+    AMCL_POSE_QOS,
+    NAVIGATION_ACTIONS,
     feedback_to_msg,
     msg_to_goal,
     pose2d_to_pose,
@@ -97,20 +98,9 @@ from fleet.ros.conversions import (  # noqa: E402
 )
 from fleet.types import ErrorCode, Feedback, GoalState, GoalStatus, NavigateThroughPoses, Pose2D  # noqa: E402
 
-#: Action servers of the "full" profile (Nav2's names); "lean" serves the first seven.
-FULL_ACTIONS = (
-    "navigate_through_poses",
-    "navigate_to_pose",
-    "follow_waypoints",
-    "spin",
-    "backup",
-    "drive_on_heading",
-    "wait",
-    "follow_path",
-    "compute_path_to_pose",
-    "compute_path_through_poses",
-)
-LEAN_ACTIONS = FULL_ACTIONS[:7]
+#: Action servers of the "full" profile (Nav2's names); "lean" serves the navigation ones.
+FULL_ACTIONS = tuple(ACTION_TYPES)
+LEAN_ACTIONS = NAVIGATION_ACTIONS
 LIFECYCLE_NODES = (
     "bt_navigator",
     "amcl",
@@ -118,13 +108,6 @@ LIFECYCLE_NODES = (
     "controller_server",
     "behavior_server",
     "map_server",
-)
-#: QoS of amcl_pose as AMCL publishes it (and BasicNavigator subscribes).
-AMCL_POSE_QOS = QoSProfile(
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-    reliability=ReliabilityPolicy.RELIABLE,
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
 )
 #: follow_path drives the path's poses spaced at least this far apart (m).
 FOLLOW_PATH_SPACING_M = 0.5
