@@ -366,20 +366,29 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return _finish(runner, runner.run(), args)
 
 
-def _cmd_coordinator(args: argparse.Namespace) -> int:
+def _remote_runner(
+    args: argparse.Namespace, agents: list[str], *, coordinator: bool, live: bool | None
+) -> Any:
+    """A runner for robots of a `fleet sim` in another process (`fleet coordinator`,
+    `fleet agent`): remote backend, as fast as the simulator's clock moves."""
     from fleet.runner import FleetRunner
 
-    config = _load(args)
-    runner = FleetRunner(
-        config,
+    return FleetRunner(
+        _load(args),
         duration=args.duration,
         speed=0.0,
         endpoint=args.endpoint,
         backend="remote",
-        agents=_robot_list(args.agents),
-        coordinator=True,
-        live=False if args.no_live else None,
+        agents=agents,
+        coordinator=coordinator,
+        live=live,
         traffic=args.traffic,
+    )
+
+
+def _cmd_coordinator(args: argparse.Namespace) -> int:
+    runner = _remote_runner(
+        args, _robot_list(args.agents), coordinator=True, live=False if args.no_live else None
     )
     _announce(
         runner, "coordinator" + (f" + agents {', '.join(runner.agent_names)}" if runner.agent_names else "")
@@ -388,21 +397,8 @@ def _cmd_coordinator(args: argparse.Namespace) -> int:
 
 
 def _cmd_agent(args: argparse.Namespace) -> int:
-    from fleet.runner import FleetRunner
-
-    config = _load(args)
     robots = [r for item in args.robot for r in _robot_list(item)]
-    runner = FleetRunner(
-        config,
-        duration=args.duration,
-        speed=0.0,
-        endpoint=args.endpoint,
-        backend="remote",
-        agents=robots,
-        coordinator=False,
-        live=False,
-        traffic=args.traffic,
-    )
+    runner = _remote_runner(args, robots, coordinator=False, live=False)
     _announce(runner, f"agent {', '.join(robots)}")
     report = runner.run()
     for r in report.per_robot:

@@ -120,7 +120,21 @@ class SimWorld:
         return None
 
 
-class RemoteWorld:
+class BlindWorld:
+    """Base of worlds whose robots run elsewhere: the runner cannot see collisions or record
+    trajectories there (it samples them from the robots' statuses instead)."""
+
+    def collisions(self) -> int | None:
+        return None
+
+    def collision_points(self) -> list[tuple[float, float]]:
+        return []
+
+    def trajectory(self, namespace: str) -> list[tuple[float, float, float]] | None:
+        return None
+
+
+class RemoteWorld(BlindWorld):
     """Robots of a simulator served over Zenoh by ``fleet sim`` (see :mod:`fleet.nav_bridge`)."""
 
     remote = True
@@ -159,15 +173,6 @@ class RemoteWorld:
             raise BackendError(
                 f"the simulator's clock has not moved for {SIM_SILENT_S:g} s (did `fleet sim` stop?)"
             )
-
-    def collisions(self) -> int | None:
-        return None
-
-    def collision_points(self) -> list[tuple[float, float]]:
-        return []
-
-    def trajectory(self, namespace: str) -> list[tuple[float, float, float]] | None:
-        return None
 
     def close(self) -> None:
         for b in self._backends.values():
@@ -616,4 +621,4 @@ def _robot_sort_key(name: str) -> tuple[str, int]:
     return (head, int(tail) if tail else -1)
 
 
-__all__ = ["BACKENDS", "FleetRunner", "RemoteWorld", "SimWorld", "World", "register_backend"]
+__all__ = ["BACKENDS", "BlindWorld", "FleetRunner", "RemoteWorld", "SimWorld", "World", "register_backend"]

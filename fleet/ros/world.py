@@ -22,6 +22,7 @@ from typing import Any
 
 from fleet.navigation import NavigationBackend
 from fleet.ros.backend import RosBackends, make_ros_backends
+from fleet.runner import BlindWorld, register_backend
 
 
 class RosStampClock:
@@ -34,7 +35,7 @@ class RosStampClock:
         return self._rb.latest_stamp
 
 
-class RosWorld:
+class RosWorld(BlindWorld):
     """Runner world over ROS 2: see the module docstring. Signature of a runner backend
     factory: ``RosWorld(config, robots, session)`` (the Zenoh session is not used)."""
 
@@ -60,21 +61,10 @@ class RosWorld:
             time.sleep(0.002)
         self._last = self.clock.now()
 
-    def collisions(self) -> int | None:
-        return None
-
-    def collision_points(self) -> list[tuple[float, float]]:
-        return []
-
-    def trajectory(self, namespace: str) -> list[tuple[float, float, float]] | None:
-        return None
-
     def close(self) -> None:
         self._rb.close()
 
 
 def register() -> None:
     """Register ``ros`` with the runner (``fleet run --backend ros``)."""
-    from fleet.runner import register_backend
-
     register_backend("ros", RosWorld)
