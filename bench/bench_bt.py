@@ -35,7 +35,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from fleet.clock import SimClock
-from fleet.config import load_config
+from fleet.config.loader import load_config
 from fleet.warehouse import generate_warehouse
 from nodes.blackboard import clear_robot_blackboard, robot_blackboard
 from nodes.trees import patrol_tree

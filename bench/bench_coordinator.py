@@ -1,6 +1,6 @@
 """Coordinator cost: assigning N patrols to N robots, steady-state cycles, one dead robot.
 
-Runs the pure decision logic of :mod:`fleet.coordinator` (:class:`CoordinatorState`, no bus)
+Runs the pure decision logic of :mod:`fleet.coordination.coordinator` (:class:`CoordinatorState`, no bus)
 on a generated warehouse for ``--robots`` robots. The patrols are the config's routes; when
 there are fewer than ``--routes``, more are synthesized deterministically (``random.Random
 (--seed)`` picks 3-5 roadmap nodes, the loop through them along shortest paths is the lap).
@@ -32,8 +32,9 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass
 
-from fleet.config import FleetConfig, load_config
-from fleet.coordinator import (
+from fleet.config.loader import load_config
+from fleet.config.model import FleetConfig
+from fleet.coordination.coordinator import (
     CoordinatorParams,
     CoordinatorState,
     Observation,
@@ -205,7 +206,7 @@ def run(n_routes: int, n_robots: int, spares: int, cycles: int, hz: float, seed:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
-        description="Wall time of the coordinator's pure assignment logic (fleet.coordinator."
+        description="Wall time of the coordinator's pure assignment logic (fleet.coordination.coordinator."
         "CoordinatorState): initial assignment, steady-state cycles, reassignment of a dead robot.",
     )
     ap.add_argument(

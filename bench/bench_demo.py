@@ -5,7 +5,7 @@ in a subprocess on its own loopback port) and prints one row per config: robots,
 seconds, wall seconds, real-time factor, patrols assigned/completed, laps, collisions,
 deadlocks, reassignments, and with traffic management the mean wait for right of way. Each
 config runs twice, without and with ``--traffic``, so the two can be compared in one run
-(``deadlocks`` means different things in the two modes: see ``fleet/report.py``).
+(``deadlocks`` means different things in the two modes: see ``fleet/runtime/report.py``).
 
     python bench/bench_demo.py                       # 6- and 30-robot demos, 600 s each
     python bench/bench_demo.py --duration 300 --configs configs/warehouse_patrol.yaml

@@ -61,7 +61,7 @@ class SimBenchResult:
 
 def load_world(n_robots: int, out_dir: str | Path | None = None) -> Any:
     """Generate the benchmark warehouse for ``n_robots`` and load its config."""
-    from fleet.config import load_config
+    from fleet.config.loader import load_config
     from fleet.warehouse import generate_warehouse
 
     out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="bench_sim_"))

@@ -2,10 +2,10 @@
 
 Topology (all on loopback, scouting off, endpoint ``tcp/127.0.0.1:<free port>``):
 
-* this process opens the **router** session (``fleet.status_bus.open_session(endpoint,
-  "router")``) and the coordinator-style subscriber: a :class:`~fleet.status_bus.StatusBus`
+* this process opens the **router** session (``fleet.bus.status_bus.open_session(endpoint,
+  "router")``) and the coordinator-style subscriber: a :class:`~fleet.bus.status_bus.StatusBus`
   with ``subscribe_statuses(callback)`` on ``fleet/*/status`` (every payload is parsed and
-  validated as a :class:`~fleet.status_bus.StatusRecord`, as the coordinator's is);
+  validated as a :class:`~fleet.bus.status_bus.StatusRecord`, as the coordinator's is);
 * ``--publishers`` child processes (default 2) connect in **client** mode and each publishes
   the status of its share of the ``--robots`` robots every ``1/hz`` s with
   ``StatusBus.publish_status`` (the same JSON the agents send). The record's ``t`` field
@@ -35,7 +35,10 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from fleet.status_bus import StatusBus, StatusRecord, open_session, status_key
+from fleet.bus.keys import status_key
+from fleet.bus.session import open_session
+from fleet.bus.status_bus import StatusBus
+from fleet.messages import StatusRecord
 
 #: Wall seconds the children get to connect before publishing starts.
 WARMUP_S = 2.0

@@ -11,7 +11,7 @@ warm-up. What each side computes per step:
   progress checker and contact counting. Robot ``i`` patrols route ``i mod R`` of the config
   (NavigateThroughPoses of ``config.route_poses(route)``, re-sent when it ends); goals are
   polled with ``goal_state`` at 10 Hz of simulated time inside the timed loop.
-* **SUMO** (``bench/sumo_steps.py``, ``sim/sumo_backend.py``): the warehouse roadmap converted
+* **SUMO** (``bench/sumo_steps.py``, ``sim/sumo/world.py``): the warehouse roadmap converted
   to a SUMO network, one vehicle per robot, ``libsumo.simulationStep()`` plus the backend's
   per-step bookkeeping (positions of every vehicle, arrivals, collisions, teleports). Each
   robot gets NavigateThroughPoses through random roadmap nodes, re-sent when it ends, polled at

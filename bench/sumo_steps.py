@@ -1,6 +1,6 @@
 """SUMO side of the "simulator vs SUMO robot-steps/s" benchmark.
 
-Runs ``N`` robots as SUMO vehicles through :class:`sim.sumo_backend.SumoWorld` (the same
+Runs ``N`` robots as SUMO vehicles through :class:`sim.sumo.world.SumoWorld` (the same
 backend protocol the behavior trees use) for ``K`` steps and reports robot-steps per wall
 second (``N * K / elapsed``). Every robot patrols: it gets a NavigateThroughPoses through
 ``poses_per_goal`` random roadmap nodes and a new one whenever its goal ends; goals are polled
@@ -36,8 +36,8 @@ from typing import Any
 import networkx as nx
 
 from fleet.clock import SimClock
+from fleet.robots import RobotSpec, SimParams
 from fleet.types import GoalStatus, NavigateThroughPoses, Pose2D
-from sim.params import RobotSpec, SimParams
 
 
 @dataclass(frozen=True)
@@ -129,8 +129,8 @@ def run_sumo_steps(
     ``spacing`` m apart; ``robots`` default to :func:`grid_starts`; ``params`` default to
     ``SimParams(step_s=0.1, seed=seed)``.
     """
-    from sim.sumo_backend import SumoWorld
-    from sim.sumo_net import as_graph, grid_roadmap
+    from sim.sumo.net import as_graph, grid_roadmap
+    from sim.sumo.world import SumoWorld
 
     rng = random.Random(seed)
     params = params or replace(SimParams(), step_s=0.1, seed=seed)
@@ -224,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     cols, rows = (int(v) for v in args.grid.lower().split("x"))
     kw: dict[str, Any] = {}
     if args.config:
-        from fleet.config import load_config
+        from fleet.config.loader import load_config
 
         cfg = load_config(args.config, robots=args.robots)
         kw = {

@@ -4,6 +4,9 @@ except :class:`WallClock`, which only the real-time pacing of a run uses."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+
+from fleet.navigation import Clock
 
 
 class SimClock:
@@ -32,3 +35,18 @@ class WallClock:
 
     def now(self) -> float:
         return time.monotonic()
+
+
+def step_until(
+    clock: Clock, step: Callable[[], None], predicate: Callable[[], bool], timeout_s: float
+) -> bool:
+    """Call ``step()`` until ``predicate()`` is true (checked before each step) or ``clock``
+    has advanced ``timeout_s`` seconds. Returns whether the predicate became true. Shared by
+    every stepped world (the simulator, SUMO)."""
+    end = clock.now() + timeout_s - 1e-9
+    while True:
+        if predicate():
+            return True
+        if clock.now() >= end:
+            return False
+        step()

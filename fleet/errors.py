@@ -32,3 +32,11 @@ class BackendError(FleetError):
 
 class BusError(FleetError):
     """The status bus could not be opened (bad endpoint, port in use, ...)."""
+
+
+class TrafficError(FleetError):
+    """The traffic manager was used wrongly (unknown robot or node, bad path, bad parameter)."""
+
+
+class DockError(FleetError):
+    """A dock pose (parking spot, charger, robot start) cannot be joined to the roadmap."""

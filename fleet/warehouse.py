@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from fleet.errors import ConfigError
-from sim.occupancy import FREE, OCCUPIED, OccupancyGrid, save_map
+from fleet.maps import FREE, OCCUPIED, OccupancyGrid, save_map
 
 RESOLUTION = 0.1  # m per cell
 WALL = 0.2  # m, wall thickness

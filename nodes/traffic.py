@@ -15,7 +15,7 @@ import py_trees
 from py_trees.common import Status
 
 from fleet.navigation import Clock, NavigationBackend
-from fleet.traffic import FollowerStatus, TrafficFollower
+from fleet.traffic.follower import FollowerStatus, TrafficFollower
 from nodes.blackboard import robot_blackboard
 
 

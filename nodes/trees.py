@@ -22,6 +22,7 @@ from py_trees.common import Status
 
 from fleet.errors import FleetError
 from fleet.navigation import Clock, NavigationBackend
+from fleet.robots import BatteryModel
 from fleet.types import Goal, GoalState, NavigateThroughPoses, NavigateToPose, Pose2D
 from nodes.blackboard import normalize_namespace, read_key, robot_blackboard
 from nodes.conditions import BatteryLow, HasAssignment
@@ -35,7 +36,6 @@ from nodes.leaves import (
 )
 from nodes.recovery import RecoveryNode, RestartOnChange, recovery_actions
 from nodes.traffic import FollowGrant
-from sim.params import BatteryModel
 
 #: Tree kinds accepted by :func:`build_tree`.
 TREE_KINDS = ("patrol", "picking")

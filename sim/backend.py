@@ -1,28 +1,36 @@
-"""The in-process navigation backend: one robot of a :class:`~sim.simulator.Simulator`.
+"""One navigation backend for every stepped world: a robot's view of a goal server.
 
-:class:`SimNavigationBackend` implements :class:`fleet.navigation.NavigationBackend` by
-delegating to the simulator. It never blocks and never steps the simulator: time passes only
-when the runner (or a test) calls :meth:`Simulator.step`. Goals are EXECUTING as soon as
-:meth:`send_goal` returns (or already REJECTED / ABORTED for a request that fails at once).
-Cancel ends a goal CANCELED immediately and the robot decelerates to a stop over the next
-steps. Ids look like ``"/robot1#3"`` and are never reused.
+:class:`NamespacedBackend` implements :class:`fleet.navigation.NavigationBackend` for the robot
+``namespace`` of any :class:`GoalServer` (the kinematic :class:`~sim.simulator.Simulator`, the
+SUMO world) by forwarding each call with the namespace. It never blocks and never steps the
+world: time passes only when the runner (or a test) steps it. Goal semantics (ids, rejection,
+preemption, cancel) are the server's, shared by both through :mod:`sim.goals`.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from fleet.types import Goal, GoalState, RobotState
 
-if TYPE_CHECKING:
-    from sim.simulator import Simulator
+
+class GoalServer(Protocol):
+    """What a stepped world offers its robots' backends."""
+
+    def send_goal(self, namespace: str, goal: Goal) -> str: ...
+
+    def goal_state(self, goal_id: str) -> GoalState: ...
+
+    def cancel_goal(self, goal_id: str) -> None: ...
+
+    def robot_state(self, namespace: str) -> RobotState: ...
 
 
-class SimNavigationBackend:
-    """NavigationBackend for the simulated robot ``namespace`` of ``simulator``."""
+class NamespacedBackend:
+    """NavigationBackend for robot ``namespace`` of ``server``."""
 
-    def __init__(self, simulator: Simulator, namespace: str) -> None:
-        self._sim = simulator
+    def __init__(self, server: GoalServer, namespace: str) -> None:
+        self._server = server
         self._namespace = namespace
 
     @property
@@ -31,25 +39,25 @@ class SimNavigationBackend:
         return self._namespace
 
     @property
-    def simulator(self) -> Simulator:
-        """The simulator this backend drives (for tests and tools)."""
-        return self._sim
+    def server(self) -> GoalServer:
+        """The world this backend drives (for tests and tools)."""
+        return self._server
 
     def send_goal(self, goal: Goal) -> str:
         """Start ``goal`` at once (preempting the current goal); return its id."""
-        return self._sim.send_goal(self._namespace, goal)
+        return self._server.send_goal(self._namespace, goal)
 
     def goal_state(self, goal_id: str) -> GoalState:
         """Latest state of ``goal_id``; ``KeyError`` for an id never issued."""
-        return self._sim.goal_state(goal_id)
+        return self._server.goal_state(goal_id)
 
     def cancel_goal(self, goal_id: str) -> None:
         """Cancel ``goal_id`` (no-op if finished or unknown)."""
-        self._sim.cancel_goal(goal_id)
+        self._server.cancel_goal(goal_id)
 
     def robot_state(self) -> RobotState:
         """Pose, velocities, battery, charging, stuck, odometer and collisions of the robot."""
-        return self._sim.robot_state(self._namespace)
+        return self._server.robot_state(self._namespace)
 
     def __repr__(self) -> str:
-        return f"SimNavigationBackend({self._namespace!r})"
+        return f"{type(self).__name__}({self._namespace!r})"

@@ -34,8 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fleet.maps import FREE, OccupancyGrid
 from fleet.types import ErrorCode
-from sim.occupancy import FREE, OccupancyGrid
 
 Point = tuple[float, float]
 

@@ -25,6 +25,7 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
+from fleet.robots import SimParams
 from fleet.types import (
     ErrorCode,
     Feedback,
@@ -33,7 +34,6 @@ from fleet.types import (
     GoalStatus,
     Pose2D,
 )
-from sim.params import SimParams
 from sim.planner import GridPlanner, PlanResult
 
 if TYPE_CHECKING:

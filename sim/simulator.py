@@ -2,7 +2,7 @@
 stands in for a fleet of Nav2 robots.
 
 One :class:`Simulator` owns the robots, the static map (an
-:class:`~sim.occupancy.OccupancyGrid`), dynamic round obstacles and every goal ever sent. Time
+:class:`~fleet.maps.OccupancyGrid`), dynamic round obstacles and every goal ever sent. Time
 is the :class:`~fleet.clock.SimClock` passed in; :meth:`Simulator.step` advances it by
 ``params.step_s`` and moves every robot; nothing reads the wall clock and nothing is random,
 so the same inputs give the same run.
@@ -16,7 +16,7 @@ Each step moves all robots together; the state lives in NumPy arrays
    (:meth:`Simulator._follow`: progress along the path, passed poses, lookahead target, detour
    around robots and dynamic obstacles, turn-then-drive). Tasks hear about arrivals, missing
    approach and stuck robots as events, never per step;
-2. acceleration limits of :class:`~sim.params.RobotModel` are applied;
+2. acceleration limits of :class:`~fleet.robots.RobotModel` are applied;
 3. the reactive safety layer limits ``v`` so the robot can stop :data:`STOP_GAP_M` before
    another robot or dynamic obstacle in the corridor ahead in its direction of travel (what
    Nav2's local costmap / collision monitor do);
@@ -48,13 +48,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from fleet.clock import SimClock
+from fleet.clock import SimClock, step_until
 from fleet.errors import BackendError
-from fleet.navigation import Clock
+from fleet.maps import OccupancyGrid
+from fleet.robots import RobotSpec, SimParams
 from fleet.types import (
     BackUp,
     DriveOnHeading,
@@ -70,8 +70,7 @@ from fleet.types import (
     Wait,
     normalize_angle,
 )
-from sim.occupancy import OccupancyGrid
-from sim.params import RobotSpec, SimParams
+from sim.backend import NamespacedBackend
 from sim.planner import GridPlanner, inflate
 from sim.robot import (
     APPROACH_FACTOR,
@@ -94,9 +93,6 @@ from sim.robot import (
 from sim.spatial import neighbor_pairs
 from sim.state import FleetState
 
-if TYPE_CHECKING:
-    from sim.backend import SimNavigationBackend
-
 #: The reactive layer stops a robot this far (m) from the robot or obstacle ahead.
 STOP_GAP_M = 0.1
 #: Extra half-width (m) of the corridor ahead that the reactive layer watches.
@@ -110,21 +106,6 @@ TRAJECTORY_PERIOD_S = 0.5
 PAIR_REUSE_STEPS = 4
 #: Fault names accepted by :meth:`Simulator.set_fault`.
 FAULTS = ("stalled",)
-
-
-def step_until(
-    clock: Clock, step: Callable[[], None], predicate: Callable[[], bool], timeout_s: float
-) -> bool:
-    """Call ``step()`` until ``predicate()`` is true (checked before each step) or ``clock``
-    has advanced ``timeout_s`` seconds. Returns whether the predicate became true. Shared by
-    every stepped world (the simulator, SUMO)."""
-    end = clock.now() + timeout_s - 1e-9
-    while True:
-        if predicate():
-            return True
-        if clock.now() >= end:
-            return False
-        step()
 
 
 class Simulator:
@@ -157,7 +138,7 @@ class Simulator:
         self._samples_t: list[float] = []
         self._samples_xy: list[np.ndarray] = []
         self._traj_start: list[tuple[float, float, float, int]] = []
-        self._backends: dict[str, SimNavigationBackend] = {}
+        self._backends: dict[str, NamespacedBackend] = {}
         self._chargers = np.array([(c.x, c.y) for c in params.chargers], dtype=float).reshape(-1, 2)
         m = params.model
         vmax = m.max_linear_speed
@@ -289,14 +270,12 @@ class Simulator:
         r.fault = fault
         self.state.stalled[r.index] = fault == "stalled"
 
-    def backend(self, namespace: str) -> SimNavigationBackend:
+    def backend(self, namespace: str) -> NamespacedBackend:
         """A :class:`~fleet.navigation.NavigationBackend` for robot ``namespace``."""
-        from sim.backend import SimNavigationBackend
-
         self._robot(namespace)
         b = self._backends.get(namespace)
         if b is None:
-            b = SimNavigationBackend(self, namespace)
+            b = NamespacedBackend(self, namespace)
             self._backends[namespace] = b
         return b
 

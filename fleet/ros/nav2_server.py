@@ -490,7 +490,7 @@ class Nav2SimServer:
         if self._costmap is None:
             import numpy as np
 
-            from sim.occupancy import FREE
+            from fleet.maps import FREE
 
             g = self.sim.grid
             m = Costmap()
@@ -534,7 +534,7 @@ class Nav2SimServer:
 def build_simulator(config_path: str, robots: int | None = None) -> Any:
     """Load a fleet config and make a simulator with its robots (``robots`` overrides the count)."""
     from fleet.clock import SimClock
-    from fleet.config import load_config
+    from fleet.config.loader import load_config
     from sim.simulator import Simulator
 
     cfg = load_config(config_path, robots=robots)

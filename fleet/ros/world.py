@@ -22,7 +22,7 @@ from typing import Any
 
 from fleet.navigation import NavigationBackend
 from fleet.ros.backend import RosBackends, make_ros_backends
-from fleet.runner import BlindWorld, register_backend
+from fleet.runtime.worlds import BlindWorld
 
 
 class RosStampClock:
@@ -63,8 +63,3 @@ class RosWorld(BlindWorld):
 
     def close(self) -> None:
         self._rb.close()
-
-
-def register() -> None:
-    """Register ``ros`` with the runner (``fleet run --backend ros``)."""
-    register_backend("ros", RosWorld)

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from fleet.config import FleetConfig, load_config
+from fleet.config.loader import load_config
+from fleet.config.model import FleetConfig
 from fleet.errors import ConfigError
 from fleet.warehouse import generate_warehouse, main
 

@@ -17,7 +17,9 @@ import signal
 import sys
 import threading
 
-from fleet.status_bus import StatusBus, StatusRecord, open_session
+from fleet.bus.session import open_session
+from fleet.bus.status_bus import StatusBus
+from fleet.messages import StatusRecord
 
 
 def record(robot: str, seq: int) -> StatusRecord:
@@ -78,12 +80,12 @@ def main(argv: list[str]) -> int:
 def navserver(endpoint: str, speed: float, stop: threading.Event) -> int:
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "conformance"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fleet" / "testing"))
     from conformance_harness import SIM_PARAMS, SIM_WORLD, conformance_grid
 
     from fleet.clock import SimClock
-    from fleet.nav_bridge import serve_simulator
-    from sim.params import RobotSpec
+    from fleet.robots import RobotSpec
+    from fleet.runtime.serve import serve_simulator
     from sim.simulator import Simulator
 
     sim = Simulator(conformance_grid(), SIM_PARAMS, SimClock())

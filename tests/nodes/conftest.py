@@ -7,7 +7,7 @@ from collections.abc import Iterator
 import py_trees
 import pytest
 
-from sim.params import BatteryModel
+from fleet.robots import BatteryModel
 
 
 @pytest.fixture(autouse=True)

@@ -14,9 +14,9 @@ import numpy as np
 import py_trees
 
 from fleet.clock import SimClock
+from fleet.maps import OCCUPIED, OccupancyGrid
+from fleet.robots import RobotSpec, SimParams
 from fleet.types import Pose2D
-from sim.occupancy import OCCUPIED, OccupancyGrid
-from sim.params import RobotSpec, SimParams
 from sim.simulator import Simulator
 
 #: The charger of :func:`make_world` worlds.

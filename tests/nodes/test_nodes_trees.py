@@ -21,12 +21,12 @@ from nodes_world import (
 from py_trees.common import Status
 
 from fleet.clock import SimClock
-from fleet.config import PickTask
+from fleet.config.model import PickTask
 from fleet.errors import FleetError
+from fleet.robots import BatteryModel
 from fleet.types import GoalStatus, NavigateThroughPoses, NavigateToPose, Pose2D
 from nodes.blackboard import robot_blackboard
 from nodes.trees import FollowRoute, build_tree, dump_tree, next_route_index, patrol_tree, picking_tree
-from sim.params import BatteryModel
 
 NS = "/robot1"
 BATTERY = BatteryModel()

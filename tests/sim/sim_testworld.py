@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 
 from fleet.clock import SimClock
+from fleet.maps import OCCUPIED, OccupancyGrid
+from fleet.robots import RobotSpec, SimParams
 from fleet.types import Goal, GoalState, Pose2D
-from sim.occupancy import OCCUPIED, OccupancyGrid
-from sim.params import RobotSpec, SimParams
 from sim.simulator import Simulator
 
 #: The shelf block of :func:`room_grid` (x0, x1, y0, y1) in meters.

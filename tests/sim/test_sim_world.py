@@ -10,7 +10,9 @@ import pytest
 from sim_testworld import advance, corridor_grid, make_sim, room_grid, run_goal
 
 from fleet.errors import BackendError
+from fleet.maps import OCCUPIED, OccupancyGrid
 from fleet.navigation import NavigationBackend
+from fleet.robots import RobotSpec
 from fleet.types import (
     DriveOnHeading,
     ErrorCode,
@@ -20,9 +22,7 @@ from fleet.types import (
     Pose2D,
     Wait,
 )
-from sim.backend import SimNavigationBackend
-from sim.occupancy import OCCUPIED, OccupancyGrid
-from sim.params import RobotSpec
+from sim.backend import NamespacedBackend
 from sim.planner import GridPlanner
 
 
@@ -223,7 +223,7 @@ def test_add_robot_rejects_occupied_start_and_duplicate_namespace() -> None:
 def test_backend_is_a_navigation_backend_delegating_to_the_simulator() -> None:
     sim = make_sim({"/r1": Pose2D(2.0, 2.0), "/r2": Pose2D(2.0, 4.0)})
     b = sim.backend("/r2")
-    assert isinstance(b, SimNavigationBackend)
+    assert isinstance(b, NamespacedBackend)
     assert isinstance(b, NavigationBackend)
     assert b.namespace == "/r2" and sim.backend("/r2") is b
     gid = b.send_goal(NavigateThroughPoses((Pose2D(3.0, 4.0),)))

@@ -1,0 +1,400 @@
+"""The Zenoh status bus: sessions, status and task records, liveliness.
+
+Topics (JSON, UTF-8; see ``docs/status_bus.md`` for schemas and examples):
+
+* ``fleet/<robot>/status``: a :class:`StatusRecord`, robot -> everyone;
+* ``fleet/<robot>/task``: a :class:`TaskMessage`, coordinator -> robot;
+* ``fleet/<robot>/alive``: a liveliness token held by the robot's agent session.
+
+Sessions: one process *listens* on the endpoint in ``router`` mode (``fleet run``, ``fleet
+sim``); every other process connects in ``client`` mode (a ``peer`` that does not listen
+receives nothing through a router). Multicast scouting and gossip are off; endpoints are
+explicit (``tcp/127.0.0.1:7447``).
+
+Threading: Zenoh runs callbacks on its own threads (one per callback subscriber). :class:`StatusBus` callbacks parse and
+validate the payload, update the latest-record table, append a :class:`BusEvent` to a bounded
+queue (:meth:`StatusBus.drain_events`) and call the user callbacks, which must be cheap and
+thread-safe. A malformed payload is counted (:attr:`StatusBus.malformed`,
+:attr:`StatusBus.last_malformed`) and dropped; an exception raised by a user callback is
+counted (:attr:`StatusBus.callback_errors`); nothing ever raises out of a Zenoh callback."""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import zenoh
+
+from fleet.bus.keys import ALIVE_KEYS, STATUS_KEYS, alive_key, grant_key, robot_of_key, status_key, task_key
+from fleet.messages import (
+    StatusRecord,
+    TaskMessage,
+    _decode,
+    _dumps,
+)
+
+#: At most this many events wait in :meth:`StatusBus.drain_events` (oldest dropped first).
+MAX_EVENTS = 10000
+
+
+@dataclass(frozen=True)
+class BusEvent:
+    """What :meth:`StatusBus.drain_events` returns: ``kind`` is ``status`` (``payload`` a
+    :class:`StatusRecord`), ``task`` (a :class:`TaskMessage`), ``grant`` (a
+    :class:`~fleet.traffic.Grant`), ``join`` or ``leave``
+    (``payload`` ``None``)."""
+
+    kind: Literal["status", "task", "grant", "join", "leave"]
+    robot: str
+    payload: Any = None
+
+
+class BusHandle:
+    """A declaration on the bus (subscription, token); :meth:`undeclare` is idempotent."""
+
+    def __init__(self, undeclare: Callable[[], None]) -> None:
+        self._undeclare: Callable[[], None] | None = undeclare
+        self._lock = threading.Lock()
+
+    def undeclare(self) -> None:
+        with self._lock:
+            fn, self._undeclare = self._undeclare, None
+        if fn is not None:
+            try:
+                fn()
+            except Exception:  # noqa: BLE001 - the session may already be closed
+                pass
+
+    @property
+    def active(self) -> bool:
+        return self._undeclare is not None
+
+
+StatusCallback = Callable[[StatusRecord], None]
+
+
+TaskCallback = Callable[[TaskMessage], None]
+
+
+RobotCallback = Callable[[str], None]
+
+
+class StatusBus:
+    """Status records, task messages and liveliness on one Zenoh ``session``.
+
+    The session belongs to the caller: :meth:`close` undeclares what the bus declared;
+    :meth:`shutdown` does that and closes the session. ``robot`` is this process's robot (for
+    logs only). See the module docstring for threading and malformed-message handling.
+
+    Counters (read at any time): ``received`` valid status and task messages, ``malformed``
+    dropped payloads (``last_malformed`` says why), ``callback_errors`` exceptions raised by
+    user callbacks, ``events_dropped`` events pushed out of the bounded event queue.
+    """
+
+    def __init__(
+        self, session: zenoh.Session, *, robot: str | None = None, max_events: int = MAX_EVENTS
+    ) -> None:
+        self.session = session
+        self.robot = robot
+        self.received = 0
+        self.malformed = 0
+        self.last_malformed: str | None = None
+        self.callback_errors = 0
+        self.last_callback_error: str | None = None
+        self.events_dropped = 0
+        self._lock = threading.Lock()
+        self._latest: dict[str, StatusRecord] = {}
+        self._alive: set[str] = set()
+        self._events: deque[BusEvent] = deque()
+        self._max_events = max_events
+        self._status_cbs: list[StatusCallback] = []
+        self._join_cbs: list[RobotCallback] = []
+        self._leave_cbs: list[RobotCallback] = []
+        self._status_sub: Any = None
+        self._alive_sub: Any = None
+        self._publishers: dict[str, Any] = {}
+        self._handles: list[BusHandle] = []
+        self._closed = False
+
+    # -- publishing ------------------------------------------------------------------
+
+    def _publisher(self, key: str, block: bool) -> Any:
+        pub = self._publishers.get(key)
+        if pub is None:
+            pub = self.session.declare_publisher(
+                key,
+                encoding=zenoh.Encoding.APPLICATION_JSON,
+                congestion_control=zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP,
+            )
+            self._publishers[key] = pub
+        return pub
+
+    def publish_status(self, rec: StatusRecord) -> None:
+        """Publish ``rec`` on ``fleet/<rec.robot>/status``. ValueError if ``rec`` is invalid."""
+        self._publisher(status_key(rec.robot), False).put(rec.to_json())
+
+    def publish_task(self, robot: str | TaskMessage, msg: TaskMessage | None = None) -> None:
+        """Publish an order on ``fleet/<robot>/task``: ``publish_task(robot, msg)`` or
+        ``publish_task(msg)`` with ``msg.robot`` set. Sent reliably (congestion: block)."""
+        if isinstance(robot, TaskMessage):
+            msg, name = robot, robot.robot
+        else:
+            name = robot
+        if msg is None or name is None:
+            raise ValueError("publish_task needs a robot name and a TaskMessage")
+        if msg.robot is None:
+            msg = TaskMessage(msg.task_id, msg.kind, name, msg.route, msg.poses, msg.charger, msg.pick)
+        elif msg.robot != name:
+            raise ValueError(f"task for {msg.robot!r} published to robot {name!r}")
+        self._publisher(task_key(name), True).put(msg.to_json())
+
+    def publish_grant(self, grant: Any) -> None:
+        """Publish a traffic :class:`~fleet.traffic.Grant` on ``fleet/<grant.robot>/grant``
+        (JSON of ``Grant.to_dict``; congestion: block, like orders)."""
+        self._publisher(grant_key(grant.robot), True).put(_dumps(grant.to_dict()))
+
+    # -- receiving -------------------------------------------------------------------
+
+    def _bad(self, key: str, reason: str) -> None:
+        with self._lock:
+            self.malformed += 1
+            self.last_malformed = f"{key}: {reason}"
+
+    def _push(self, ev: BusEvent) -> None:
+        # caller holds self._lock
+        if self._max_events <= 0:
+            return
+        if len(self._events) >= self._max_events:
+            self._events.popleft()
+            self.events_dropped += 1
+        self._events.append(ev)
+
+    def _call(self, cbs: list[Any], arg: Any) -> None:
+        for cb in cbs:
+            try:
+                cb(arg)
+            except Exception as e:  # noqa: BLE001 - never raise into Zenoh's thread
+                with self._lock:
+                    self.callback_errors += 1
+                    self.last_callback_error = f"{getattr(cb, '__qualname__', cb)}: {e!r}"
+
+    def _on_status_sample(self, sample: Any) -> None:
+        key = "?"
+        try:
+            key = str(sample.key_expr)
+            if sample.kind == zenoh.SampleKind.DELETE:
+                return
+            robot = robot_of_key(key)
+            rec = StatusRecord.from_json(sample.payload.to_bytes())
+            if rec.robot != robot:
+                raise ValueError(f"status.robot: {rec.robot!r} does not match the key's robot {robot!r}")
+        except Exception as e:  # noqa: BLE001 - count and drop
+            self._bad(key, str(e))
+            return
+        try:
+            with self._lock:
+                self.received += 1
+                self._latest[robot] = rec
+                self._push(BusEvent("status", robot, rec))
+                cbs = list(self._status_cbs)
+            self._call(cbs, rec)
+        except Exception as e:  # noqa: BLE001
+            self._bad(key, f"internal: {e!r}")
+
+    def subscribe_statuses(self, callback: StatusCallback | None = None) -> BusHandle:
+        """Subscribe to ``fleet/*/status`` (once per bus) and keep the latest record per robot
+        (:meth:`latest`). ``callback(rec)``, if given, runs on Zenoh's thread for every valid
+        record; the returned handle removes it."""
+        with self._lock:
+            if callback is not None:
+                self._status_cbs.append(callback)
+            need = self._status_sub is None
+        if need:
+            self._status_sub = self.session.declare_subscriber(STATUS_KEYS, self._on_status_sample)
+
+        def remove() -> None:
+            with self._lock:
+                if callback is not None and callback in self._status_cbs:
+                    self._status_cbs.remove(callback)
+
+        h = BusHandle(remove)
+        self._handles.append(h)
+        return h
+
+    def latest(self) -> dict[str, StatusRecord]:
+        """A copy of the latest valid record of every robot seen (by robot name)."""
+        with self._lock:
+            return dict(self._latest)
+
+    def subscribe_tasks(self, robot: str, callback: TaskCallback) -> BusHandle:
+        """Call ``callback(msg)`` (on Zenoh's thread) for every valid order on
+        ``fleet/<robot>/task``. The handle's ``undeclare()`` ends the subscription."""
+
+        def parse(data: bytes) -> TaskMessage:
+            msg = TaskMessage.from_json(data)
+            if msg.robot is None:
+                return TaskMessage(msg.task_id, msg.kind, robot, msg.route, msg.poses, msg.charger, msg.pick)
+            if msg.robot != robot:
+                raise ValueError(f"task.robot: {msg.robot!r} does not match the key's robot {robot!r}")
+            return msg
+
+        return self._subscribe_robot(task_key(robot), robot, "task", parse, callback)
+
+    def subscribe_grants(self, robot: str, callback: Callable[[Any], None]) -> BusHandle:
+        """Call ``callback(grant)`` (on Zenoh's thread) for every valid traffic grant on
+        ``fleet/<robot>/grant``; a malformed one is counted in ``malformed`` and dropped."""
+        from fleet.messages import Grant
+
+        def parse(data: bytes) -> Grant:
+            try:
+                g = Grant.from_dict(_decode(data, "grant"))
+            except (KeyError, TypeError, IndexError) as e:
+                raise ValueError(f"grant: {type(e).__name__}: {e}") from None
+            if g.robot != robot:
+                raise ValueError(f"grant.robot: {g.robot!r} does not match the key's robot {robot!r}")
+            if len(g.poses) != len(g.nodes):
+                raise ValueError(f"grant: {len(g.nodes)} nodes but {len(g.poses)} poses")
+            return g
+
+        return self._subscribe_robot(grant_key(robot), robot, "grant", parse, callback)
+
+    def _subscribe_robot(
+        self,
+        key: str,
+        robot: str,
+        kind: Literal["task", "grant"],
+        parse: Callable[[bytes], Any],
+        callback: Callable[[Any], None],
+    ) -> BusHandle:
+        """Subscribe to one robot's ``key``: ``parse`` each payload (an exception = malformed:
+        counted and dropped), record a :class:`BusEvent` of ``kind`` and call ``callback``."""
+
+        def on_sample(sample: Any) -> None:
+            k = key
+            try:
+                k = str(sample.key_expr)
+                if sample.kind == zenoh.SampleKind.DELETE:
+                    return
+                value = parse(sample.payload.to_bytes())
+            except Exception as e:  # noqa: BLE001 - count and drop
+                self._bad(k, str(e))
+                return
+            with self._lock:
+                self.received += 1
+                self._push(BusEvent(kind, robot, value))
+            self._call([callback], value)
+
+        sub = self.session.declare_subscriber(key, on_sample)
+        h = BusHandle(sub.undeclare)
+        self._handles.append(h)
+        return h
+
+    # -- liveliness ------------------------------------------------------------------
+
+    def declare_alive(self, robot: str) -> BusHandle:
+        """Hold the liveliness token ``fleet/<robot>/alive`` until the handle is undeclared
+        (or the bus / session closes, or the process dies)."""
+        token = self.session.liveliness().declare_token(alive_key(robot))
+        h = BusHandle(token.undeclare)
+        self._handles.append(h)
+        return h
+
+    def _on_alive_sample(self, sample: Any) -> None:
+        key = "?"
+        try:
+            key = str(sample.key_expr)
+            robot = robot_of_key(key)
+            joined = sample.kind == zenoh.SampleKind.PUT
+            with self._lock:
+                if joined:
+                    if robot in self._alive:
+                        return
+                    self._alive.add(robot)
+                else:
+                    if robot not in self._alive:
+                        return
+                    self._alive.discard(robot)
+                self._push(BusEvent("join" if joined else "leave", robot))
+                cbs = list(self._join_cbs if joined else self._leave_cbs)
+            self._call(cbs, robot)
+        except Exception as e:  # noqa: BLE001
+            self._bad(key, f"liveliness: {e}")
+
+    def watch_alive(
+        self, on_join: RobotCallback | None = None, on_leave: RobotCallback | None = None
+    ) -> BusHandle:
+        """Watch the tokens ``fleet/*/alive`` (history included: tokens already held are
+        reported as joins). Callbacks get the robot name on Zenoh's thread; a watcher added
+        later is told at once (on the caller's thread) about robots already alive."""
+        with self._lock:
+            if on_join is not None:
+                self._join_cbs.append(on_join)
+            if on_leave is not None:
+                self._leave_cbs.append(on_leave)
+            need = self._alive_sub is None
+            already = sorted(self._alive)
+        if need:
+            self._alive_sub = self.session.liveliness().declare_subscriber(
+                ALIVE_KEYS, self._on_alive_sample, history=True
+            )
+        elif on_join is not None:
+            for r in already:
+                self._call([on_join], r)
+
+        def remove() -> None:
+            with self._lock:
+                if on_join in self._join_cbs:
+                    self._join_cbs.remove(on_join)  # type: ignore[arg-type]
+                if on_leave in self._leave_cbs:
+                    self._leave_cbs.remove(on_leave)  # type: ignore[arg-type]
+
+        h = BusHandle(remove)
+        self._handles.append(h)
+        return h
+
+    def alive(self) -> set[str]:
+        """Robots whose liveliness token is held now (needs :meth:`watch_alive`)."""
+        with self._lock:
+            return set(self._alive)
+
+    # -- events and shutdown ---------------------------------------------------------
+
+    def drain_events(self) -> list[BusEvent]:
+        """Take every queued event (oldest first); thread-safe."""
+        with self._lock:
+            out = list(self._events)
+            self._events.clear()
+        return out
+
+    def close(self) -> None:
+        """Undeclare every subscription, token and publisher of this bus (idempotent). The
+        session stays open."""
+        if self._closed:
+            return
+        self._closed = True
+        for h in self._handles:
+            h.undeclare()
+        for obj in (self._status_sub, self._alive_sub, *self._publishers.values()):
+            if obj is not None:
+                try:
+                    obj.undeclare()
+                except Exception:  # noqa: BLE001 - session already closed
+                    pass
+        self._status_sub = self._alive_sub = None
+        self._publishers.clear()
+
+    def shutdown(self) -> None:
+        """:meth:`close`, then close the session."""
+        try:
+            self.close()
+        finally:
+            self.session.close()
+
+    def __enter__(self) -> StatusBus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

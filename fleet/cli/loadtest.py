@@ -1,0 +1,178 @@
+"""``fleet loadtest``: its options and the command."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from fleet.cli.argtypes import non_negative_float, positive_float, positive_int
+from fleet.errors import BackendError, BusError, ConfigError
+from fleet.loadtest.run import DEFAULT_STATUS_HZ, DEFAULT_TICK_HZ, PATROL_SPACING_M, run_loadtest
+from fleet.loadtest.sampler import DEFAULT_SAMPLE_S
+
+DESCRIPTION = (
+    "Load-test the fleet: generate a warehouse for N robots, run simulator (or SUMO) + one agent "
+    "per robot + the coordinator in one process as fast as possible, sample the fleet over "
+    "simulated time and write the report JSON (the `fleet run` report plus a `loadtest` block) and "
+    "three plots: throughput.png (laps per robot-hour over time), states.png (robots per state "
+    "over time), congestion.png (heat map of where robots wait)."
+)
+
+
+EPILOG = """\
+examples:
+  fleet loadtest --robots 100 --duration 600
+  fleet loadtest --robots 1000 --duration 300 --out out/lt1000
+  fleet loadtest --robots 5000 --duration 120 --backend sumo --step-s 0.1
+  fleet loadtest --robots 20 --duration 60 --tick-hz 10 --status-hz 10 --plot-dir /tmp/plots
+
+defaults for large fleets: agents tick at 2 Hz (--tick-hz) and publish their status at 1 Hz
+(--status-hz); the config's agent.tick_hz is 10. Both are written to the report.
+exit codes: 0 ok, 2 bad usage / bus or backend error, 130 interrupted (report still written)
+"""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``fleet loadtest`` (see ``docs/performance.md``)."""
+    p.add_argument("--robots", "-n", type=positive_int, required=True, metavar="N", help="number of robots")
+    p.add_argument(
+        "--duration", "-d", type=positive_float, required=True, metavar="S", help="simulated seconds to run"
+    )
+    p.add_argument("--backend", default="sim", metavar="NAME", help="sim (default) or sumo")
+    p.add_argument(
+        "--traffic", action="store_true", help="reservation-based traffic management (docs/traffic.md)"
+    )
+    p.add_argument(
+        "--speed",
+        "-s",
+        type=non_negative_float,
+        default=0.0,
+        metavar="X",
+        help="multiple of real time; 0 = as fast as possible (default)",
+    )
+    p.add_argument(
+        "--out", type=Path, metavar="DIR", help="generated warehouse and outputs (default out/loadtest-N)"
+    )
+    p.add_argument("--report", type=Path, metavar="PATH", help="report JSON (default DIR/report.json)")
+    p.add_argument("--plot-dir", type=Path, metavar="DIR", help="where the three PNGs go (default --out)")
+    p.add_argument(
+        "--tick-hz",
+        type=positive_float,
+        default=DEFAULT_TICK_HZ,
+        metavar="HZ",
+        help=f"agent tick rate, simulated Hz (default {DEFAULT_TICK_HZ:g})",
+    )
+    p.add_argument(
+        "--status-hz",
+        type=positive_float,
+        default=DEFAULT_STATUS_HZ,
+        metavar="HZ",
+        help=f"status publishing rate per robot on the bus (default {DEFAULT_STATUS_HZ:g})",
+    )
+    p.add_argument(
+        "--step-s", type=positive_float, metavar="S", help="simulator step (default: the config's, 0.05 s)"
+    )
+    p.add_argument(
+        "--sample-s",
+        type=positive_float,
+        default=DEFAULT_SAMPLE_S,
+        metavar="S",
+        help=f"sampling period of the time series (default {DEFAULT_SAMPLE_S:g} s)",
+    )
+    p.add_argument(
+        "--route-copies",
+        type=positive_int,
+        default=None,
+        metavar="K",
+        help="up to K robots patrol each generated route (default: enough for half the fleet, "
+        f"at most one robot per {PATROL_SPACING_M:g} m of the shortest loop)",
+    )
+    p.add_argument("--seed", type=int, default=1, help="warehouse and simulator seed (default 1)")
+    p.add_argument("--endpoint", metavar="EP", help="Zenoh endpoint to listen on (default: a free port)")
+    p.add_argument("--dpi", type=positive_int, default=100, help="PNG resolution (default 100)")
+
+
+def add_loadtest_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add ``loadtest`` to ``fleet``'s subparsers; its handler is ``args.loadtest_handler``."""
+    p = subparsers.add_parser(
+        "loadtest",
+        help="load-test the fleet with N robots: report JSON and plots",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_arguments(p)
+    p.set_defaults(loadtest_handler=run_from_args)
+    return p
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="fleet loadtest",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_arguments(p)
+    return p
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    """Run the load test parsed into ``args``; print the summary; return the exit code."""
+    res = run_loadtest(
+        args.robots,
+        args.duration,
+        backend=args.backend,
+        out_dir=args.out,
+        report_path=args.report,
+        plot_dir=args.plot_dir,
+        tick_hz=args.tick_hz,
+        status_hz=args.status_hz,
+        step_s=args.step_s,
+        sample_s=args.sample_s,
+        speed=args.speed,
+        route_copies=args.route_copies,
+        seed=args.seed,
+        endpoint=args.endpoint,
+        dpi=args.dpi,
+        traffic=args.traffic,
+    )
+    lt = res.data["loadtest"]
+    r = res.report
+    print(
+        f"{'interrupted' if r.interrupted else 'finished'}: {r.robots} robots, {r.sim_time_s:.1f} s simulated in "
+        f"{r.wall_time_s:.1f} s wall (setup {lt['setup_wall_s']:.1f} s, loop {lt['real_time_factor']:.2f}x real time)"
+    )
+    print(
+        f"patrols: {r.patrols_assigned} assigned, {r.patrols_completed} completed, {r.laps_completed} laps "
+        f"({lt['throughput_laps_per_robot_hour']:.2f} per robot-hour, "
+        f"{lt['throughput_laps_per_patrolling_robot_hour']:.2f} per patrolling robot-hour)"
+    )
+    wait = lt["mean_wait_s"]
+    print(
+        f"collisions: {r.collisions}   deadlocks: {r.deadlocks}   reassignments: {r.reassignments}   "
+        f"mean wait: {'n/a' if wait is None else f'{wait:.1f} s'} per driving robot"
+    )
+    print(f"report: {res.report_path}")
+    for p in res.plots.values():
+        print(f"plot: {p}")
+    return 130 if res.interrupted else 0
+
+
+def loadtest_main(argv: Sequence[str] | None = None) -> int:
+    """``fleet loadtest`` as a function: 0 ok, 2 bad usage or setup error, 130 interrupted."""
+    try:
+        args = build_parser().parse_args(list(sys.argv[1:] if argv is None else argv))
+    except SystemExit as e:  # argparse: --help (0) or bad usage (2), message already printed
+        return int(e.code) if isinstance(e.code, int) else 2
+    try:
+        return run_from_args(args)
+    except (ConfigError, BusError, BackendError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130

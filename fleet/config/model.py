@@ -1,0 +1,130 @@
+"""The validated fleet configuration: plain dataclasses (``docs/config.md`` is the file format).
+All poses are in the ``map`` frame: meters and radians."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from fleet.maps import OccupancyGrid
+from fleet.roadmap.graph import Roadmap
+from fleet.robots import RobotSpec, SimParams
+from fleet.types import Pose2D
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+@dataclass(frozen=True)
+class NamedPose:
+    """A named pose in the ``map`` frame (a charger or a station)."""
+
+    name: str
+    pose: Pose2D
+
+
+@dataclass(frozen=True)
+class Route:
+    """A patrol route, driven as a loop.
+
+    ``waypoints`` are the poses as listed in the file (a roadmap node gets ``theta`` pointing
+    at the next waypoint, cyclically); ``node_names[i]`` is the roadmap node of waypoint ``i``
+    or ``None`` for an explicit pose or a station. ``robot`` is an optional preferred robot.
+    """
+
+    name: str
+    waypoints: tuple[Pose2D, ...]
+    node_names: tuple[str | None, ...]
+    robot: str | None = None
+
+
+@dataclass(frozen=True)
+class PickTask:
+    """A picking task: drive to ``shelf``, stand ``dwell_s`` seconds, drive to ``drop``.
+
+    ``shelf_station`` / ``drop_station`` are the station names used in the file (``""`` for
+    an explicit pose); ``robot`` is an optional preferred robot.
+    """
+
+    name: str
+    shelf: Pose2D
+    drop: Pose2D
+    dwell_s: float = 5.0
+    robot: str | None = None
+    shelf_station: str = ""
+    drop_station: str = ""
+
+
+@dataclass(frozen=True)
+class CoordinatorParams:
+    """``stuck_reassign_s``: a robot stuck this long loses its patrol to another robot;
+    ``status_timeout_s``: a robot silent this long is considered dead."""
+
+    stuck_reassign_s: float = 30.0
+    status_timeout_s: float = 3.0
+
+
+@dataclass(frozen=True)
+class TrafficSettings:
+    """The ``traffic`` section (``docs/traffic.md``). ``enabled``: reservation-based traffic
+    management on the roadmap (``fleet run --traffic`` turns it on too); ``deadlock_s``: a
+    set of robots waiting on each other longer than this counts as a deadlock in the report;
+    ``park_idle_s``: an idle robot standing off its parking spot this long is sent to park;
+    ``horizon_m``: how much path ahead a robot is granted; ``stall_timeout_s``: a robot with
+    a grant ahead that makes no progress this long is treated as stopped (its reservations
+    ahead are released)."""
+
+    enabled: bool = False
+    deadlock_s: float = 30.0
+    park_idle_s: float = 5.0
+    horizon_m: float = 6.0
+    stall_timeout_s: float = 20.0
+
+
+@dataclass
+class FleetConfig:
+    """A validated fleet configuration. See ``docs/config.md`` for the file format."""
+
+    name: str
+    path: Path
+    map_path: Path
+    grid: OccupancyGrid
+    roadmap: Roadmap
+    chargers: list[NamedPose]
+    stations: dict[str, NamedPose]
+    routes: list[Route]
+    tasks: list[PickTask]
+    robots: list[RobotSpec]
+    sim: SimParams
+    tick_hz: float = 10.0
+    coordinator: CoordinatorParams = field(default_factory=CoordinatorParams)
+    endpoint: str = DEFAULT_ENDPOINT
+    status_hz: float | None = None
+    parking: list[Pose2D] = field(default_factory=list)
+    traffic: TrafficSettings = field(default_factory=TrafficSettings)
+
+    def robot(self, name: str) -> RobotSpec:
+        """The robot called ``name``. Raises ``KeyError`` if there is none."""
+        for r in self.robots:
+            if r.name == name:
+                return r
+        raise KeyError(f"no robot named {name!r}")
+
+    def route(self, name: str) -> Route:
+        """The route called ``name``. Raises ``KeyError`` if there is none."""
+        for r in self.routes:
+            if r.name == name:
+                return r
+        raise KeyError(f"no route named {name!r}")
+
+    def route_poses(self, route: Route) -> tuple[Pose2D, ...]:
+        """The poses to drive for one lap of ``route``.
+
+        If every waypoint is a roadmap node, the lap follows roadmap shortest paths between
+        them (:meth:`Roadmap.expand_route`, closed), each pose facing the next; otherwise the
+        waypoints as listed.
+        """
+        names = route.node_names
+        if all(n is not None for n in names):
+            dense = self.roadmap.expand_route([n for n in names if n is not None], closed=True)
+            return self.roadmap.poses_for(dense, closed=True)
+        return route.waypoints

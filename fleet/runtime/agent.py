@@ -1,0 +1,235 @@
+"""One robot's agent: its behavior tree, its blackboard, its orders and its status on the bus.
+
+A :class:`RobotAgent` owns the tree built by :func:`nodes.build_tree` for its namespace and
+navigation backend. It does not own a loop (the runner does, see ``docs/architecture.md``):
+each :meth:`RobotAgent.tick` applies the orders received since the last tick, ticks the
+tree once (``root.tick_once()``) and publishes a status record on ``fleet/<robot>/status``.
+While the agent exists its liveliness token ``fleet/<robot>/alive`` is held.
+
+Orders (``fleet/<robot>/task``) are applied to the blackboard keys of
+``docs/architecture.md``: a ``patrol`` order sets ``route`` (the lap of poses), ``task_id``
+and ``charger``; a ``pick`` order sets ``pick``; an ``idle`` order clears ``route``,
+``pick`` and ``task_id``. An order whose id was already applied (a duplicate, or a late copy
+of an order that has been superseded) is ignored, so a message can never be applied twice.
+Orders are queued by the bus callback thread and applied on the ticking thread only.
+With traffic management the agent also takes the robot's traffic grants
+(``fleet/<robot>/grant``, newest ``seq`` wins) into the blackboard key ``grant``.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from fleet.types import Pose2D
+
+if TYPE_CHECKING:
+    from fleet.navigation import Clock, NavigationBackend
+    from fleet.robots import BatteryModel
+
+#: Remember this many applied order ids (older ones are forgotten first).
+SEEN_IDS = 256
+
+
+class RobotAgent:
+    """The agent of the robot ``namespace`` (``/robot3``; its bus name is ``robot3``).
+
+    Args:
+        namespace: the robot's namespace.
+        backend: its :class:`~fleet.navigation.NavigationBackend`.
+        clock: the fleet clock (simulated seconds); status timestamps come from it.
+        bus: a :class:`~fleet.bus.status_bus.StatusBus`, or ``None`` for an agent without a
+            network (orders then come only through :meth:`deliver`).
+        tree_kind: ``"patrol"`` or ``"picking"`` (see :func:`nodes.build_tree`).
+        battery_model: the battery thresholds the tree's battery guard uses.
+        tick_hz: how often the runner should call :meth:`tick` (simulated Hz).
+        on_status: called with every status record published (e.g. to feed an in-process
+            coordinator directly).
+        traffic: build the traffic-managed tree (``docs/traffic.md``): the robot drives only
+            what its traffic grants (``fleet/<robot>/grant``, or :meth:`deliver_grant`) allow.
+    """
+
+    def __init__(
+        self,
+        namespace: str,
+        backend: NavigationBackend,
+        clock: Clock,
+        bus: Any | None,
+        tree_kind: str = "patrol",
+        battery_model: BatteryModel | None = None,
+        tick_hz: float = 10.0,
+        on_status: Callable[[Any], None] | None = None,
+        traffic: bool = False,
+    ) -> None:
+        from fleet.robots import BatteryModel
+        from nodes import build_tree
+        from nodes.blackboard import clear_robot_blackboard, robot_blackboard
+
+        self.namespace = "/" + namespace.strip("/")
+        self.name = self.namespace.lstrip("/")
+        self.backend = backend
+        self.clock = clock
+        self.bus = bus
+        self.tick_hz = float(tick_hz)
+        self.tree_kind = tree_kind
+        self.on_status = on_status
+        # py_trees' blackboard is process-global: start from the defaults, not from what an
+        # earlier agent of the same namespace in this process left behind
+        clear_robot_blackboard(self.namespace)
+        self.bb = robot_blackboard(self.namespace, name=f"agent{self.namespace}")
+        self.traffic = traffic
+        self.root = build_tree(
+            tree_kind, self.namespace, backend, clock, battery_model or BatteryModel(), traffic=traffic
+        )
+        self.seq = 0
+        self.ticks = 0
+        self.charges = 0
+        self.last_status: Any = None
+        self._seen: dict[str, None] = {}
+        self._inbox: list[Any] = []
+        self._grant: Any = None
+        self._grant_seq = 0
+        self.grants_applied = 0
+        self._lock = threading.Lock()
+        self._last_mode = "idle"
+        self._token: Any = None
+        self._sub: Any = None
+        self._grant_sub: Any = None
+        if bus is not None:
+            self._sub = bus.subscribe_tasks(self.name, self.deliver)
+            if traffic:
+                self._grant_sub = bus.subscribe_grants(self.name, self.deliver_grant)
+            self._token = bus.declare_alive(self.name)
+
+    # -- orders ------------------------------------------------------------------------
+
+    def deliver(self, msg: Any) -> None:
+        """Queue an order (a :class:`~fleet.bus.status_bus.TaskMessage`); thread-safe. It is
+        applied at the start of the next :meth:`tick`."""
+        with self._lock:
+            self._inbox.append(msg)
+
+    def deliver_grant(self, grant: Any) -> None:
+        """Keep a traffic :class:`~fleet.traffic.Grant` for the next :meth:`tick`; thread-safe.
+        Only the newest (highest ``seq``) of those received counts; older or duplicate copies
+        (the bus copy of a grant also handed over in-process) are ignored."""
+        if getattr(grant, "robot", self.name) != self.name:
+            return
+        with self._lock:
+            if self._grant is None or grant.seq > self._grant.seq:
+                self._grant = grant
+
+    def _apply_orders(self) -> None:
+        with self._lock:
+            inbox, self._inbox = self._inbox, []
+            grant = self._grant
+        for msg in inbox:
+            self.apply(msg)
+        if grant is not None and grant.seq > self._grant_seq:
+            self._grant_seq = grant.seq
+            self.bb.grant = grant
+            self.grants_applied += 1
+
+    def apply(self, msg: Any) -> bool:
+        """Apply one order to the blackboard now; returns False if it was ignored (an id
+        already applied, or addressed to another robot)."""
+        robot = getattr(msg, "robot", None)
+        if robot not in (None, self.name):
+            return False
+        tid = getattr(msg, "task_id", None)
+        if tid is not None:
+            if tid in self._seen:
+                return False
+            self._seen[tid] = None
+            if len(self._seen) > SEEN_IDS:
+                self._seen.pop(next(iter(self._seen)))
+        kind = getattr(msg, "kind", "idle")
+        charger = getattr(msg, "charger", None)
+        if charger is not None:
+            self.bb.charger = _pose(charger)
+        if kind == "patrol":
+            self.bb.pick = None
+            self.bb.route = tuple(_pose(p) for p in getattr(msg, "poses", ()))
+            self.bb.task_id = tid
+        elif kind == "pick":
+            self.bb.route = None
+            self.bb.pick = getattr(msg, "pick", None)
+            self.bb.task_id = tid
+        else:
+            self.bb.route = None
+            self.bb.pick = None
+            self.bb.task_id = None
+        return True
+
+    # -- ticking -----------------------------------------------------------------------
+
+    def tick(self) -> Any:
+        """Apply queued orders, tick the tree once, publish and return the status record."""
+        self._apply_orders()
+        self.root.tick_once()
+        self.ticks += 1
+        mode = str(self.bb.mode)
+        if mode == "charging" and self._last_mode != "charging":
+            self.charges += 1
+        self._last_mode = mode
+        rec = self.status()
+        self.last_status = rec
+        if self.bus is not None:
+            self.bus.publish_status(rec)
+        if self.on_status is not None:
+            self.on_status(rec)
+        return rec
+
+    def status(self) -> Any:
+        """The current :class:`~fleet.bus.status_bus.StatusRecord` of this robot."""
+        from fleet.messages import StatusRecord
+
+        self.seq += 1
+        st = self.backend.robot_state()
+        bb = self.bb
+        task_id = bb.task_id
+        laps = int(bb.laps) if bb.lap_task_id is not None and bb.lap_task_id == task_id else 0
+        pose = st.pose.as_tuple() if st.pose is not None else None
+        return StatusRecord(
+            robot=self.name,
+            ns=self.namespace,
+            t=float(self.clock.now()),
+            pose=pose,
+            battery=float(st.battery),
+            charging=bool(st.charging),
+            stuck=bool(st.stuck),
+            bt=self.root.status.name,
+            leaf=str(bb.active_leaf or ""),
+            mode=str(bb.mode),
+            task_id=task_id,
+            laps=laps,
+            progress=float(bb.route_progress or 0.0),
+            distance_m=float(st.distance_m),
+            collisions=int(st.collisions),
+            seq=self.seq,
+            picks_done=int(bb.picks_done or 0),
+        )
+
+    def close(self) -> None:
+        """Cancel the robot's outstanding goal, drop the liveliness token and the subscription."""
+        from py_trees.common import Status
+
+        try:
+            self.root.stop(Status.INVALID)
+        except Exception:  # noqa: BLE001 - best effort on shutdown
+            pass
+        for handle in (self._token, self._sub, self._grant_sub):
+            undeclare = getattr(handle, "undeclare", None)
+            if undeclare is not None:
+                try:
+                    undeclare()
+                except Exception:  # noqa: BLE001
+                    pass
+        self._token = self._sub = self._grant_sub = None
+
+
+def _pose(p: Any) -> Pose2D:
+    if isinstance(p, Pose2D):
+        return p
+    return Pose2D(*(float(v) for v in p))

@@ -1,0 +1,1 @@
+"""Tools to test code built on the fleet, such as the navigation backend conformance checker."""

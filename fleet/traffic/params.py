@@ -1,0 +1,71 @@
+"""Tunables of the traffic manager (meters, seconds)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    pass
+
+
+#: How far ahead (path nodes) the manager looks for a robot coming the other way into a
+#: corridor (see ``TrafficParams.hold_far_end``).
+ONCOMING_NODES = 8
+
+
+@dataclass(frozen=True)
+class TrafficParams:
+    """Tunables of :class:`TrafficManager` (meters, seconds).
+
+    ``clearance_m``: a robot keeps a node until its center is farther than this from it; it
+    must exceed two robot radii and be at most the shortest roadmap edge (default: twice
+    ``robot_radius`` plus 0.3 m). ``arrive_m``: a robot has reached a path node when it is this
+    close (larger than the navigation stack's via-point tolerance). ``horizon_m``: grants are
+    extended while less than this much path is granted ahead (at least one block is always
+    asked for). ``stall_timeout_s``: a robot with a grant ahead that moved less than
+    ``progress_m`` for this long is treated as dead; ``stale_timeout_s`` (``None`` = off):
+    likewise for a robot whose position was not updated for this long.
+    ``deadlock_detect_s``: a wait-for cycle whose robots all waited this long is resolved;
+    ``detect_period_s``: how often the wait-for graph is examined. ``starve_s``: a robot
+    waiting longer claims the block it waits for. ``reroute_after_s``: a robot blocked this
+    long by a dead or idle robot is rerouted (or the idle robot is nudged aside).
+    ``reroute_factor`` / ``reroute_slack_m``: a yield-by-reroute is accepted only if the new
+    way is at most ``factor * old + slack`` long. ``sidestep_depth``: how many edges away a
+    robot may step aside. ``yield_timeout_s``: how long a robot that stepped aside lets the
+    robots it yielded to go first. ``yield_bonus`` and ``aging_per_s`` weigh priority (see
+    :meth:`TrafficManager.priority`). ``loop_min_nodes``: looped paths are kept at least this
+    many nodes ahead of the grant. ``max_resolutions``: at most this many deadlocks and
+    blocked robots are handled per detection pass (bounds the cost of one cycle).
+    ``hold_far_end``: a robot entering a single-lane corridor also takes the junction at its
+    far end, for the whole way through (the strict rule). Off (the default), it takes the far
+    junction as a block of its own when it gets there, unless another robot's next
+    :data:`ONCOMING_NODES` path nodes come from that junction into the corridor: then the
+    strict rule applies, so robots meeting at a corridor's end stay rare while crossing
+    traffic is not held up at every aisle end.
+    """
+
+    robot_radius: float = 0.3
+    clearance_m: float | None = None
+    arrive_m: float = 0.5
+    horizon_m: float = 6.0
+    progress_m: float = 0.1
+    stall_timeout_s: float = 20.0
+    stale_timeout_s: float | None = None
+    deadlock_detect_s: float = 2.0
+    detect_period_s: float = 0.5
+    starve_s: float = 20.0
+    reroute_after_s: float = 5.0
+    reroute_factor: float = 2.0
+    reroute_slack_m: float = 10.0
+    sidestep_depth: int = 4
+    yield_timeout_s: float = 30.0
+    yield_bonus: float = 30.0
+    aging_per_s: float = 1.0
+    loop_min_nodes: int = 40
+    max_resolutions: int = 8
+    hold_far_end: bool = False
+
+    @property
+    def clearance(self) -> float:
+        return self.clearance_m if self.clearance_m is not None else 2.0 * self.robot_radius + 0.3

@@ -1,0 +1,1 @@
+"""What people look at: the live table, progress lines, trajectory and load-test plots."""

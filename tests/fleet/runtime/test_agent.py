@@ -1,0 +1,153 @@
+"""RobotAgent: orders applied to the robot's blackboard (duplicates and superseded ids
+ignored), one tree tick + one status record per tick, the liveliness token, all on real
+Zenoh, the real simulator and the real tree."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from ports import free_endpoint
+
+from fleet.bus.session import open_session
+from fleet.bus.status_bus import StatusBus
+from fleet.clock import SimClock
+from fleet.config.loader import load_config
+from fleet.config.model import FleetConfig
+from fleet.messages import TaskMessage
+from fleet.runtime.agent import RobotAgent
+from fleet.types import Pose2D
+from sim.simulator import Simulator
+
+PATROL = Path(__file__).resolve().parents[3] / "configs" / "warehouse_patrol.yaml"
+
+
+@pytest.fixture(scope="module")
+def config() -> FleetConfig:
+    return load_config(PATROL, robots=2)
+
+
+@pytest.fixture
+def bus() -> Iterator[StatusBus]:
+    session = open_session(free_endpoint(), "router")
+    b = StatusBus(session)
+    try:
+        yield b
+    finally:
+        b.close()
+        try:
+            session.close()
+        except Exception:  # noqa: BLE001 - the bus may have closed it
+            pass
+
+
+def make_agent(
+    config: FleetConfig, bus: StatusBus | None, name: str = "robot1"
+) -> tuple[RobotAgent, Simulator]:
+    clock = SimClock()
+    sim = Simulator(config.grid, config.sim, clock)
+    for r in config.robots:
+        sim.add_robot(r)
+    spec = config.robot(name)
+    agent = RobotAgent(
+        spec.namespace, sim.backend(spec.namespace), clock, bus, battery_model=config.sim.battery
+    )
+    return agent, sim
+
+
+def route(config: FleetConfig, name: str = "aisles_1_2") -> tuple[Pose2D, ...]:
+    return config.route_poses(config.route(name))
+
+
+def patrol_msg(
+    config: FleetConfig, task_id: str, robot: str = "robot1", name: str = "aisles_1_2"
+) -> TaskMessage:
+    return TaskMessage(
+        robot=robot, task_id=task_id, kind="patrol", route=name, poses=route(config, name),
+        charger=config.chargers[0].pose,
+    )  # fmt: skip
+
+
+def run(agent: RobotAgent, sim: Simulator, seconds: float) -> None:
+    steps_per_tick = round(0.1 / sim.params.step_s)
+    for _ in range(int(seconds * 10)):
+        agent.tick()
+        for _ in range(steps_per_tick):
+            sim.step()
+
+
+def test_orders_applied_once_and_idle_clears(config: FleetConfig) -> None:
+    agent, sim = make_agent(config, None)
+    try:
+        assert agent.apply(patrol_msg(config, "p-0001"))
+        assert agent.bb.task_id == "p-0001" and agent.bb.route == route(config)
+        assert agent.bb.charger == config.chargers[0].pose
+        assert not agent.apply(patrol_msg(config, "p-0001"))  # duplicate
+        assert agent.apply(patrol_msg(config, "p-0003", name="aisles_3_4"))
+        assert not agent.apply(patrol_msg(config, "p-0001"))  # late copy of a superseded order
+        assert agent.bb.task_id == "p-0003" and agent.bb.route == route(config, "aisles_3_4")
+        assert not agent.apply(patrol_msg(config, "p-0004", robot="robot2"))  # not for this robot
+        assert agent.apply(TaskMessage(robot="robot1", task_id="i-0005", kind="idle", charger=None))
+        assert agent.bb.route is None and agent.bb.task_id is None
+    finally:
+        agent.close()
+
+
+def test_tick_drives_the_route_and_reports_laps_for_the_current_id(config: FleetConfig) -> None:
+    agent, sim = make_agent(config, None)
+    try:
+        rec = agent.tick()
+        assert rec.robot == "robot1" and rec.mode == "idle" and rec.task_id is None and rec.seq == 1
+        agent.deliver(patrol_msg(config, "p-0001", name="aisles_1_2"))
+        run(agent, sim, 5.0)
+        rec = agent.last_status
+        assert rec.mode == "patrol" and rec.task_id == "p-0001" and rec.leaf
+        assert rec.distance_m > 1.0 and rec.pose is not None
+        assert rec.t == pytest.approx(sim.clock.now() - 0.1, abs=0.11)
+        # laps counted only for the id they were driven under
+        agent.bb.laps, agent.bb.lap_task_id = 3, "p-0000"
+        assert agent.status().laps == 0
+        agent.bb.lap_task_id = "p-0001"
+        assert agent.status().laps == 3
+    finally:
+        agent.close()
+
+
+def test_status_and_liveliness_on_the_bus(config: FleetConfig, bus: StatusBus) -> None:
+    seen: list[Any] = []
+    joined: list[str] = []
+    left: list[str] = []
+    got = threading.Event()
+
+    def on_status(rec: Any) -> None:
+        seen.append(rec)
+        got.set()
+
+    bus.subscribe_statuses(on_status)
+    bus.watch_alive(joined.append, left.append)
+    agent, sim = make_agent(config, bus)
+    try:
+        agent.tick()
+        assert got.wait(5.0)
+        deadline = time.monotonic() + 5.0
+        while "robot1" not in joined and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert "robot1" in joined
+        assert seen[0].robot == "robot1" and seen[0].battery == pytest.approx(1.0)
+        # an order published on the bus reaches the agent
+        bus.publish_task(patrol_msg(config, "p-0007"))
+        deadline = time.monotonic() + 5.0
+        while agent.bb.task_id != "p-0007" and time.monotonic() < deadline:
+            time.sleep(0.05)
+            agent.tick()
+        assert agent.bb.task_id == "p-0007"
+    finally:
+        agent.close()
+    deadline = time.monotonic() + 5.0
+    while "robot1" not in left and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert "robot1" in left

@@ -1,0 +1,97 @@
+"""Conformance harness of the ROS 2 backend (:mod:`fleet.ros.backend`), registered as ``"ros"``.
+
+The world is the simulator's conformance world (:data:`conformance_harness.SIM_WORLD`), served
+as namespaced Nav2 by :mod:`fleet.ros.nav2_server` in a child process (this file, run as a
+script with ``--serve``) at :data:`SPEED` times real time; the backend under test talks to it
+through real rclpy action clients on a private ROS domain. ``advance(s)`` sleeps ``s / SPEED``
+wall seconds while the backend's executor thread spins. Skipped when the ROS 2 wheels or the
+built nav2_msgs are missing.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from conformance_harness import (  # noqa: E402
+    SIM_PARAMS,
+    SIM_WORLD,
+    ConformanceHarness,
+    ConformanceWorld,
+    conformance_grid,
+    register_backend,
+)
+
+from fleet.navigation import NavigationBackend  # noqa: E402
+from fleet.ros.env import apply_ros_env_defaults, ros_available  # noqa: E402
+
+#: Simulated seconds per wall second in the server process. Real time: the harness lets time
+#: pass by sleeping, so a scheduling hiccup on a loaded machine must not turn into several
+#: simulated seconds (at 4x, cancel and spin checks failed now and then under load).
+SPEED = 1.0
+
+
+@dataclass
+class RosHarness:
+    backend: NavigationBackend
+    world: ConformanceWorld
+    speed: float
+
+    def advance(self, seconds: float) -> None:
+        time.sleep(max(0.0, seconds) / self.speed)
+
+
+@register_backend("ros", marks=(pytest.mark.ros,))
+@contextmanager
+def ros_harness() -> Iterator[ConformanceHarness]:
+    if not ros_available():
+        pytest.skip("ROS 2 Jazzy wheels / nav2_msgs not installed (make setup-ros)")
+    from fleet.ros.launch import ServerProcess, private_domain_id
+
+    os.environ.setdefault("ROS_DOMAIN_ID", str(private_domain_id()))
+    apply_ros_env_defaults()
+    from fleet.ros.backend import make_ros_backends
+
+    srv = ServerProcess([sys.executable, str(Path(__file__).resolve()), "--serve", str(SPEED)])
+    rb = None
+    try:
+        rb = make_ros_backends(["/robot1"], wait_s=20.0)
+        backend = rb["/robot1"]
+        deadline = time.monotonic() + 10.0
+        while backend.robot_state().pose is None:
+            assert time.monotonic() < deadline, "no amcl_pose / odom from the server"
+            time.sleep(0.02)
+        yield RosHarness(backend, SIM_WORLD, SPEED)
+    finally:
+        if rb is not None:
+            rb.close()
+        srv.stop()
+
+
+def _serve(argv: list[str]) -> int:
+    """Child process: the conformance world's robot as namespaced Nav2."""
+    from fleet.clock import SimClock
+    from fleet.robots import RobotSpec
+    from fleet.ros.nav2_server import serve
+    from sim.simulator import Simulator
+
+    speed = float(argv[0])
+    ready = argv[argv.index("--ready-file") + 1] if "--ready-file" in argv else None
+    sim = Simulator(conformance_grid(), SIM_PARAMS, SimClock())
+    sim.add_robot(RobotSpec("robot1", "/robot1", SIM_WORLD.start))
+    return serve(
+        sim, ready_file=ready, speed=speed, feedback_hz=20.0, odom_hz=20.0, amcl_hz=2.0, profile="lean"
+    )
+
+
+if __name__ == "__main__" and len(sys.argv) > 1 and sys.argv[1] == "--serve":
+    sys.exit(_serve(sys.argv[2:]))

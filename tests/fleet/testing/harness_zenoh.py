@@ -1,0 +1,100 @@
+"""Conformance harness of the Zenoh bridge (:mod:`fleet.bus.nav_server`), registered as
+``"zenoh-bridge"``.
+
+The conformance world (:data:`conformance_harness.SIM_WORLD`, the grid of
+:func:`conformance_harness.conformance_grid`) is simulated in a *separate process*
+(``tests/helpers/bus_peer.py navserver``, a Zenoh router serving the simulator at
+:data:`SPEED` x real time); the backend under test is a :class:`ZenohNavBackend` in this
+process, connected as a client on a free loopback port. ``advance(s)`` waits (wall time)
+until the robot's state messages report ``s`` more simulated seconds, and for at least two
+state messages, so a request sent before the call has been applied and reported.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from conformance_harness import SIM_WORLD, ConformanceHarness, ConformanceWorld, register_backend
+
+from fleet.navigation import NavigationBackend
+
+SPEED = 10.0
+REPO = Path(__file__).resolve().parents[3]
+
+
+@dataclass
+class ZenohHarness:
+    backend: NavigationBackend
+    world: ConformanceWorld
+
+    def advance(self, seconds: float) -> None:
+        b = self.backend
+        assert hasattr(b, "sim_time") and hasattr(b, "states_received")
+        t0 = b.sim_time or 0.0
+        n0 = b.states_received
+        deadline = time.monotonic() + seconds / SPEED * 3.0 + 2.0
+        while time.monotonic() < deadline:
+            if (b.sim_time or 0.0) >= t0 + seconds - 1e-6 and b.states_received >= n0 + 2:
+                return
+            time.sleep(0.002)
+        raise AssertionError(f"the served simulator did not advance {seconds} s in time")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@register_backend("zenoh-bridge")
+@contextmanager
+def zenoh_bridge_harness() -> Iterator[ConformanceHarness]:
+    pytest.importorskip("zenoh")
+    from fleet.bus.nav_client import ZenohNavBackend
+    from fleet.bus.session import open_session
+
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    env = dict(
+        os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
+    )
+    proc = subprocess.Popen(
+        [sys.executable, str(REPO / "tests/helpers/bus_peer.py"), "navserver", endpoint, str(SPEED)],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == "ready", "the simulator process did not start"
+        session = open_session(endpoint, "client")
+        try:
+            backend = ZenohNavBackend(session, "/robot1", timeout_s=2.0)
+            try:
+                assert backend.wait_for_server(5.0), "no state message from the served simulator"
+                yield ZenohHarness(backend, SIM_WORLD)
+            finally:
+                backend.close()
+        finally:
+            session.close()
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(3)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        if proc.stdout is not None:
+            proc.stdout.close()
