@@ -35,8 +35,10 @@ bench: setup
 	$(PY) bench/run_all.py
 
 lint: setup-core
-	$(VENV)/bin/ruff check fleet nodes sim tests bench
-	$(VENV)/bin/mypy fleet nodes sim
+	$(VENV)/bin/ruff check fleet nodes sim tests bench tools
+	$(VENV)/bin/ruff format --check fleet nodes sim tests bench tools
+	$(VENV)/bin/mypy
+	$(PY) tools/check_layout.py
 
 clean:
 	rm -rf $(VENV) out build

@@ -30,6 +30,44 @@ class SimClock:
         self._t = float(t)
 
 
+class Pacer:
+    """Paces a simulated clock against the wall clock: the one real-time loop of the project.
+
+    ``speed`` is the multiple of real time (``0``: no pacing, as fast as possible). After each
+    step, :meth:`wait` sleeps until the wall clock has caught up with ``speed`` times the
+    simulated time passed since :meth:`start` (never sleeping when behind: a slow step is not
+    made up by a burst later, the run just falls behind). ``lag()`` tells how far behind (wall
+    seconds) the run is. The simulated time is read from ``clock``; the wall time from
+    ``wall`` (default :class:`WallClock`), so tests can pass their own.
+    """
+
+    def __init__(self, clock: Clock, speed: float, wall: Clock | None = None) -> None:
+        if not speed >= 0 or speed == float("inf"):
+            raise ValueError(f"speed must be a finite number >= 0 (0 = as fast as possible), got {speed}")
+        self.clock = clock
+        self.speed = float(speed)
+        self.wall = wall or WallClock()
+        self._t0 = clock.now()
+        self._w0 = self.wall.now()
+
+    def start(self) -> None:
+        """Take the current simulated and wall times as the origin of the pacing."""
+        self._t0 = self.clock.now()
+        self._w0 = self.wall.now()
+
+    def ahead(self) -> float:
+        """Wall seconds the simulation is ahead of real time (negative: behind; 0 unpaced)."""
+        if self.speed <= 0:
+            return 0.0
+        return (self.clock.now() - self._t0) / self.speed - (self.wall.now() - self._w0)
+
+    def wait(self, sleep: Callable[[float], None] = time.sleep) -> None:
+        """Sleep until real time has caught up with the simulated time (no-op when unpaced)."""
+        ahead = self.ahead()
+        if ahead > 0:
+            sleep(ahead)
+
+
 class WallClock:
     """Monotonic wall time in seconds; for pacing real-time runs and measuring them."""
 

@@ -108,6 +108,41 @@ Goal = NavigateThroughPoses | NavigateToPose | FollowWaypoints | Spin | BackUp |
 NAV_GOAL_KINDS = ("navigate_through_poses", "navigate_to_pose", "follow_waypoints")
 
 
+# ---------------------------------------------------------------------------
+# Modes and kinds. String enums: each member equals its value (``Mode.PATROL == "patrol"``),
+# so they travel on the wire and in reports as plain strings.
+# ---------------------------------------------------------------------------
+
+
+class Mode(enum.StrEnum):
+    """What a robot's behavior tree is doing, as it reports in its status (``mode``)."""
+
+    IDLE = "idle"
+    PATROL = "patrol"
+    PICKING = "picking"
+    CHARGING = "charging"
+    RECOVERY = "recovery"
+
+
+#: Modes in which a robot is expected to drive (the coordinator's stuck check).
+DRIVING_MODES: frozenset[Mode] = frozenset({Mode.PATROL, Mode.PICKING, Mode.RECOVERY})
+
+
+class TaskKind(enum.StrEnum):
+    """Kinds of order the coordinator sends a robot (``fleet/<robot>/task``)."""
+
+    PATROL = "patrol"
+    PICK = "pick"
+    IDLE = "idle"
+
+
+class TreeKind(enum.StrEnum):
+    """The behavior tree every robot of a fleet runs (``fleet run --tree``)."""
+
+    PATROL = "patrol"
+    PICKING = "picking"
+
+
 class GoalStatus(enum.Enum):
     """Lifecycle of one goal, as in ``action_msgs/GoalStatus``."""
 
