@@ -22,7 +22,7 @@ health checks and the order (re)sending work on the protocol only.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
@@ -243,9 +243,6 @@ class TaskBook:
         self._row[task.name] = len(self._row)
         self._offsets = self._offsets or any(o != 0.0 for o in off)
         self._matrix = None
-
-    def of_kind(self, kind: TaskKind) -> Iterator[Task]:
-        return (t for t in self.tasks.values() if t.kind is kind)
 
     def waiting(self, kind: TaskKind | None = None) -> list[str]:
         """Names of the tasks neither held nor done (of ``kind``, if given), in the order added."""
