@@ -1,6 +1,6 @@
 """Coordinator cost: assigning N patrols to N robots, steady-state cycles, one dead robot.
 
-Runs the pure decision logic of :mod:`fleet.coordination.coordinator` (:class:`CoordinatorState`, no bus)
+Runs the pure decision logic of :mod:`fleet.coordination.state` (:class:`CoordinatorState`, no bus)
 on a generated warehouse for ``--robots`` robots. The patrols are the config's routes; when
 there are fewer than ``--routes``, more are synthesized deterministically (``random.Random
 (--seed)`` picks 3-5 roadmap nodes, the loop through them along shortest paths is the lap).
@@ -34,14 +34,11 @@ from dataclasses import asdict, dataclass
 
 from fleet.config.loader import load_config
 from fleet.config.model import FleetConfig
-from fleet.coordination.coordinator import (
-    CoordinatorParams,
-    CoordinatorState,
-    Observation,
-    PatrolRoute,
-    patrol_routes,
-)
-from fleet.types import Pose2D
+from fleet.coordination.state import CoordinatorState
+from fleet.coordination.tasks import PatrolRoute, patrol_routes
+from fleet.coordination.views import CoordinatorParams, Observation
+from fleet.roadmap.graph import Roadmap
+from fleet.types import Mode, Pose2D
 from fleet.warehouse import generate_warehouse
 
 
@@ -65,6 +62,9 @@ class CoordBenchResult:
     dead_reassigned_to: str | None
     dead_latency_fleet_s: float
     silent_latency_fleet_s: float
+    line_robots: int
+    line_first_step_ms: float
+    line_next_step_ms: float
 
 
 def synth_routes(config: FleetConfig, n: int, seed: int) -> tuple[list[PatrolRoute], int]:
@@ -84,7 +84,31 @@ def synth_routes(config: FleetConfig, n: int, seed: int) -> tuple[list[PatrolRou
     return routes, made
 
 
-def run(n_routes: int, n_robots: int, spares: int, cycles: int, hz: float, seed: int) -> CoordBenchResult:
+def run_line(n: int) -> tuple[float, float]:
+    """Wall ms of the first ``step()`` (``n`` idle robots, ``n`` one-edge routes on a line) and
+    of the next one; checks that every robot got a route."""
+    nodes = {f"n{i}": [float(i), 0.0] for i in range(n + 1)}
+    edges = [[f"n{i}", f"n{i + 1}"] for i in range(n)]
+    rm = Roadmap.from_config_dict({"nodes": nodes, "edges": edges})
+    routes = [
+        PatrolRoute(f"r{i}", rm.poses_for([f"n{i}", f"n{i + 1}"]), (f"n{i}", f"n{i + 1}")) for i in range(n)
+    ]
+    state = CoordinatorState(routes, [Pose2D(0, 0)], rm)
+    for i in range(n):
+        state.observe(f"robot{i}", 0.0, Observation(t=0.0, pose=Pose2D(float(n - i) - 0.2, 0.0)))
+    t0 = time.perf_counter()
+    orders = state.step(0.0)
+    first = (time.perf_counter() - t0) * 1e3
+    if len(orders) != n:
+        raise RuntimeError(f"line: {len(orders)} orders for {n} robots")
+    t0 = time.perf_counter()
+    state.step(0.1)
+    return first, (time.perf_counter() - t0) * 1e3
+
+
+def run(
+    n_routes: int, n_robots: int, spares: int, cycles: int, hz: float, seed: int, line: int = 0
+) -> CoordBenchResult:
     total = n_robots + spares
     with tempfile.TemporaryDirectory(prefix="bench_coord_") as tmp:
         config = load_config(generate_warehouse(tmp, "bench", total), robots=total)
@@ -105,13 +129,13 @@ def run(n_routes: int, n_robots: int, spares: int, cycles: int, hz: float, seed:
     # 1. initial assignment (spares report a moment later so that they stay idle)
     now = 0.0
     for r in workers:
-        state.observe(r, now, Observation(t=now, pose=start[r], mode="idle"))
+        state.observe(r, now, Observation(t=now, pose=start[r], mode=Mode.IDLE))
     t0 = perf()
     orders = state.step(now)
     initial_ms = (perf() - t0) * 1e3
     initial_orders = len(orders)
     for r in spare_names:
-        state.observe(r, now, Observation(t=now, pose=start[r], mode="idle"))
+        state.observe(r, now, Observation(t=now, pose=start[r], mode=Mode.IDLE))
 
     # 2. steady state: every robot reports each cycle, driving along its lap
     def feed(now: float, k: int) -> None:
@@ -120,13 +144,15 @@ def run(n_routes: int, n_robots: int, spares: int, cycles: int, hz: float, seed:
                 continue
             a = v.assignment
             if a is None:
-                state.observe(name, now, Observation(t=now, pose=start[name], mode="idle"))
+                state.observe(name, now, Observation(t=now, pose=start[name], mode=Mode.IDLE))
                 continue
             p = a.poses[k % len(a.poses)]
             state.observe(
                 name,
                 now,
-                Observation(t=now, pose=Pose2D(p.x, p.y, p.theta), mode="patrol", task_id=a.task_id, laps=0),
+                Observation(
+                    t=now, pose=Pose2D(p.x, p.y, p.theta), mode=Mode.PATROL, task_id=a.task_id, laps=0
+                ),
             )
 
     obs_wall = step_wall = 0.0
@@ -142,10 +168,10 @@ def run(n_routes: int, n_robots: int, spares: int, cycles: int, hz: float, seed:
         step_wall += t2 - t1
 
     # 3. one dead robot (liveliness token dropped), reassigned to a spare
-    victim = next((r for r in workers if state.robots[r].assignment is not None), None)
+    held = [(r, a.name) for r in workers if (a := state.robots[r].assignment) is not None]
     dead_ms, to_robot, dead_latency = float("nan"), None, float("nan")
-    if victim is not None:
-        route = state.robots[victim].assignment.route  # type: ignore[union-attr]
+    if held:
+        victim, route = held[0]
         t_dead = now
         state.robot_left(victim, t_dead)
         now += dt
@@ -159,11 +185,14 @@ def run(n_routes: int, n_robots: int, spares: int, cycles: int, hz: float, seed:
 
     # 4. a silent robot (no status any more): reassigned after status_timeout_s
     silent_latency = float("nan")
-    busy = [r for r in workers if state.robots[r].alive and state.robots[r].assignment is not None]
+    busy = [
+        (r, a.name)
+        for r in workers
+        if state.robots[r].alive and (a := state.robots[r].assignment) is not None
+    ]
     idle_alive = [r for r, v in state.robots.items() if v.alive and v.assignment is None]
     if busy and idle_alive:
-        victim2 = busy[0]
-        route2 = state.robots[victim2].assignment.route  # type: ignore[union-attr]
+        victim2, route2 = busy[0]
         t_last = now
         for k in range(int((params.status_timeout_s + 2.0) * hz)):
             now += dt
@@ -173,7 +202,7 @@ def run(n_routes: int, n_robots: int, spares: int, cycles: int, hz: float, seed:
                     continue
                 a = v.assignment
                 pose = start[name] if a is None else a.poses[k % len(a.poses)]
-                mode = "idle" if a is None else "patrol"
+                mode = Mode.IDLE if a is None else Mode.PATROL
                 state.observe(
                     name,
                     now,
@@ -184,6 +213,7 @@ def run(n_routes: int, n_robots: int, spares: int, cycles: int, hz: float, seed:
                 silent_latency = now - t_last
                 break
 
+    line_first, line_next = run_line(line) if line > 0 else (float("nan"), float("nan"))
     return CoordBenchResult(
         robots=n_robots,
         spares=spares,
@@ -201,12 +231,15 @@ def run(n_routes: int, n_robots: int, spares: int, cycles: int, hz: float, seed:
         dead_reassigned_to=to_robot,
         dead_latency_fleet_s=dead_latency,
         silent_latency_fleet_s=silent_latency,
+        line_robots=line,
+        line_first_step_ms=line_first,
+        line_next_step_ms=line_next,
     )
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
-        description="Wall time of the coordinator's pure assignment logic (fleet.coordination.coordinator."
+        description="Wall time of the coordinator's pure assignment logic (fleet.coordination.state."
         "CoordinatorState): initial assignment, steady-state cycles, reassignment of a dead robot.",
     )
     ap.add_argument(
@@ -219,12 +252,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cycles", type=int, default=50, help="steady-state cycles to time (default 50)")
     ap.add_argument("--hz", type=float, default=10.0, help="coordinator cycles per fleet second (default 10)")
     ap.add_argument("--seed", type=int, default=1, help="seed of the synthesized routes (default 1)")
+    ap.add_argument(
+        "--line",
+        type=int,
+        default=1000,
+        help="robots and routes of the line scenario (default 1000; 0 skips)",
+    )
     ap.add_argument("--json", action="store_true", help="also print the result as one JSON line")
     a = ap.parse_args(argv)
-    if a.routes < 1 or a.robots < 1 or a.spares < 0 or a.cycles < 1 or a.hz <= 0:
-        ap.error("--routes, --robots, --cycles, --hz must be positive and --spares >= 0")
+    if a.routes < 1 or a.robots < 1 or a.spares < 0 or a.cycles < 1 or a.hz <= 0 or a.line < 0:
+        ap.error("--routes, --robots, --cycles, --hz must be positive and --spares, --line >= 0")
     t0 = time.perf_counter()
-    r = run(a.routes, a.robots, a.spares, a.cycles, a.hz, a.seed)
+    r = run(a.routes, a.robots, a.spares, a.cycles, a.hz, a.seed, a.line)
     print(
         f"bench_coordinator: {r.routes} routes ({r.synthesized_routes} synthesized) on a "
         f"{r.roadmap_nodes}-node roadmap, {r.robots} robots + {r.spares} spare(s)\n"
@@ -235,7 +274,13 @@ def main(argv: list[str] | None = None) -> int:
         f"  dead robot (token dropped): route reassigned to {r.dead_reassigned_to} in the next cycle "
         f"({r.dead_latency_fleet_s:.2f} s fleet time, cycle wall {r.dead_cycle_ms:.2f} ms)\n"
         f"  silent robot: route reassigned {r.silent_latency_fleet_s:.2f} s (fleet time) after its last status\n"
-        f"  total wall time {time.perf_counter() - t0:.1f} s"
+        + (
+            f"  line of {r.line_robots} robots and routes: first step {r.line_first_step_ms:.1f} ms "
+            f"(every robot matched), next step {r.line_next_step_ms:.2f} ms\n"
+            if r.line_robots
+            else ""
+        )
+        + f"  total wall time {time.perf_counter() - t0:.1f} s"
     )
     if a.json:
         print(json.dumps(asdict(r)))

@@ -13,16 +13,9 @@ import pytest
 from fleet.cli.main import main
 from fleet.config.loader import load_config
 from fleet.config.model import PickTask
-from fleet.coordination.coordinator import (
-    RESEND_S,
-    CoordinatorParams,
-    CoordinatorState,
-    Observation,
-    TaskOrder,
-    observation_from_record,
-    state_from_config,
-    task_message,
-)
+from fleet.coordination.coordinator import observation_from_record, task_message
+from fleet.coordination.state import RESEND_S, CoordinatorState, state_from_config
+from fleet.coordination.views import CoordinatorParams, Observation, TaskOrder
 from fleet.messages import StatusRecord, TaskMessage
 from fleet.roadmap.graph import Roadmap
 from fleet.types import Pose2D
@@ -118,7 +111,7 @@ def test_completion_from_picks_done_and_ids_never_reused() -> None:
         for order in s.step(t):
             ids.append(order.task_id)
     assert len(ids) == 2 and ids[1] > ids[0] and ids[1].startswith("k-")
-    assert s.pick_holder["mid"] == "r1" and "west" not in s.waiting_picks
+    assert s.holder["mid"] == "r1" and "west" not in s.waiting_picks
     # a late copy of the old pick's record changes nothing
     s.observe("r1", 20.4, picking(2, ids[0], picks_done=5))
     assert s.picks_completed() == 1 and len(s.pick_assignments) == 2

@@ -1,0 +1,90 @@
+"""Travel costs along the roadmap, the greedy min-cost matching and its ranking rules, and the
+charger each robot is given."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fleet.coordination.matching import (
+    CHARGER_BONUS_M,
+    COOLDOWN_PENALTY,
+    PREFERRED_RANK,
+    ChargerAllocation,
+    greedy_match,
+    rank,
+    travel_costs,
+)
+from fleet.coordination.views import Observation, RobotView
+from fleet.roadmap.distances import Distances
+from fleet.roadmap.graph import Roadmap
+from fleet.types import Pose2D
+
+
+def line() -> Distances:
+    """a(0) - b(10) - c(20) along x, and an island node z far away."""
+    rm = Roadmap.from_config_dict(
+        {
+            "nodes": {"a": [0, 0], "b": [10, 0], "c": [20, 0], "z": [0, 50], "y": [1, 50]},
+            "edges": [["a", "b"], ["b", "c"], ["z", "y"]],
+        }
+    )
+    return Distances(rm)
+
+
+def view(name: str, x: float, y: float = 0.0) -> RobotView:
+    return RobotView(name, obs=Observation(t=0.0, pose=Pose2D(x, y)))
+
+
+def test_costs_follow_the_roadmap_to_the_nearest_entry() -> None:
+    d = line()
+    i = d.index
+    entries = np.array([[i["a"], i["c"]], [i["z"], i["z"]], [i["b"], i["b"]]], dtype=np.int64)
+    off = np.array([[0.0, 0.0], [0.0, 0.0], [2.5, 2.5]])
+    costs, entry = travel_costs(d, [Pose2D(18, 1), Pose2D(9, 0)], entries, off)
+    # robot 0 snaps to c (hypot(2, 1)), enters the first task at c; task 2 is b + 2.5 m
+    assert costs[0, 0] == pytest.approx(math.hypot(2, 1)) and entry[0, 0] == 1
+    assert math.isinf(costs[0, 1])  # z is not connected
+    assert costs[0, 2] == pytest.approx(math.hypot(2, 1) + 10 + 2.5)
+    # robot 1 snaps to b (1 m); a and c are both 10 m on: a tie goes to the first entry
+    assert costs[1, 0] == pytest.approx(11.0) and entry[1, 0] == 0
+    same, _ = travel_costs(d, [Pose2D(18, 1)], entries[:1], np.zeros((1, 2)), offsets=False)
+    assert same[0, 0] == costs[0, 0]
+
+
+def test_greedy_matching_is_global_and_skips_unreachable() -> None:
+    inf = math.inf
+    # row 0 is listed first and cheapest for column 0, but (1, 0) is cheaper still
+    ranks = np.array([[2.0, 3.0, inf], [1.0, 9.0, inf], [inf, inf, inf]])
+    assert greedy_match(ranks) == [(1, 0), (0, 1)]
+    assert greedy_match(np.array([[1.0, 1.0], [1.0, 1.0]])) == [(0, 0), (1, 1)]  # ties: row-major
+    assert greedy_match(np.zeros((0, 3))) == []
+
+
+def test_rank_charger_bonus_cooldown_and_preferred_robot() -> None:
+    chargers = ChargerAllocation([Pose2D(0, 0)])
+    on_charger, cooling, plain = view("on", 0.2), view("cool", 5), view("plain", 5)
+    cooling.cooldown_until = 10.0
+    costs = np.array([[4.0, 4.0], [1.0, 1.0], [2.0, math.inf]])
+    r = rank(costs, [on_charger, cooling, plain], [None, "plain"], chargers, now=5.0)
+    assert list(r[0]) == [4.0 - CHARGER_BONUS_M] * 2
+    assert list(r[1]) == [1.0 + COOLDOWN_PENALTY] * 2
+    assert r[2, 0] == 2.0 and math.isinf(r[2, 1])  # unreachable: not preferred after all
+    r = rank(costs, [on_charger, cooling, plain], ["plain", None], chargers, now=10.0)
+    assert r[2, 0] == PREFERRED_RANK and r[1, 0] == 1.0  # cool-down over
+    assert costs[1, 0] == 1.0  # the costs are not modified
+
+
+def test_chargers_least_loaded_then_nearest() -> None:
+    chargers = ChargerAllocation([Pose2D(0, 0), Pose2D(100, 0)])
+    a, b, c = view("a", 90), view("b", 95), view("c", 99)
+    assert chargers.charger_for(a) == Pose2D(100, 0)
+    assert chargers.charger_for(b) == Pose2D(0, 0)  # the near one is taken
+    assert chargers.charger_for(a) == Pose2D(100, 0)  # kept
+    chargers.free(a)
+    assert a.charger is None and chargers.load == [1, 0]
+    assert chargers.charger_for(c) == Pose2D(100, 0)
+    assert ChargerAllocation([]).charger_for(c) is None
+    assert chargers.on_charger(view("x", 100.4)) and not chargers.on_charger(view("x", 100.6))
