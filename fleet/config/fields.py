@@ -20,7 +20,8 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import TypeVar
 
-from pydantic import GetCoreSchemaHandler
+from pydantic import GetCoreSchemaHandler, GetJsonSchemaHandler
+from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import PydanticCustomError, core_schema
 
 #: A name of a robot, charger, station, route or task.
@@ -215,6 +216,11 @@ class Numbers:
         tup = core_schema.tuple_schema([core_schema.float_schema(allow_inf_nan=False)] * self.n)
         inner = core_schema.union_schema([core_schema.str_schema(), tup]) if self.names else tup
         return core_schema.no_info_before_validator_function(check, inner)
+
+    def __get_pydantic_json_schema__(
+        self, schema: core_schema.CoreSchema, handler: GetJsonSchemaHandler
+    ) -> JsonSchemaValue:
+        return {**handler(schema), "description": self.expect}
 
 
 @dataclass(frozen=True)

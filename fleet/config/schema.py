@@ -102,7 +102,7 @@ class Section(BaseModel):
 
 
 class RobotModelSection(Section):
-    """``robot_model``: the shape and limits every robot shares."""
+    """robot_model: the shape and limits every robot shares."""
 
     radius: Positive = Field(
         default=_MODEL.radius, description="robot radius (m); poses and edges keep this clear"
@@ -117,7 +117,7 @@ class RobotModelSection(Section):
 
 
 class BatterySection(Section):
-    """``battery``: levels are fractions of a full battery."""
+    """battery: levels are fractions of a full battery."""
 
     drain_per_m: NonNegative = Field(default=_BATTERY.drain_per_m, description="fraction per meter driven")
     drain_per_s: NonNegative = Field(default=_BATTERY.drain_per_s, description="fraction per second, always")
@@ -143,7 +143,7 @@ class BatterySection(Section):
 
 
 class SimSection(Section):
-    """``sim``: the simulator's fixed step and tolerances."""
+    """sim: the simulator's fixed step, tolerances and seed."""
 
     step_s: Positive = Field(default=_SIM.step_s, description="fixed simulation step (s)")
     stuck_time_s: Positive = Field(
@@ -158,13 +158,13 @@ class SimSection(Section):
 
 
 class AgentSection(Section):
-    """``agent``: the robots' behavior trees."""
+    """agent: the robots' behavior trees."""
 
     tick_hz: Positive = Field(default=10.0, description="behavior-tree ticks per simulated second (Hz)")
 
 
 class CoordinatorSection(Section):
-    """``coordinator``: when work moves to another robot."""
+    """coordinator: when work moves to another robot."""
 
     stuck_reassign_s: Positive = Field(
         default=_COORDINATOR.stuck_reassign_s, description="a robot stuck this long loses its patrol (s)"
@@ -178,7 +178,7 @@ class CoordinatorSection(Section):
 
 
 class TrafficSection(Section):
-    """``traffic``: reservation-based traffic management (``docs/traffic.md``)."""
+    """traffic: reservation-based traffic management on the roadmap (docs/traffic.md)."""
 
     enabled: Annotated[bool, Flag()] = Field(default=_TRAFFIC.enabled, description="or `fleet run --traffic`")
     deadlock_s: Positive = Field(
@@ -197,7 +197,7 @@ class TrafficSection(Section):
 
 
 class BusSection(Section):
-    """``bus``: the Zenoh status bus."""
+    """bus: the Zenoh status bus."""
 
     endpoint: Annotated[str, Text(ENDPOINT_PATTERN, f"be a Zenoh endpoint like {DEFAULT_ENDPOINT}")] = Field(
         default=DEFAULT_ENDPOINT, description="Zenoh endpoint <protocol>/<address>"
@@ -223,7 +223,7 @@ def _edge(v: object) -> object:
 
 
 class RoadmapSection(Section):
-    """``roadmap``: ``nodes`` and ``edges`` (map frame, meters), or a SUMO network ``net``."""
+    """roadmap: nodes and edges (map frame, meters), or a SUMO network (net)."""
 
     expected: ClassVar[str] = "a mapping with nodes and edges (or net)"
     no_match: ClassVar[str] = " (expected nodes and edges, or net)"
@@ -279,7 +279,7 @@ class RouteEntry(Section):
 
 
 class TaskEntry(Section):
-    """A picking task: drive to ``shelf``, stand ``dwell_s``, drive to ``drop``."""
+    """A picking task: drive to shelf, stand dwell_s seconds, drive to drop."""
 
     name: Name
     shelf: Place
@@ -308,18 +308,19 @@ def _unique_namespaces(robots: Sequence[RobotEntry]) -> Sequence[RobotEntry]:
 
 
 class ConfigFile(Section):
-    """A fleet config file (``docs/config.md``). Paths are relative to the file; poses are
-    ``[x, y, theta]`` in the ``map`` frame (m, m, rad)."""
+    """A fleet config file (docs/config.md). Paths are relative to the file; poses are
+    [x, y, theta] in the map frame (m, m, rad). `fleet validate` also checks the poses and
+    the roadmap against the map."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, title="Fleet config")
     empty_ok: ClassVar[bool] = False
 
     name: Annotated[str, Text()] = Field(description="the fleet's name")
     map: Annotated[str, Text()] = Field(description="Nav2 map_server YAML (relative to this file)")
-    roadmap: RoadmapSection
+    roadmap: RoadmapSection = Field(description="the graph robots drive on: nodes and edges, or net")
     chargers: Annotated[
         list[NamedPoseEntry], Items(1, "needs at least one entry", unique="duplicate name {name}")
-    ]
+    ] = Field(description="charger poses; at least one")
     stations: Annotated[list[NamedPoseEntry], Items(unique="duplicate name {name}")] = Field(
         default_factory=list, description="named poses for picking (shelves, drop-offs)"
     )
@@ -336,14 +337,18 @@ class ConfigFile(Section):
         list[RobotEntry],
         Items(1, "needs at least one robot", unique="duplicate robot name {name}"),
         AfterValidator(_unique_namespaces),
-    ]
-    robot_model: RobotModelSection = Field(default_factory=RobotModelSection)
-    battery: BatterySection = Field(default_factory=BatterySection)
-    sim: SimSection = Field(default_factory=SimSection)
-    agent: AgentSection = Field(default_factory=AgentSection)
-    coordinator: CoordinatorSection = Field(default_factory=CoordinatorSection)
-    traffic: TrafficSection = Field(default_factory=TrafficSection)
-    bus: BusSection = Field(default_factory=BusSection)
+    ] = Field(description="the robots and their start poses; at least one")
+    robot_model: RobotModelSection = Field(
+        default_factory=RobotModelSection, description="shared by all robots"
+    )
+    battery: BatterySection = Field(default_factory=BatterySection, description="battery model")
+    sim: SimSection = Field(default_factory=SimSection, description="simulator")
+    agent: AgentSection = Field(default_factory=AgentSection, description="behavior-tree agents")
+    coordinator: CoordinatorSection = Field(
+        default_factory=CoordinatorSection, description="task coordinator"
+    )
+    traffic: TrafficSection = Field(default_factory=TrafficSection, description="traffic management")
+    bus: BusSection = Field(default_factory=BusSection, description="Zenoh status bus")
 
     @classmethod
     def _not_a_mapping(cls, data: object) -> str:
@@ -395,9 +400,24 @@ def _field_and_reason(e: ErrorDetails) -> tuple[str, str]:
 
 
 def json_schema() -> dict[str, object]:
-    """The JSON Schema (draft 2020-12) of a fleet config file, for editors."""
-    schema = ConfigFile.model_json_schema()
-    return {"$schema": "https://json-schema.org/draft/2020-12/schema", **schema}
+    """The JSON Schema of a fleet config file, for editors.
+
+    Written for JSON Schema draft-07, the draft the YAML language server (VS Code's YAML
+    extension) implements: definitions under ``definitions``, fixed-length lists (poses) as
+    ``items`` arrays.
+    """
+    schema = ConfigFile.model_json_schema(ref_template="#/definitions/{model}")
+    definitions = schema.pop("$defs", {})
+    top = {"$schema": "http://json-schema.org/draft-07/schema#", **schema, "definitions": definitions}
+    return {key: _draft07(value) for key, value in top.items()}
+
+
+def _draft07(node: object) -> object:
+    if isinstance(node, list):
+        return [_draft07(v) for v in node]
+    if isinstance(node, dict):
+        return {("items" if k == "prefixItems" else k): _draft07(v) for k, v in node.items()}
+    return node
 
 
 def json_schema_text() -> str:
