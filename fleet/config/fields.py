@@ -59,10 +59,6 @@ def is_number(v: object) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _fmt(x: float) -> str:
-    return f"{x:g}"
-
-
 @dataclass(frozen=True)
 class Bounds:
     """A finite number (an int where the field is ``int``), never a bool, within the bounds.
@@ -79,23 +75,32 @@ class Bounds:
     le: float | None = None
 
     def describe(self, integer: bool) -> str:
+        """What the reason says the value must be."""
         if self.what:
             return self.what
         kind = "an integer" if integer else "a number"
-        lo = (
-            f"({_fmt(self.gt)}" if self.gt is not None else f"[{_fmt(self.ge)}" if self.ge is not None else ""
+        low = (
+            ("(", ">", self.gt)
+            if self.gt is not None
+            else ("[", ">=", self.ge)
+            if self.ge is not None
+            else None
         )
-        hi = (
-            f"{_fmt(self.lt)})" if self.lt is not None else f"{_fmt(self.le)}]" if self.le is not None else ""
+        high = (
+            (")", "<", self.lt)
+            if self.lt is not None
+            else ("]", "<=", self.le)
+            if self.le is not None
+            else None
         )
-        if lo and hi:
-            return f"{kind} in {lo}, {hi}"
-        if self.gt == 0 and not hi:
-            return "a positive integer" if integer else "a positive number"
-        if lo:
-            return f"{kind} {'>' if self.gt is not None else '>='} {lo[1:]}"
-        if hi:
-            return f"{kind} {'<' if self.lt is not None else '<='} {hi[:-1]}"
+        if low and high:
+            return f"{kind} in {low[0]}{low[2]:g}, {high[2]:g}{high[0]}"
+        if low:
+            if low[1] == ">" and low[2] == 0:
+                return "a positive integer" if integer else "a positive number"
+            return f"{kind} {low[1]} {low[2]:g}"
+        if high:
+            return f"{kind} {high[1]} {high[2]:g}"
         return kind
 
     def within(self, x: float) -> bool:
