@@ -192,26 +192,58 @@ def _pose(x: float, y: float, th: float) -> list[float]:
     return [_r(x), _r(y), round(th, 6)]
 
 
+#: One entry of a config list in file form: a charger, station, route, task or robot.
+Entry = dict[str, object]
+
+
+@dataclass(frozen=True)
+class World:
+    """Everything of a generated warehouse but the map, in config-file form (map frame, m)."""
+
+    nodes: dict[str, list[float]]  # roadmap node name -> [x, y]
+    edges: list[list[str]]  # roadmap edges [a, b]
+    chargers: list[Entry]
+    stations: list[Entry]
+    routes: list[Entry]
+    tasks: list[Entry]
+    parking: list[list[float]]  # poses [x, y, theta]
+    robots: list[Entry]
+
+
 def build_world(
     lay: Layout, n_robots: int, chargers: int | None = None, tasks: int | None = None, seed: int = 1
-) -> dict:
+) -> World:
     """Everything but the map, as plain data (the sections of a fleet config).
 
-    Returns a dict with ``roadmap`` (``nodes`` name -> [x, y], ``edges``), ``chargers``,
-    ``stations``, ``routes``, ``tasks``, ``parking`` and ``robots`` in config-file form.
-    Raises :class:`ConfigError` if more chargers are requested than fit along the west wall.
+    ``chargers`` and ``tasks`` default as in :func:`generate_warehouse`; ``seed`` picks the
+    task shelves. Raises :class:`ConfigError` if more chargers are requested than fit along
+    the west wall.
     """
-    k, m = lay.aisles, lay.bays
-    n_ch = max(2, min(lay.charger_capacity, math.ceil(n_robots / 5))) if chargers is None else chargers
-    if not 1 <= n_ch <= lay.charger_capacity:
-        raise ConfigError(
-            "fleet.warehouse",
-            "chargers",
-            f"must be between 1 and {lay.charger_capacity} for this layout, got {n_ch}",
-        )
+    nodes, edges = roadmap_of(lay)
+    stations, drops = stations_of(lay)
+    parking = parking_of(lay)
+    return World(
+        nodes=nodes,
+        edges=edges,
+        chargers=chargers_of(lay, n_robots, chargers),
+        stations=stations,
+        routes=routes_of(lay.aisles),
+        tasks=tasks_of(stations, drops, max(4, n_robots // 2) if tasks is None else tasks, seed),
+        parking=parking,
+        robots=robots_of(parking, n_robots),
+    )
+
+
+def roadmap_of(lay: Layout) -> tuple[dict[str, list[float]], list[list[str]]]:
+    """Nodes (name -> [x, y]) and edges along the aisles and the four corridors."""
+    m = lay.bays
     ys = [lay.y_south] + [lay.bay_y(j) for j in range(1, m + 1)] + [lay.y_north]
     suffix = ["s"] + [str(j) for j in range(1, m + 1)] + ["n"]
-    columns = [("w", lay.x_west)] + [(f"a{i}", lay.aisle_x(i)) for i in range(1, k + 1)] + [("e", lay.x_east)]
+    columns = (
+        [("w", lay.x_west)]
+        + [(f"a{i}", lay.aisle_x(i)) for i in range(1, lay.aisles + 1)]
+        + [("e", lay.x_east)]
+    )
     nodes: dict[str, list[float]] = {}
     edges: list[list[str]] = []
     for prefix, x in columns:
@@ -222,25 +254,47 @@ def build_world(
     for end in ("s", "n"):
         for (pa, _), (pb, _) in zip(columns, columns[1:], strict=False):
             edges.append([f"{pa}_{end}", f"{pb}_{end}"])
+    return nodes, edges
 
-    charger_x = WALL + PARK_MARGIN
-    charger_list = [
-        {"name": f"charger{c + 1}", "pose": _pose(charger_x, lay.y_shelf0 + 0.5 + c * CHARGER_DY, math.pi)}
+
+def chargers_of(lay: Layout, n_robots: int, chargers: int | None) -> list[Entry]:
+    """``chargers`` chargers (default ``max(2, ceil(n / 5))`` capped by the wall) facing the
+    west wall. Raises :class:`ConfigError` (field ``chargers``) if they do not fit."""
+    n_ch = max(2, min(lay.charger_capacity, math.ceil(n_robots / 5))) if chargers is None else chargers
+    if not 1 <= n_ch <= lay.charger_capacity:
+        raise ConfigError(
+            "fleet.warehouse",
+            "chargers",
+            f"must be between 1 and {lay.charger_capacity} for this layout, got {n_ch}",
+        )
+    x = WALL + PARK_MARGIN
+    return [
+        {"name": f"charger{c + 1}", "pose": _pose(x, lay.y_shelf0 + 0.5 + c * CHARGER_DY, math.pi)}
         for c in range(n_ch)
     ]
-    stations: list[dict] = []
-    for i in range(1, k + 1):
+
+
+def stations_of(lay: Layout) -> tuple[list[Entry], list[str]]:
+    """Pick stations on both sides of every aisle node, then the drop-offs at the east wall;
+    and the drop-off names."""
+    stations: list[Entry] = []
+    for i in range(1, lay.aisles + 1):
         x = lay.aisle_x(i)
-        for j in range(1, m + 1):
+        for j in range(1, lay.bays + 1):
             y = lay.bay_y(j)
             stations.append({"name": f"pick_a{i}_{j}_w", "pose": _pose(x - PICK_OFFSET, y, math.pi)})
             stations.append({"name": f"pick_a{i}_{j}_e", "pose": _pose(x + PICK_OFFSET, y, 0.0)})
     drop_x = lay.width - WALL - PARK_MARGIN
-    drops = [f"drop{j}" for j in range(1, m + 1)]
+    drops = [f"drop{j}" for j in range(1, lay.bays + 1)]
     for j, name in enumerate(drops, start=1):
         stations.append({"name": name, "pose": _pose(drop_x, lay.bay_y(j), 0.0)})
+    return stations, drops
 
-    routes: list[dict] = []
+
+def routes_of(aisles: int) -> list[Entry]:
+    """Up one aisle and down the next, the last odd aisle with the east corridor, the perimeter."""
+    k = aisles
+    routes: list[Entry] = []
     for p in range(k // 2):
         up, down = 2 * p + 1, 2 * p + 2
         routes.append(
@@ -249,35 +303,38 @@ def build_world(
     if k % 2:
         routes.append({"name": f"aisle_{k}_east", "waypoints": [f"a{k}_s", f"a{k}_n", "e_n", "e_s"]})
     routes.append({"name": "perimeter", "waypoints": ["w_s", "w_n", "e_n", "e_s"]})
+    return routes
 
+
+def tasks_of(stations: list[Entry], drops: list[str], n_tasks: int, seed: int) -> list[Entry]:
+    """``n_tasks`` picking tasks: a pick station drawn with ``random.Random(seed)``, the
+    drop-offs in turn."""
     rng = random.Random(seed)
-    picks = [s["name"] for s in stations if s["name"].startswith("pick_")]
-    n_tasks = max(4, n_robots // 2) if tasks is None else tasks
-    task_list = [
+    picks = [str(s["name"]) for s in stations if str(s["name"]).startswith("pick_")]
+    return [
         {"name": f"pick{t + 1}", "shelf": rng.choice(picks), "drop": drops[t % len(drops)], "dwell_s": 5.0}
         for t in range(n_tasks)
     ]
 
+
+def parking_of(lay: Layout) -> list[list[float]]:
+    """Parking poses along the south wall, row by row from the wall, facing north."""
     parking: list[list[float]] = []
     for row in range(lay.parking_rows):
         y = WALL + PARK_MARGIN + row * PARK_DY
         for s in range(lay.spots_per_row):
             parking.append(_pose(WALL + PARK_MARGIN + s * PARK_DX, y, math.pi / 2))
-    # Robots fill the row nearest the corridor first, so nobody starts boxed in.
+    return parking
+
+
+def robots_of(parking: list[list[float]], n_robots: int) -> list[Entry]:
+    """Robots on the parking spots, filling the row nearest the corridor first so that nobody
+    starts boxed in; batteries from :func:`start_battery`."""
     order = sorted(range(len(parking)), key=lambda q: (-parking[q][1], q))
-    robots = [
+    return [
         {"name": f"robot{r + 1}", "start": parking[order[r]], "battery": start_battery(r)}
         for r in range(n_robots)
     ]
-    return {
-        "roadmap": {"nodes": nodes, "edges": edges},
-        "chargers": charger_list,
-        "stations": stations,
-        "routes": routes,
-        "tasks": task_list,
-        "parking": parking,
-        "robots": robots,
-    }
 
 
 def start_battery(index: int) -> float:
@@ -298,7 +355,7 @@ def _flow(v: object) -> str:
     return str(v)
 
 
-def render_config(name: str, map_rel: str, world: dict, lay: Layout, seed: int, command: str) -> str:
+def render_config(name: str, map_rel: str, world: World, lay: Layout, seed: int, command: str) -> str:
     """The fleet config YAML text (hand-readable: one node, edge, pose or task per line)."""
     L = [
         f"# Generated by `{command}`; edit freely.",
@@ -309,19 +366,16 @@ def render_config(name: str, map_rel: str, world: dict, lay: Layout, seed: int, 
         "roadmap:",
         "  nodes:",
     ]
-    L += [f"    {n}: {_flow(xy)}" for n, xy in world["roadmap"]["nodes"].items()]
+    L += [f"    {n}: {_flow(xy)}" for n, xy in world.nodes.items()]
     L.append("  edges:")
-    L += [f"    - {_flow(e)}" for e in world["roadmap"]["edges"]]
-    for section in ("chargers", "stations", "routes", "tasks"):
-        L.append(f"{section}:")
-        L += [f"  - {_flow(item)}" for item in world[section]] or ["  []"]
-        if not world[section]:
-            L[-2] = f"{section}: []"
-            L.pop()
+    L += [f"    - {_flow(e)}" for e in world.edges]
+    sections = (("chargers", world.chargers), ("stations", world.stations), ("routes", world.routes))
+    for section, items in (*sections, ("tasks", world.tasks)):
+        L += [f"{section}:", *(f"  - {_flow(item)}" for item in items)] if items else [f"{section}: []"]
     L.append("parking:                          # free start spots used by load_config(robots=N)")
-    L += [f"  - {_flow(p)}" for p in world["parking"]]
+    L += [f"  - {_flow(p)}" for p in world.parking]
     L.append("robots:")
-    L += [f"  - {_flow(r)}" for r in world["robots"]]
+    L += [f"  - {_flow(r)}" for r in world.robots]
     L += [
         "robot_model:",
         f"  radius: {DEFAULT_ROBOT_RADIUS}",

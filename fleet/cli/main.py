@@ -15,6 +15,7 @@ from pathlib import Path
 from fleet.cli.argtypes import non_negative_float as _non_negative_float
 from fleet.cli.argtypes import positive_float as _positive_float
 from fleet.cli.common import EXIT_ERROR, _add_config, _add_endpoint, _add_outputs, _add_traffic, _guard
+from fleet.cli.config_schema import add_config_schema_parser, cmd_config_schema
 from fleet.cli.run import _cmd_agent, _cmd_coordinator, _cmd_run
 from fleet.cli.sim import _cmd_sim, _cmd_sim_ros
 from fleet.cli.validate import _cmd_validate
@@ -205,6 +206,7 @@ examples:
     from fleet.cli.loadtest import add_loadtest_parser
 
     add_loadtest_parser(sub)
+    add_config_schema_parser(sub)
     return parser
 
 
@@ -229,6 +231,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "sim": _cmd_sim,
         "validate": _cmd_validate,
         "loadtest": lambda a: a.loadtest_handler(a),
+        "config-schema": cmd_config_schema,
     }
     return _guard(lambda: handlers[args.command](args))
 

@@ -1,145 +1,78 @@
-"""Checks that raise :class:`~fleet.errors.ConfigError` naming the file and the field: types,
-ranges, names, and poses on the map (inside it, clear of obstacles by the robot radius)."""
+"""The second stage of :func:`fleet.config.load_config`: checks that need the map and the
+roadmap, run on a file that already passed the schema (:mod:`fleet.config.schema`).
+
+Poses must be on the map and clear of obstacles by the robot radius, roadmap nodes and edges
+too, the roadmap connected, robots at least two radii apart, and every reference (a route's
+waypoint, a task's shelf or drop, a preferred robot) must name something that exists. The
+first problem raises a :class:`~fleet.errors.ConfigError` ``<file>: <field>: <reason>``.
+Poses are in the ``map`` frame: meters and radians.
+"""
 
 from __future__ import annotations
 
-import difflib
 import math
-import re
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Mapping, Sequence
 
-import yaml
-
+from fleet.config.fields import suggest
+from fleet.config.model import NamedPose, PickTask, Route
+from fleet.config.schema import NamedPoseEntry, RobotEntry, RouteEntry, TaskEntry
 from fleet.errors import ConfigError
 from fleet.maps import OccupancyGrid
+from fleet.roadmap.graph import Roadmap
+from fleet.robots import RobotSpec
 from fleet.types import Pose2D
 
-NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+XYZ = tuple[float, float, float]
 
 
-NAMESPACE_RE = re.compile(r"^/[A-Za-z][A-Za-z0-9_]*$")
+class Placer:
+    """Checks that poses and segments of config ``file`` are on ``grid`` and clear of
+    obstacles by ``radius`` meters (every cell in reach free: unknown cells count as blocked)."""
 
+    def __init__(self, file: str, grid: OccupancyGrid, radius: float) -> None:
+        self.file, self.grid, self.radius = file, grid, radius
 
-class _Validator:
-    """Type checks that raise ConfigError naming ``file`` and the field."""
-
-    def __init__(self, file: str) -> None:
-        self.file = file
-
-    def keys(self, d: Mapping[Any, Any], prefix: str, allowed: tuple[str, ...]) -> None:
-        for key in d:
-            if key not in allowed:
-                f = f"{prefix}.{key}" if prefix else str(key)
-                raise ConfigError(self.file, f, f"unknown key{_suggest(str(key), allowed)}")
-
-    def section(
-        self, sec: Any, f: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()
-    ) -> dict[str, Any]:
-        if sec is None:
-            sec = {}
-        if not isinstance(sec, dict):
-            raise ConfigError(self.file, f, f"must be a mapping, got {_tname(sec)}")
-        self.keys(sec, f, allowed)
-        for key in required:
-            if key not in sec:
-                raise ConfigError(self.file, f"{f}.{key}", "missing required field")
-        return sec
-
-    def list(self, sec: Any, f: str) -> list[Any]:
-        if sec is None:
-            return []
-        if not isinstance(sec, list):
-            raise ConfigError(self.file, f, f"must be a list, got {_tname(sec)}")
-        return sec
-
-    def string(self, val: Any, f: str) -> str:
-        if not isinstance(val, str) or not val:
-            raise ConfigError(self.file, f, f"must be a non-empty string, got {val!r}")
-        return val
-
-    def name(self, val: Any, f: str) -> str:
-        s = self.string(val, f)
-        if not NAME_RE.match(s):
-            raise ConfigError(self.file, f, f"must be a letter then letters, digits or _, got {s!r}")
-        return s
-
-    def number(self, val: Any, f: str, what: str = "a number") -> float:
-        if not _is_number(val):
-            raise ConfigError(self.file, f, f"must be {what}, got {val!r}")
-        return float(val)
-
-    def positive(self, val: Any, f: str) -> float:
-        x = self.number(val, f, "a positive number")
-        if x <= 0:
-            raise ConfigError(self.file, f, f"must be a positive number, got {x!r}")
-        return x
-
-    def non_negative(self, val: Any, f: str) -> float:
-        x = self.number(val, f, "a number >= 0")
-        if x < 0:
-            raise ConfigError(self.file, f, f"must be a number >= 0, got {x!r}")
-        return x
-
-    def fraction(self, val: Any, f: str) -> float:
-        x = self.number(val, f, "a fraction in [0, 1]")
-        if not 0.0 <= x <= 1.0:
-            raise ConfigError(self.file, f, f"must be a fraction in [0, 1], got {x!r}")
-        return x
-
-    def integer(self, val: Any, f: str) -> int:
-        if not isinstance(val, int) or isinstance(val, bool):
-            raise ConfigError(self.file, f, f"must be an integer, got {val!r}")
-        return val
-
-
-class _Placer:
-    """Pose parsing plus the map checks (inside the map, clear of obstacles by the radius)."""
-
-    def __init__(self, v: _Validator, grid: OccupancyGrid, radius: float) -> None:
-        self.v, self.grid, self.radius = v, grid, radius
-
-    def pose(self, val: Any, f: str) -> Pose2D:
-        if not (isinstance(val, (list, tuple)) and len(val) == 3 and all(_is_number(x) for x in val)):
-            raise ConfigError(
-                self.v.file, f, f"must be a pose [x, y, theta] of numbers (m, m, rad), got {val!r}"
-            )
-        pose = Pose2D(float(val[0]), float(val[1]), float(val[2]))
-        self.check(pose, f)
+    def pose(self, xyz: XYZ, field: str) -> Pose2D:
+        """``xyz`` as a :class:`Pose2D`, after :meth:`check`."""
+        pose = Pose2D(*xyz)
+        self.check(pose, field)
         return pose
 
-    def check(self, pose: Pose2D, f: str) -> None:
+    def check(self, pose: Pose2D, field: str) -> None:
+        """Raise unless ``pose`` is on the map and clear of obstacles."""
         if not self.grid.in_bounds(pose.x, pose.y):
             xmin, xmax, ymin, ymax = self.grid.extent
             raise ConfigError(
-                self.v.file,
-                f,
-                f"pose ({pose.x:g}, {pose.y:g}) is off the map (x in [{xmin:g}, {xmax:g}), y in [{ymin:g}, {ymax:g}))",
+                self.file,
+                field,
+                f"pose ({pose.x:g}, {pose.y:g}) is off the map "
+                f"(x in [{xmin:g}, {xmax:g}), y in [{ymin:g}, {ymax:g}))",
             )
         if not self.grid.is_free(pose.x, pose.y, self.radius):
             raise ConfigError(
-                self.v.file,
-                f,
+                self.file,
+                field,
                 f"pose ({pose.x:g}, {pose.y:g}) is inside an obstacle or within robot_model.radius "
                 f"({self.radius:g} m) of one",
             )
 
-    def check_segment(self, a: tuple[float, float], b: tuple[float, float], f: str, what: str) -> None:
+    def segment(self, a: tuple[float, float], b: tuple[float, float], field: str, what: str) -> None:
+        """Raise unless every point of segment ``a``-``b``, sampled every map cell, is clear."""
         (ax, ay), (bx, by) = a, b
         n = max(1, math.ceil(math.hypot(bx - ax, by - ay) / self.grid.resolution))
         for k in range(n + 1):
             x, y = ax + (bx - ax) * k / n, ay + (by - ay) * k / n
             if not self.grid.is_free(x, y, self.radius):
                 raise ConfigError(
-                    self.v.file,
-                    f,
+                    self.file,
+                    field,
                     f"{what} passes through an obstacle at ({x:.2f}, {y:.2f}) "
                     f"(clearance robot_model.radius = {self.radius:g} m)",
                 )
 
 
-class _NearIndex:
-    """A uniform hash grid for "is any stored point closer than d" queries (d <= cell)."""
+class NearIndex:
+    """A uniform hash grid answering "is a stored point closer than ``d``" (``d <= cell``)."""
 
     def __init__(self, cell: float) -> None:
         self.cell = cell
@@ -149,9 +82,11 @@ class _NearIndex:
         return (math.floor(x / self.cell), math.floor(y / self.cell))
 
     def add(self, x: float, y: float, idx: int) -> None:
+        """Store point ``(x, y)`` (m) under index ``idx``."""
         self.buckets.setdefault(self._key(x, y), []).append((x, y, idx))
 
     def closer_than(self, x: float, y: float, d: float) -> int | None:
+        """The index of the nearest stored point closer than ``d`` to ``(x, y)``, or ``None``."""
         cx, cy = self._key(x, y)
         best: tuple[float, int] | None = None
         for i in (-1, 0, 1):
@@ -163,22 +98,118 @@ class _NearIndex:
         return None if best is None else best[1]
 
 
-def _is_number(v: object) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+def check_roadmap(place: Placer, roadmap: Roadmap) -> None:
+    """Every node and (straight) edge clear of obstacles, and the roadmap connected.
+
+    Fields: ``roadmap.nodes.<name>`` / ``roadmap.edges[i]``, or for a roadmap read from a SUMO
+    network ``roadmap.net.junctions.<id>`` / ``roadmap.net.edges[a, b]``; ``roadmap``.
+    """
+    net = roadmap.source_net is not None
+    for n in roadmap.nodes:
+        place.check(Pose2D(*roadmap.pos(n)), f"roadmap.net.junctions.{n}" if net else f"roadmap.nodes.{n}")
+    for i, (a, b) in enumerate(roadmap.edges):
+        f = f"roadmap.net.edges[{a}, {b}]" if net else f"roadmap.edges[{i}]"
+        place.segment(roadmap.pos(a), roadmap.pos(b), f, f"edge {a} - {b}")
+    if not roadmap.is_connected():
+        first = roadmap.nodes[0]
+        cut = next(n for n in roadmap.nodes if not roadmap.shortest_path(first, n))
+        raise ConfigError(place.file, "roadmap", f"not connected: {cut!r} cannot be reached from {first!r}")
 
 
-def _tname(v: object) -> str:
-    return "nothing" if v is None else type(v).__name__
+def named_poses(place: Placer, entries: Sequence[NamedPoseEntry], section: str) -> list[NamedPose]:
+    """The chargers or stations of ``section``, each pose checked (``<section>[i].pose``)."""
+    return [NamedPose(e.name, place.pose(e.pose, f"{section}[{i}].pose")) for i, e in enumerate(entries)]
 
 
-def _suggest(word: str, options: Any) -> str:
-    match = difflib.get_close_matches(word, [str(o) for o in options], n=1)
-    return f" (did you mean {match[0]!r}?)" if match else ""
+def check_station_names(file: str, stations: Mapping[str, NamedPose], roadmap: Roadmap) -> None:
+    """A station may not share its name with a roadmap node (a waypoint names either)."""
+    for i, name in enumerate(stations):
+        if name in roadmap:
+            raise ConfigError(file, f"stations[{i}].name", f"{name!r} is also a roadmap node name")
 
 
-def _yaml_problem(e: yaml.YAMLError) -> str:
-    mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
-    problem = getattr(e, "problem", None) or str(e).splitlines()[0]
-    if mark is not None:
-        return f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
-    return str(problem)
+def listed_robots(place: Placer, entries: Sequence[RobotEntry], initial: float) -> list[RobotSpec]:
+    """The listed robots: starts clear of obstacles and at least two radii from every earlier
+    robot's start (``robots[i].start``); battery ``initial`` unless given."""
+    out: list[RobotSpec] = []
+    near = NearIndex(2 * place.radius)
+    for i, e in enumerate(entries):
+        f = f"robots[{i}].start"
+        start = place.pose(e.start, f)
+        hit = near.closer_than(start.x, start.y, 2 * place.radius)
+        if hit is not None:
+            other = out[hit]
+            raise ConfigError(
+                place.file,
+                f,
+                f"{start.distance_to(other.start):.2f} m from {other.name}'s start, closer than "
+                f"2 * robot_model.radius ({2 * place.radius:g} m)",
+            )
+        near.add(start.x, start.y, len(out))
+        battery = initial if e.battery is None else e.battery
+        out.append(RobotSpec(name=e.name, namespace=e.ns, start=start, battery=battery))
+    return out
+
+
+class References:
+    """Resolves names in routes and tasks: roadmap nodes, stations and robots (of the fleet as
+    resized by ``load_config(robots=N)``). An unknown name is an error with a did-you-mean."""
+
+    def __init__(
+        self, place: Placer, roadmap: Roadmap, stations: Mapping[str, NamedPose], robot_names: set[str]
+    ) -> None:
+        self.place, self.roadmap, self.stations, self.robot_names = place, roadmap, stations, robot_names
+
+    def route(self, e: RouteEntry, f: str) -> Route:
+        """Route ``e`` (field ``f``, e.g. ``routes[0]``). A roadmap node waypoint faces the next
+        waypoint (the last faces the first: routes are loops); a station keeps its heading."""
+        xy: list[tuple[float, float, float | None]] = []
+        nodes: list[str | None] = []
+        for j, w in enumerate(e.waypoints):
+            wf = f"{f}.waypoints[{j}]"
+            if isinstance(w, str) and w in self.roadmap:
+                xy.append((*self.roadmap.pos(w), None))
+                nodes.append(w)
+                continue
+            pose = self._place(w, wf, "roadmap node or station", [*self.roadmap.nodes, *self.stations])
+            xy.append((pose.x, pose.y, pose.theta))
+            nodes.append(None)
+        poses = []
+        for j, (x, y, th) in enumerate(xy):
+            if th is None:
+                nx_, ny_, _ = xy[(j + 1) % len(xy)]
+                th = math.atan2(ny_ - y, nx_ - x) if (nx_, ny_) != (x, y) else 0.0
+            poses.append(Pose2D(x, y, th))
+        robot = self.robot(e.robot, f"{f}.robot")
+        return Route(name=e.name, waypoints=tuple(poses), node_names=tuple(nodes), robot=robot)
+
+    def task(self, e: TaskEntry, f: str) -> PickTask:
+        """Task ``e`` (field ``f``, e.g. ``tasks[0]``): ``shelf`` / ``drop`` are stations or poses."""
+        shelf = self._place(e.shelf, f"{f}.shelf", "station", self.stations)
+        drop = self._place(e.drop, f"{f}.drop", "station", self.stations)
+        return PickTask(
+            name=e.name,
+            shelf=shelf,
+            drop=drop,
+            dwell_s=e.dwell_s,
+            robot=self.robot(e.robot, f"{f}.robot"),
+            shelf_station=e.shelf if isinstance(e.shelf, str) else "",
+            drop_station=e.drop if isinstance(e.drop, str) else "",
+        )
+
+    def robot(self, name: str | None, f: str) -> str | None:
+        """A preferred robot: ``None`` or the name of a robot of the fleet."""
+        if name is not None and name not in self.robot_names:
+            raise ConfigError(
+                self.place.file, f, f"unknown robot {name!r}{suggest(name, sorted(self.robot_names))}"
+            )
+        return name
+
+    def _place(
+        self, ref: str | XYZ, f: str, what: str, known: Sequence[str] | Mapping[str, object]
+    ) -> Pose2D:
+        if not isinstance(ref, str):
+            return self.place.pose(ref, f)
+        if ref not in self.stations:
+            raise ConfigError(self.place.file, f, f"unknown {what} {ref!r}{suggest(ref, known)}")
+        return self.stations[ref].pose

@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Hashable, Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TypeVar
 
 import networkx as nx
 import numpy as np
@@ -31,6 +31,8 @@ from fleet.types import Pose2D
 #: Vehicle class whose edges a ``roadmap.net`` network contributes unless ``vclass`` says otherwise.
 DEFAULT_VCLASS = "passenger"
 
+_Node = TypeVar("_Node", bound=Hashable)
+
 
 class Roadmap:
     """A read-only roadmap graph. Build it with :meth:`from_config_dict` or :meth:`from_graph`.
@@ -39,7 +41,7 @@ class Roadmap:
     break a tie (e.g. :meth:`nearest_node`) does so deterministically.
     """
 
-    def __init__(self, graph: nx.Graph) -> None:
+    def __init__(self, graph: nx.Graph[str]) -> None:
         """Wrap ``graph`` as is. Prefer :meth:`from_graph`, which checks the attributes.
 
         Graph-level attributes are kept: ``graph.graph["sumo_net"]`` (the absolute path of the
@@ -57,7 +59,7 @@ class Roadmap:
     # ------------------------------------------------------------------ constructors
 
     @classmethod
-    def from_graph(cls, g: nx.Graph) -> Roadmap:
+    def from_graph(cls, g: nx.Graph[_Node]) -> Roadmap:
         """Build a roadmap from any undirected graph whose nodes have ``pos`` = ``(x, y)`` (m).
 
         Node names are converted to ``str``. An edge without ``length`` gets the straight-line
@@ -66,7 +68,7 @@ class Roadmap:
         keeps its ``sumo_net``: :attr:`source_net`). Raises ``ValueError`` if a node has no
         valid ``pos`` or a length is negative.
         """
-        out = nx.Graph()
+        out: nx.Graph[str] = nx.Graph()
         out.graph.update(g.graph)
         for n, data in g.nodes(data=True):
             pos = data.get("pos")
@@ -83,7 +85,7 @@ class Roadmap:
 
     @classmethod
     def from_config_dict(
-        cls, d: Any, file: str = "<memory>", field: str = "roadmap", *, base_dir: str | Path | None = None
+        cls, d: object, file: str = "<memory>", field: str = "roadmap", *, base_dir: str | Path | None = None
     ) -> Roadmap:
         """Build a roadmap from the ``roadmap`` section of a fleet config.
 
@@ -102,8 +104,7 @@ class Roadmap:
         extra = set(d) - set(keys)
         if extra:
             key = sorted(map(str, extra))[0]
-            close = difflib.get_close_matches(key, keys, n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else " (expected nodes and edges, or net)"
+            hint = _suggest(key, keys, " (expected nodes and edges, or net)")
             raise ConfigError(file, f"{field}.{key}", f"unknown key{hint}")
         if "net" in d:
             both = sorted(set(d) & {"nodes", "edges"})
@@ -120,7 +121,7 @@ class Roadmap:
         nodes = d.get("nodes")
         if not isinstance(nodes, Mapping) or not nodes:
             raise ConfigError(file, f"{field}.nodes", "must be a non-empty mapping of name: [x, y]")
-        g = nx.Graph()
+        g: nx.Graph[str] = nx.Graph()
         for name, xy in nodes.items():
             f = f"{field}.nodes.{name}"
             if not isinstance(name, str) or not name:
@@ -137,7 +138,8 @@ class Roadmap:
                 raise ConfigError(file, f, f"must be a pair [a, b] of node names, got {e!r}")
             for end in e:
                 if not isinstance(end, str) or end not in g:
-                    raise ConfigError(file, f, f"unknown roadmap node {end!r}")
+                    hint = _suggest(str(end), g.nodes) if isinstance(end, str) else ""
+                    raise ConfigError(file, f, f"unknown roadmap node {end!r}{hint}")
             a, b = e
             if a == b:
                 raise ConfigError(file, f, f"edge joins node {a!r} to itself")
@@ -147,7 +149,7 @@ class Roadmap:
         return cls(g)
 
     @classmethod
-    def _from_net_section(cls, d: Mapping[str, Any], file: str, field: str, base: Path) -> Roadmap:
+    def _from_net_section(cls, d: Mapping[str, object], file: str, field: str, base: Path) -> Roadmap:
         rel = d["net"]
         if not isinstance(rel, str) or not rel:
             raise ConfigError(file, f"{field}.net", f"must be the path of a SUMO .net.xml file, got {rel!r}")
@@ -188,7 +190,7 @@ class Roadmap:
                 src, f, f"SUMO network file {name} does not exist (looked for {path.resolve()})"
             )
         try:
-            import sumolib.net.lane  # type: ignore[import-untyped]
+            import sumolib.net.lane
         except ImportError:
             raise ConfigError(
                 src,
@@ -198,8 +200,7 @@ class Roadmap:
             ) from None
         known = sorted(sumolib.net.lane.SUMO_VEHICLE_CLASSES)
         if vclass not in known:
-            close = difflib.get_close_matches(vclass, known, n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else f" (one of {', '.join(known)})"
+            hint = _suggest(vclass, known, f" (one of {', '.join(known)})")
             raise ConfigError(src, f"{field}.vclass", f"unknown SUMO vehicle class {vclass!r}{hint}")
         from fleet.roadmap.netxml import read_network
 
@@ -243,7 +244,7 @@ class Roadmap:
         return str(vc) if vc else None
 
     @property
-    def graph(self) -> nx.Graph:
+    def graph(self) -> nx.Graph[str]:
         """The underlying graph. Treat it as read-only; use :meth:`to_networkx` to modify a copy."""
         return self._g
 
@@ -378,25 +379,16 @@ class Roadmap:
         """True if every node can reach every other node (an empty roadmap is not connected)."""
         return bool(self._names) and nx.is_connected(self._g)
 
-    def to_networkx(self) -> nx.Graph:
+    def to_networkx(self) -> nx.Graph[str]:
         """A copy of the graph (nodes with ``pos``, edges with ``length``), e.g. for plotting."""
         return self._g.copy()
 
-    def to_config_dict(self) -> dict[str, Any]:
+    def to_config_dict(self) -> dict[str, object]:
         """The ``roadmap`` section that :meth:`from_config_dict` reads back."""
         return {
             "nodes": {n: list(self.pos(n)) for n in self._names},
             "edges": [list(e) for e in self.edges],
         }
-
-    def sample_edges(self, step: float) -> Iterable[tuple[float, float]]:
-        """Points spaced at most ``step`` meters apart along every edge, end points included."""
-        for a, b in self._g.edges:
-            (ax, ay), (bx, by) = self.pos(a), self.pos(b)
-            n = max(1, math.ceil(math.hypot(bx - ax, by - ay) / step))
-            for k in range(n + 1):
-                t = k / n
-                yield (ax + t * (bx - ax), ay + t * (by - ay))
 
 
 def _is_number(v: object) -> bool:
@@ -405,3 +397,9 @@ def _is_number(v: object) -> bool:
 
 def _tname(v: object) -> str:
     return type(v).__name__
+
+
+def _suggest(word: str, options: Iterable[str], otherwise: str = "") -> str:
+    """`` (did you mean 'x'?)`` for the option closest to ``word``, or ``otherwise``."""
+    close = difflib.get_close_matches(word, list(options), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else otherwise

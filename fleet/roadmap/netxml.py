@@ -5,6 +5,7 @@ sumolib is imported only when a network is read (``make setup-sumo`` installs it
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import networkx as nx
@@ -14,6 +15,10 @@ from fleet.errors import BackendError, ConfigError
 
 def _polyline_length(points: list[tuple[float, float]]) -> float:
     return sum(math.dist(a, b) for a, b in zip(points, points[1:], strict=False))
+
+
+def _xy(coord: Sequence[float]) -> tuple[float, float]:
+    return (float(coord[0]), float(coord[1]))
 
 
 def _root_tag(path: Path) -> str:
@@ -33,7 +38,7 @@ def _root_tag(path: Path) -> str:
     raise ValueError("no XML element")  # pragma: no cover - iterparse raises on empty input
 
 
-def read_network(net_path: Path | str, *, vclass: str | None = "passenger") -> nx.Graph:
+def read_network(net_path: Path | str, *, vclass: str | None = "passenger") -> nx.Graph[str]:
     """Read a SUMO ``.net.xml`` (or ``.net.xml.gz``) into an undirected roadmap graph.
 
     Nodes are junction ids (internal and dead-end-only junctions included when an edge touches
@@ -56,7 +61,7 @@ def read_network(net_path: Path | str, *, vclass: str | None = "passenger") -> n
     if not path.is_file():
         raise ConfigError(str(path), "", "SUMO network file does not exist")
     try:
-        import sumolib  # type: ignore[import-untyped]
+        import sumolib
     except ImportError as exc:
         raise BackendError(
             "reading a .net.xml needs sumolib: make setup-sumo (or pip install -e '.[sumo]')"
@@ -71,7 +76,7 @@ def read_network(net_path: Path | str, *, vclass: str | None = "passenger") -> n
         net = sumolib.net.readNet(str(path), withInternal=False)
     except Exception as exc:
         raise ConfigError(str(path), "", f"not a readable SUMO network ({exc})") from exc
-    g = nx.Graph()
+    g: nx.Graph[str] = nx.Graph()
     g.graph["sumo_net"] = str(path.resolve())
     g.graph["sumo_vclass"] = vclass
     n_edges = 0
@@ -84,11 +89,11 @@ def read_network(net_path: Path | str, *, vclass: str | None = "passenger") -> n
         u, v = edge.getFromNode(), edge.getToNode()
         if u.getID() == v.getID():
             continue
-        pu = tuple(float(c) for c in u.getCoord()[:2])
-        pv = tuple(float(c) for c in v.getCoord()[:2])
+        pu = _xy(u.getCoord())
+        pv = _xy(v.getCoord())
         chord = math.dist(pu, pv)
-        shape = [tuple(p[:2]) for p in edge.getShape()]
-        shape_len = _polyline_length(shape)  # type: ignore[arg-type]
+        shape = [_xy(p) for p in edge.getShape()]
+        shape_len = _polyline_length(shape)
         shape_chord = math.dist(shape[0], shape[-1]) if len(shape) > 1 else 0.0
         factor = shape_len / shape_chord if shape_chord > 1e-6 else 1.0
         length = chord * max(1.0, factor)

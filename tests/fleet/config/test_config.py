@@ -162,6 +162,18 @@ def _disconnected(doc: dict[str, Any]) -> None:
     doc["roadmap"]["nodes"]["island"] = [2.0, 1.0]
 
 
+def _edge_misspelled(doc: dict[str, Any]) -> None:
+    doc["roadmap"]["edges"].append(["w_1", "a1_11"])
+
+
+def _dup_route(doc: dict[str, Any]) -> None:
+    doc["routes"][1]["name"] = doc["routes"][0]["name"]
+
+
+def _no_charger_pose(doc: dict[str, Any]) -> None:
+    doc["chargers"][0].pop("pose")
+
+
 BAD: list[tuple[str, Mutator, str, str]] = [
     # (id, mutation, field, reason keyword)
     ("unknown_top_level_key", _set("robot", []), "robot", "did you mean 'robots'"),
@@ -243,6 +255,26 @@ BAD: list[tuple[str, Mutator, str, str]] = [
     ("station_named_like_node", _set("stations.0.name", "a1_s"), "stations[0].name", "roadmap node"),
     ("section_wrong_type", _set("robot_model", [1, 2]), "robot_model", "mapping"),
     ("robots_not_list", _set("robots", {"robot1": [1, 1, 0]}), "robots", "must be a list"),
+    ("edge_misspelled_node", _edge_misspelled, "roadmap.edges[", "(did you mean 'a1_1'?)"),
+    ("duplicate_route", _dup_route, "routes[1].name", "duplicate route name"),
+    ("charger_without_pose", _no_charger_pose, "chargers[0].pose", "missing required field"),
+    ("start_not_a_number", _set("robots.0.start", [math.nan, 1.0, 0.0]), "robots[0].start", "[x, y, theta]"),
+    ("traffic_enabled_not_bool", _set("traffic", {"enabled": "yes"}), "traffic.enabled", "true or false"),
+    ("status_hz_zero", _set("bus.status_hz", 0), "bus.status_hz", "positive"),
+    (
+        "waypoint_not_a_name_or_pose",
+        _set("routes.0.waypoints", ["a1_s", 5]),
+        "routes[0].waypoints[1]",
+        "a roadmap node name, a station name or a pose",
+    ),
+    (
+        "shelf_not_a_name_or_pose",
+        _set("tasks.0.shelf", {"x": 1}),
+        "tasks[0].shelf",
+        "a station name or a pose",
+    ),
+    ("roadmap_node_not_xy", _set("roadmap.nodes.a1_1", [6.0]), "roadmap.nodes.a1_1", "[x, y] in meters"),
+    ("roadmap_empty", _set("roadmap", None), "roadmap", "must be a mapping with nodes and edges"),
 ]
 
 
@@ -291,6 +323,42 @@ def test_map_image_missing_is_a_map_error(tmp_path: Path, base: dict[str, Any]) 
         load_config(path)
     assert isinstance(ei.value, ConfigError)
     assert "image" in str(ei.value) and "does not exist" in str(ei.value)
+
+
+def test_a_png_map_loads_like_the_pgm(tmp_path: Path, base: dict[str, Any]) -> None:
+    from PIL import Image
+
+    with Image.open(CONFIGS / "maps" / "warehouse.pgm") as img:
+        img.save(tmp_path / "warehouse.png")
+    meta = yaml.safe_load((CONFIGS / "maps" / "warehouse.yaml").read_text())
+    (tmp_path / "warehouse.yaml").write_text(yaml.safe_dump({**meta, "image": "warehouse.png"}))
+    doc = copy.deepcopy(base)
+    doc["map"] = "warehouse.yaml"
+    path = tmp_path / "cfg.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    cfg, shipped = load_config(path), load_config(PATROL)
+    assert (cfg.grid.cells == shipped.grid.cells).all()
+    assert cfg.robots == shipped.robots and cfg.routes == shipped.routes
+
+
+def test_a_map_naming_the_image_instead_of_the_yaml_names_the_map_file(
+    tmp_path: Path, base: dict[str, Any]
+) -> None:
+    doc = copy.deepcopy(base)
+    doc["map"] = str(CONFIGS / "maps" / "warehouse.pgm")
+    with pytest.raises(MapError) as ei:
+        load_config(write(tmp_path, doc))
+    assert ei.value.file == str(CONFIGS / "maps" / "warehouse.pgm")
+    assert "name the map's YAML file" in ei.value.reason
+
+
+def test_an_empty_file(tmp_path: Path) -> None:
+    path = tmp_path / "empty.yaml"
+    path.write_text("")
+    with pytest.raises(
+        ConfigError, match=r"empty\.yaml: expected a mapping of sections at the top level, got nothing"
+    ):
+        load_config(path)
 
 
 def test_map_path_is_relative_to_the_config(tmp_path: Path) -> None:
