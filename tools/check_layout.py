@@ -154,7 +154,9 @@ def main() -> int:
             other = unit_of(target)
             if other == me or target in CORE or other in CORE or "*" in allowed or other in allowed:
                 continue
-            problems.append(f"{rel}:{lineno}: {me} may not import {target} (allowed: core + {', '.join(allowed) or 'nothing'})")
+            problems.append(
+                f"{rel}:{lineno}: {me} may not import {target} (allowed: core + {', '.join(allowed) or 'nothing'})"
+            )
     for cycle in cycles(graph):
         problems.append("import cycle: " + " -> ".join([*cycle, cycle[0]]))
     for p in problems:
