@@ -7,9 +7,14 @@ deadlocks, reassignments, and with traffic management the mean wait for right of
 config runs twice, without and with ``--traffic``, so the two can be compared in one run
 (``deadlocks`` means different things in the two modes: see ``fleet/runtime/report.py``).
 
+With ``--speed X`` the runs are paced at X times real time instead: the ``x real`` column
+then shows how closely the real-time pacer (``fleet.clock.Pacer``) keeps that speed (the
+wall time includes the run's setup, a second or two).
+
     python bench/bench_demo.py                       # 6- and 30-robot demos, 600 s each
     python bench/bench_demo.py --duration 300 --configs configs/warehouse_patrol.yaml
     python bench/bench_demo.py --traffic-only
+    python bench/bench_demo.py --speed 20 --duration 120 --configs configs/warehouse_patrol.yaml
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIGS = ("configs/warehouse_patrol.yaml", "configs/warehouse_patrol_30.yaml")
@@ -32,20 +38,20 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def run_demo(config: str, duration: float, traffic: bool = False) -> dict:
-    """Run one demo at ``--speed 0`` and return its report (raises on a failed run)."""
+def run_demo(config: str, duration: float, traffic: bool = False, speed: float = 0.0) -> dict[str, Any]:
+    """Run one demo at ``--speed speed`` and return its report (raises on a failed run)."""
     with tempfile.TemporaryDirectory() as tmp:
         report = Path(tmp) / "report.json"
         cmd = [
             sys.executable, "-m", "fleet.cli", "run", config,
-            "--speed", "0", "--duration", str(duration), "--no-live",
+            "--speed", str(speed), "--duration", str(duration), "--no-live",
             "--endpoint", f"tcp/127.0.0.1:{_free_port()}", "--report", str(report),
             "--traffic" if traffic else "--no-traffic",
         ]  # fmt: skip
         proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1800)
         if proc.returncode != 0:
             raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}:\n{proc.stderr[-2000:]}")
-        return json.loads(report.read_text())
+        return dict(json.loads(report.read_text()))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -53,6 +59,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--configs", nargs="+", default=list(DEFAULT_CONFIGS), help="configs to run")
     ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds per run (default 600)")
     ap.add_argument("--traffic-only", action="store_true", help="only the runs with traffic management")
+    ap.add_argument(
+        "--speed", type=float, default=0.0, help="multiple of real time (default 0: as fast as possible)"
+    )
     args = ap.parse_args(argv)
     head = (
         f"{'config':<30} {'traffic':>7} {'robots':>6} {'sim s':>6} {'wall s':>7} {'x real':>7} "
@@ -62,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     print("-" * len(head))
     for config in args.configs:
         for traffic in (True,) if args.traffic_only else (False, True):
-            r = run_demo(config, args.duration, traffic)
+            r = run_demo(config, args.duration, traffic, args.speed)
             factor = r["sim_time_s"] / r["wall_time_s"] if r["wall_time_s"] > 0 else float("inf")
             patrols = f"{r['patrols_completed']}/{r['patrols_assigned']}"
             wait = f"{r['mean_wait_s']:.1f}" if r.get("mean_wait_s") is not None else "-"

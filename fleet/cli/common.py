@@ -1,38 +1,62 @@
-"""What every ``fleet`` command shares: exit codes, common options, the error guard, config loading."""
+"""What every ``fleet`` command shares: exit codes, common options, the error guard, config
+loading and the end-of-run output (summary, report, plot)."""
 
 from __future__ import annotations
 
 import argparse
+import logging
 import signal
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from types import FrameType
+from typing import TYPE_CHECKING, Any, TypeAlias
 
-from fleet.cli.argtypes import positive_int as _positive_int
+from rich.console import Console
+
+from fleet.cli.argtypes import positive_int
+from fleet.cli.logs import add_log_level
 from fleet.errors import BackendError, BusError, ConfigError
 
+if TYPE_CHECKING:
+    from fleet.config.model import FleetConfig
+    from fleet.runtime.report import RunReport
+    from fleet.runtime.runner import FleetRunner
+
+logger = logging.getLogger(__name__)
+
+#: ``fleet``'s subparsers (what a command module's ``add_parser`` adds itself to).
+SubParsers: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
+#: A command's handler: parsed arguments in, exit code out.
+Handler = Callable[[argparse.Namespace], int]
+
 EXIT_OK = 0
-
-
 EXIT_ERROR = 2
-
-
 EXIT_INTERRUPTED = 130
 
 
-def _add_config(p: argparse.ArgumentParser) -> None:
+def add_command(sub: SubParsers, name: str, handler: Handler, **kw: Any) -> argparse.ArgumentParser:
+    """Add the subcommand ``name`` (``kw``: ``help``, ``description``, ``epilog``); its
+    handler is ``args.handler``. Every command takes ``--log-level`` too."""
+    p = sub.add_parser(name, formatter_class=argparse.RawDescriptionHelpFormatter, **kw)
+    add_log_level(p, default=argparse.SUPPRESS)
+    p.set_defaults(handler=handler)
+    return p
+
+
+def add_config(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", type=Path, help="fleet config YAML (see docs/config.md)")
     p.add_argument(
         "--robots",
         "-n",
-        type=_positive_int,
+        type=positive_int,
         metavar="N",
         help="number of robots (default: as listed in the config)",
     )
 
 
-def _add_endpoint(p: argparse.ArgumentParser) -> None:
+def add_endpoint(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--endpoint",
         metavar="EP",
@@ -40,7 +64,7 @@ def _add_endpoint(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _add_traffic(p: argparse.ArgumentParser) -> None:
+def add_traffic(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument(
         "--traffic",
@@ -52,27 +76,35 @@ def _add_traffic(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-traffic", dest="traffic", action="store_false", help="no traffic management")
 
 
-def _add_outputs(p: argparse.ArgumentParser) -> None:
+def add_outputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--report", type=Path, metavar="PATH", help="write the JSON report here at the end")
     p.add_argument("--plot", type=Path, metavar="PATH", help="write a PNG of the map and trajectories here")
     p.add_argument(
-        "--no-live", action="store_true", help="no live table; print a progress line every 5 s instead"
+        "--no-live",
+        action="store_true",
+        help="no live table; progress instead (a bar on a terminal, a line every 5 s otherwise)",
     )
 
 
-def _sigterm_as_interrupt() -> Any:
+#: A signal handler as :func:`signal.signal` returns it.
+SignalHandler: TypeAlias = "Callable[[int, FrameType | None], Any] | int | signal.Handlers | None"
+
+
+def _sigterm_as_interrupt() -> SignalHandler:
     """Make SIGTERM raise KeyboardInterrupt (so ``finally`` blocks close the Zenoh session);
     returns the previous handler (None off the main thread)."""
     if threading.current_thread() is not threading.main_thread():
         return None
 
-    def handler(signum: int, frame: Any) -> None:
+    def handler(signum: int, frame: FrameType | None) -> None:
         raise KeyboardInterrupt
 
     return signal.signal(signal.SIGTERM, handler)
 
 
-def _guard(fn: Any) -> int:
+def guard(fn: Callable[[], int]) -> int:
+    """Run a command: a project error becomes one ``error: <message>`` line on stderr and exit
+    code 2; Ctrl-C / SIGTERM exit code 130."""
     old = _sigterm_as_interrupt()
     try:
         return int(fn())
@@ -80,28 +112,39 @@ def _guard(fn: Any) -> int:
         print(f"error: {e}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        logger.warning("interrupted")
         return EXIT_INTERRUPTED
     finally:
         if old is not None:
             signal.signal(signal.SIGTERM, old)
 
 
-def _load(args: argparse.Namespace) -> Any:
+def load(args: argparse.Namespace) -> FleetConfig:
+    """The config named by ``args.config`` with ``args.robots`` robots."""
     from fleet.config.loader import load_config
 
     return load_config(args.config, robots=args.robots)
 
 
-def _robot_list(text: str) -> list[str]:
+def robot_list(text: str) -> list[str]:
+    """``"robot1, robot2"`` -> ``["robot1", "robot2"]``."""
     return [r.strip() for r in text.split(",") if r.strip()]
 
 
-def _finish(runner: Any, report: Any, args: argparse.Namespace) -> int:
-    print(report.summary(), flush=True)
+def console() -> Console:
+    """A rich console on stdout (colors only on a terminal)."""
+    return Console(highlight=False, emoji=False)
+
+
+def finish(runner: FleetRunner, report: RunReport, args: argparse.Namespace) -> int:
+    """Print the summary, write ``--report`` / ``--plot``; the exit code of the run."""
+    from fleet.viz.summary import summary_renderable
+
+    out = console()
+    # on a terminal rich wraps long lines at word boundaries; in logs a line stays one line
+    out.print(summary_renderable(report.to_dict()), soft_wrap=not out.is_terminal)
     if getattr(args, "report", None):
-        path = report.write_json(args.report)
-        print(f"report: {path}")
+        print(f"report: {report.write_json(args.report)}", flush=True)
     if getattr(args, "plot", None):
         from fleet.viz.plot import plot_run
 
@@ -112,13 +155,33 @@ def _finish(runner: Any, report: Any, args: argparse.Namespace) -> int:
         path = plot_run(
             runner.config, report.trajectories, args.plot, title=title, collisions=runner.collision_points()
         )
-        print(f"plot: {path}")
+        print(f"plot: {path}", flush=True)
     return EXIT_INTERRUPTED if report.interrupted else EXIT_OK
 
 
-def _announce(runner: Any, what: str) -> None:
-    print(
-        f"fleet: {runner.config.name}, {what}, backend {runner.backend_name}, bus {runner.endpoint}",
-        file=runner.out,
-        flush=True,
+def announce(runner: FleetRunner, what: str) -> None:
+    """The first line of a run: the fleet, what runs here, the backend and the bus."""
+    out = Console(file=runner.out, highlight=False, emoji=False, markup=False)
+    text = f"fleet: {runner.config.name}, {what}, backend {runner.backend_name}, bus {runner.endpoint}"
+    out.print(text, soft_wrap=not out.is_terminal)
+    runner.out.flush()
+
+
+def remote_runner(
+    args: argparse.Namespace, agents: list[str], *, coordinator: bool, live: bool | None
+) -> FleetRunner:
+    """A runner for robots of a `fleet sim` in another process (`fleet coordinator`,
+    `fleet agent`): remote backend, as fast as the simulator's clock moves."""
+    from fleet.runtime.runner import FleetRunner
+
+    return FleetRunner(
+        load(args),
+        duration=args.duration,
+        speed=0.0,
+        endpoint=args.endpoint,
+        backend="remote",
+        agents=agents,
+        coordinator=coordinator,
+        live=live,
+        traffic=args.traffic,
     )

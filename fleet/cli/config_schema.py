@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from fleet.cli.common import EXIT_ERROR, EXIT_OK
+from fleet.cli.common import EXIT_ERROR, EXIT_OK, SubParsers, add_command
 from fleet.config.schema import json_schema_text
 
 EPILOG = """\
@@ -20,24 +20,23 @@ point an editor at it, e.g. with the YAML extension of VS Code, by a first line 
 """
 
 
-def add_config_schema_parser(
-    subparsers: argparse._SubParsersAction[argparse.ArgumentParser],
-) -> argparse.ArgumentParser:
-    """Add ``config-schema`` to ``fleet``'s subparsers; its handler is :func:`cmd_config_schema`."""
-    p = subparsers.add_parser(
+def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
+    """Add ``fleet config-schema`` to ``fleet``'s subcommands."""
+    p = add_command(
+        sub,
         "config-schema",
+        handle,
         help="print the JSON Schema of fleet config files (for editors)",
-        description="Print the JSON Schema (draft 2020-12) of fleet config files: the sections, their "
+        description="Print the JSON Schema (draft-07) of fleet config files: the sections, their "
         "fields, types, defaults and ranges, for completion and checks while editing. The map and "
         "roadmap checks (poses clear of obstacles, references) need `fleet validate`.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--out", type=Path, metavar="FILE", help="write the schema to FILE instead of printing it")
     return p
 
 
-def cmd_config_schema(args: argparse.Namespace) -> int:
+def handle(args: argparse.Namespace) -> int:
     """Print the schema, or write it to ``args.out``; exit 2 if the file cannot be written."""
     text = json_schema_text()
     if args.out is None:

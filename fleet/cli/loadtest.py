@@ -4,14 +4,23 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 from fleet.cli.argtypes import non_negative_float, positive_float, positive_int
-from fleet.errors import BackendError, BusError, ConfigError
-from fleet.loadtest.run import DEFAULT_STATUS_HZ, DEFAULT_TICK_HZ, PATROL_SPACING_M, run_loadtest
+from fleet.cli.common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, SubParsers, add_command, guard
+from fleet.cli.logs import add_log_level, configure_logging, resolve_level
+from fleet.config.model import FleetConfig
+from fleet.loadtest.run import (
+    DEFAULT_STATUS_HZ,
+    DEFAULT_TICK_HZ,
+    PATROL_SPACING_M,
+    LoadTestResult,
+    run_loadtest,
+)
 from fleet.loadtest.sampler import DEFAULT_SAMPLE_S
+from fleet.viz.display import ProgressDisplay
 
 DESCRIPTION = (
     "Load-test the fleet: generate a warehouse for N robots, run simulator (or SUMO) + one agent "
@@ -95,21 +104,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dpi", type=positive_int, default=100, help="PNG resolution (default 100)")
 
 
-def add_loadtest_parser(subparsers: Any) -> argparse.ArgumentParser:
-    """Add ``loadtest`` to ``fleet``'s subparsers; its handler is ``args.loadtest_handler``."""
-    p = subparsers.add_parser(
+def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
+    """Add ``fleet loadtest`` to ``fleet``'s subcommands."""
+    p = add_command(
+        sub,
         "loadtest",
+        handle,
         help="load-test the fleet with N robots: report JSON and plots",
         description=DESCRIPTION,
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_arguments(p)
-    p.set_defaults(loadtest_handler=run_from_args)
     return p
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The parser of :func:`loadtest_main` (the options of ``fleet loadtest``)."""
     p = argparse.ArgumentParser(
         prog="fleet loadtest",
         description=DESCRIPTION,
@@ -117,49 +127,69 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_arguments(p)
+    add_log_level(p)
     return p
 
 
-def run_from_args(args: argparse.Namespace) -> int:
-    """Run the load test parsed into ``args``; print the summary; return the exit code."""
-    res = run_loadtest(
-        args.robots,
-        args.duration,
-        backend=args.backend,
-        out_dir=args.out,
-        report_path=args.report,
-        plot_dir=args.plot_dir,
-        tick_hz=args.tick_hz,
-        status_hz=args.status_hz,
-        step_s=args.step_s,
-        sample_s=args.sample_s,
-        speed=args.speed,
-        route_copies=args.route_copies,
-        seed=args.seed,
-        endpoint=args.endpoint,
-        dpi=args.dpi,
-        traffic=args.traffic,
-    )
+def handle(args: argparse.Namespace) -> int:
+    """Run the load test parsed into ``args`` (progress on stdout); print the summary; return
+    the exit code."""
+    w0 = time.monotonic()
+    display = ProgressDisplay(sys.stdout)
+
+    def announce(cfg: FleetConfig) -> None:
+        xmax, ymax = cfg.grid.extent[1], cfg.grid.extent[3]
+        print(
+            f"fleet loadtest: {len(cfg.robots)} robots, {len(cfg.routes)} patrol routes, map {xmax:g} x {ymax:g} m, "
+            f"backend {args.backend}, agents at {args.tick_hz:g} Hz, status at {args.status_hz:g} Hz, "
+            f"step {cfg.sim.step_s:g} s; config {cfg.path} ({time.monotonic() - w0:.1f} s)",
+            flush=True,
+        )
+
+    try:
+        res = run_loadtest(
+            args.robots,
+            args.duration,
+            backend=args.backend,
+            out_dir=args.out,
+            report_path=args.report,
+            plot_dir=args.plot_dir,
+            tick_hz=args.tick_hz,
+            status_hz=args.status_hz,
+            step_s=args.step_s,
+            sample_s=args.sample_s,
+            speed=args.speed,
+            route_copies=args.route_copies,
+            seed=args.seed,
+            endpoint=args.endpoint,
+            dpi=args.dpi,
+            traffic=args.traffic,
+            on_config=announce,
+            on_progress=display.show,
+        )
+    finally:
+        display.close()
+    _print_summary(res)
+    return EXIT_INTERRUPTED if res.interrupted else EXIT_OK
+
+
+def _print_summary(res: LoadTestResult) -> None:
     lt = res.data["loadtest"]
     r = res.report
-    print(
-        f"{'interrupted' if r.interrupted else 'finished'}: {r.robots} robots, {r.sim_time_s:.1f} s simulated in "
-        f"{r.wall_time_s:.1f} s wall (setup {lt['setup_wall_s']:.1f} s, loop {lt['real_time_factor']:.2f}x real time)"
-    )
-    print(
-        f"patrols: {r.patrols_assigned} assigned, {r.patrols_completed} completed, {r.laps_completed} laps "
-        f"({lt['throughput_laps_per_robot_hour']:.2f} per robot-hour, "
-        f"{lt['throughput_laps_per_patrolling_robot_hour']:.2f} per patrolling robot-hour)"
-    )
     wait = lt["mean_wait_s"]
     print(
+        f"{'interrupted' if r.interrupted else 'finished'}: {r.robots} robots, {r.sim_time_s:.1f} s simulated in "
+        f"{r.wall_time_s:.1f} s wall (setup {lt['setup_wall_s']:.1f} s, loop {lt['real_time_factor']:.2f}x real time)\n"
+        f"patrols: {r.patrols_assigned} assigned, {r.patrols_completed} completed, {r.laps_completed} laps "
+        f"({lt['throughput_laps_per_robot_hour']:.2f} per robot-hour, "
+        f"{lt['throughput_laps_per_patrolling_robot_hour']:.2f} per patrolling robot-hour)\n"
         f"collisions: {r.collisions}   deadlocks: {r.deadlocks}   reassignments: {r.reassignments}   "
-        f"mean wait: {'n/a' if wait is None else f'{wait:.1f} s'} per driving robot"
+        f"mean wait: {'n/a' if wait is None else f'{wait:.1f} s'} per driving robot\n"
+        f"report: {res.report_path}",
+        flush=True,
     )
-    print(f"report: {res.report_path}")
     for p in res.plots.values():
         print(f"plot: {p}")
-    return 130 if res.interrupted else 0
 
 
 def loadtest_main(argv: Sequence[str] | None = None) -> int:
@@ -167,12 +197,10 @@ def loadtest_main(argv: Sequence[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(list(sys.argv[1:] if argv is None else argv))
     except SystemExit as e:  # argparse: --help (0) or bad usage (2), message already printed
-        return int(e.code) if isinstance(e.code, int) else 2
-    try:
-        return run_from_args(args)
-    except (ConfigError, BusError, BackendError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+        return int(e.code) if isinstance(e.code, int) else EXIT_ERROR
+    return guard(lambda: _configured(args))
+
+
+def _configured(args: argparse.Namespace) -> int:
+    configure_logging(resolve_level(args.log_level))
+    return handle(args)

@@ -1,6 +1,12 @@
 """The ``fleet`` command line. ``fleet --help`` and ``fleet <command> --help`` explain every
 option with examples; ``docs/cli.md`` is the reference.
 
+One module per command (``fleet.cli.run``, ``fleet.cli.status``, ...), each with an
+``add_parser(subparsers)`` that adds its options and sets its handler; :func:`build_parser`
+composes them in the order of :data:`COMMANDS`. ``--log-level`` (before or after the
+command; default ``$FLEET_LOG_LEVEL`` or ``warning``) configures :mod:`logging` for every
+command (:mod:`fleet.cli.logs`).
+
 Exit codes: 0 success; 2 bad usage, an invalid config or a bus that cannot be opened (one line
 ``error: <message>`` on stderr, no traceback); 130 interrupted with Ctrl-C (the run is shut
 down cleanly and its report and plot are still written)."""
@@ -9,16 +15,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
-from pathlib import Path
+from collections.abc import Callable, Sequence
 
-from fleet.cli.argtypes import non_negative_float as _non_negative_float
-from fleet.cli.argtypes import positive_float as _positive_float
-from fleet.cli.common import EXIT_ERROR, _add_config, _add_endpoint, _add_outputs, _add_traffic, _guard
-from fleet.cli.config_schema import add_config_schema_parser, cmd_config_schema
-from fleet.cli.run import _cmd_agent, _cmd_coordinator, _cmd_run
-from fleet.cli.sim import _cmd_sim, _cmd_sim_ros
-from fleet.cli.validate import _cmd_validate
+from fleet.cli import agent, config_schema, coordinator, loadtest, run, sim, sim_ros, status, validate
+from fleet.cli.common import EXIT_ERROR, SubParsers, guard
+from fleet.cli.logs import add_log_level, configure_logging, resolve_level
 
 MAIN_EPILOG = """\
 examples:
@@ -29,6 +30,7 @@ examples:
       12 robots, 10 simulated minutes as fast as possible, JSON report and a picture
   fleet status                         # in a second terminal: the live table from the bus
   fleet validate configs/warehouse_patrol.yaml
+  fleet --log-level info run configs/warehouse_patrol.yaml --duration 60
 
   the same fleet in separate processes (each in its own terminal):
   fleet sim configs/warehouse_patrol.yaml --speed 5
@@ -38,9 +40,27 @@ examples:
 exit codes: 0 ok, 2 bad usage / invalid config / bus error, 130 interrupted (Ctrl-C)
 """
 
+#: Each command's ``add_parser``, in the order ``fleet --help`` lists them.
+COMMANDS: tuple[Callable[[SubParsers], argparse.ArgumentParser], ...] = (
+    run.add_parser,
+    status.add_parser,
+    sim.add_parser,
+    sim_ros.add_parser,
+    agent.add_parser,
+    coordinator.add_parser,
+    validate.add_parser,
+    config_schema.add_parser,
+    loadtest.add_parser,
+)
+
+#: Commands whose arguments go, unparsed, to their own parser.
+PASSTHROUGH = {"sim-ros": sim_ros.handle}
+
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``fleet`` (all subcommands)."""
+    from fleet import __version__
+
     parser = argparse.ArgumentParser(
         prog="fleet",
         description="Multi-robot fleet orchestrator: behavior-tree robot agents, a coordinator that "
@@ -48,192 +68,60 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=MAIN_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    from fleet import __version__
-
     parser.add_argument("--version", action="version", version=f"fleet {__version__}")
+    add_log_level(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-
-    run = sub.add_parser(
-        "run",
-        help="run a fleet: simulator + agents + coordinator in one process",
-        description="Start a Zenoh router on the endpoint, the simulator with N robots, one agent (behavior "
-        "tree) per robot and the coordinator; show a live table; print a summary at the end.",
-        epilog="""\
-examples:
-  fleet run configs/warehouse_patrol.yaml                    # real time until Ctrl-C
-  fleet run configs/warehouse_patrol.yaml --duration 300 --speed 10
-  fleet run configs/warehouse_patrol_30.yaml --speed 0 --duration 600 --report r.json --plot r.png
-  fleet run configs/warehouse_patrol.yaml --agents robot1,robot2 --backend remote
-      (robots of a `fleet sim` in another process; the other robots run `fleet agent`)
-  fleet run configs/warehouse_picking.yaml --tree picking --speed 0 --duration 300
-      (picking trees: the coordinator hands out the config's tasks instead of its routes)
-
---duration and --speed are in simulated seconds; --speed 0 runs as fast as the CPU allows.
-""",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    _add_config(run)
-    run.add_argument(
-        "--duration",
-        "-d",
-        type=_positive_float,
-        metavar="S",
-        help="simulated seconds to run (default: until Ctrl-C)",
-    )
-    run.add_argument(
-        "--speed",
-        "-s",
-        type=_non_negative_float,
-        default=1.0,
-        metavar="X",
-        help="multiple of real time; 0 = as fast as possible (default 1)",
-    )
-    _add_endpoint(run)
-    _add_outputs(run)
-    _add_traffic(run)
-    run.add_argument(
-        "--backend", default="sim", metavar="NAME", help="navigation backend (default sim; see docs/cli.md)"
-    )
-    run.add_argument(
-        "--agents",
-        default="all",
-        metavar="LIST",
-        help="robots whose agents run here: all (default) or robot1,robot2",
-    )
-    run.add_argument(
-        "--no-coordinator", action="store_true", help="do not run the coordinator in this process"
-    )
-    run.add_argument(
-        "--tree",
-        choices=("patrol", "picking"),
-        default="patrol",
-        help="behavior tree of every robot: patrol (the coordinator assigns the config's routes; "
-        "default) or picking (it assigns the config's tasks, each done once; not with --traffic)",
-    )
-
-    status = sub.add_parser(
-        "status",
-        help="attach to a running fleet and show its live table from the bus",
-        description="Connect to the Zenoh endpoint of a running fleet and print the fleet table built from "
-        "the robots' status messages alone. Options are those of fleet.cli.status (see --help).",
-        add_help=False,
-    )
-    status.add_argument("rest", nargs=argparse.REMAINDER)
-
-    simros = sub.add_parser(
-        "sim-ros",
-        help="serve the simulator as namespaced Nav2 over ROS 2 (needs make setup-ros)",
-        description="Serve every robot of the config as namespaced Nav2 over ROS 2 Jazzy: the Nav2 "
-        "action servers, lifecycle get_state, amcl_pose, odom and the costmap services, so "
-        "nav2_simple_commander scripts and `fleet run --backend ros` drive the simulator. "
-        "Options are those of fleet.ros.nav2_server (see `fleet sim-ros --help`).",
-        epilog="example:\n  fleet sim-ros configs/warehouse_patrol.yaml --speed 10\n"
-        "  fleet run configs/warehouse_patrol.yaml --backend ros    # in a second terminal\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    simros.add_argument("rest", nargs=argparse.REMAINDER)
-
-    agent = sub.add_parser(
-        "agent",
-        help="run one robot's agent in its own process (robots of a `fleet sim`)",
-        description="Run the agent (behavior tree) of one robot whose simulator runs in another process "
-        "(`fleet sim`), over Zenoh. Orders come from a `fleet coordinator` or `fleet run`.",
-        epilog="example:\n  fleet agent configs/warehouse_patrol.yaml --robot robot3 --endpoint tcp/127.0.0.1:7447\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    _add_config(agent)
-    agent.add_argument(
-        "--robot", required=True, action="append", metavar="NAME", help="robot name (repeatable)"
-    )
-    agent.add_argument(
-        "--duration", "-d", type=_positive_float, metavar="S", help="simulated seconds (default: forever)"
-    )
-    _add_endpoint(agent)
-    _add_traffic(agent)
-
-    coord = sub.add_parser(
-        "coordinator",
-        help="run the coordinator in its own process (robots of a `fleet sim`)",
-        description="Run the coordinator against robots on the bus: assign patrols, reassign when a robot "
-        "dies, is stuck or charges. Can also host some robots' agents (--agents).",
-        epilog="example:\n  fleet coordinator configs/warehouse_patrol.yaml --agents robot1,robot2 "
-        "--report out/coord.json\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    _add_config(coord)
-    coord.add_argument(
-        "--duration", "-d", type=_positive_float, metavar="S", help="simulated seconds (default: forever)"
-    )
-    coord.add_argument(
-        "--agents", default="", metavar="LIST", help="robots whose agents also run here (robot1,robot2)"
-    )
-    _add_endpoint(coord)
-    _add_outputs(coord)
-    _add_traffic(coord)
-
-    simp = sub.add_parser(
-        "sim",
-        help="serve the simulator over Zenoh for agents in other processes",
-        description="Run the kinematic simulator with the config's robots and serve their navigation "
-        "actions and the simulated clock over Zenoh (listening on the endpoint).",
-        epilog="example:\n  fleet sim configs/warehouse_patrol.yaml --speed 5 --duration 600\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    _add_config(simp)
-    simp.add_argument(
-        "--speed",
-        "-s",
-        type=_non_negative_float,
-        default=1.0,
-        metavar="X",
-        help="multiple of real time (default 1)",
-    )
-    simp.add_argument(
-        "--duration", "-d", type=_positive_float, metavar="S", help="simulated seconds (default: forever)"
-    )
-    _add_endpoint(simp)
-    simp.add_argument("--plot", type=Path, metavar="PATH", help="write a PNG of the trajectories at the end")
-
-    val = sub.add_parser(
-        "validate",
-        help="load a config, report the first problem or print a summary",
-        description="Load and validate a fleet config. Prints a summary, or one line naming the file, the "
-        "field and the reason, and exits 2.",
-        epilog="example:\n  fleet validate configs/warehouse_patrol.yaml --robots 30\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    _add_config(val)
-    from fleet.cli.loadtest import add_loadtest_parser
-
-    add_loadtest_parser(sub)
-    add_config_schema_parser(sub)
+    for add in COMMANDS:
+        add(sub)
     return parser
+
+
+def _leading_log_level(argv: list[str]) -> tuple[str | None, list[str]]:
+    """``--log-level LEVEL`` given before the command, and the arguments from the command on."""
+    level = None
+    i = 0
+    while i < len(argv):
+        if argv[i] == "--log-level" and i + 1 < len(argv):
+            level, i = argv[i + 1], i + 2
+        elif argv[i].startswith("--log-level="):
+            level, i = argv[i].partition("=")[2], i + 1
+        else:
+            break
+    return level, argv[i:]
+
+
+def _passthrough(argv: list[str]) -> int | None:
+    """Run a :data:`PASSTHROUGH` command (``--log-level`` stripped from its arguments), or
+    ``None`` if ``argv`` names another command."""
+    level, rest = _leading_log_level(argv)
+    if not rest or rest[0] not in PASSTHROUGH:
+        return None
+    args, inner = sim_ros.strip_log_level(rest[1:])
+
+    def go() -> int:
+        configure_logging(resolve_level(inner or level))
+        return PASSTHROUGH[rest[0]](argparse.Namespace(rest=args))
+
+    return guard(go)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``fleet`` command line; returns the exit code (see the module docstring)."""
     args_list = list(sys.argv[1:] if argv is None else argv)
-    if args_list and args_list[0] == "status":
-        from fleet.cli.status import status_main
-
-        return _guard(lambda: int(status_main(args_list[1:]) or 0))
-    if args_list and args_list[0] == "sim-ros":
-        return _guard(lambda: _cmd_sim_ros(args_list[1:]))
+    code = _passthrough(args_list)
+    if code is not None:
+        return code
     parser = build_parser()
     args = parser.parse_args(args_list)
     if args.command is None:
         parser.print_help()
         return EXIT_ERROR
-    handlers = {
-        "run": _cmd_run,
-        "agent": _cmd_agent,
-        "coordinator": _cmd_coordinator,
-        "sim": _cmd_sim,
-        "validate": _cmd_validate,
-        "loadtest": lambda a: a.loadtest_handler(a),
-        "config-schema": cmd_config_schema,
-    }
-    return _guard(lambda: handlers[args.command](args))
+
+    def go() -> int:
+        configure_logging(resolve_level(args.log_level))
+        return int(args.handler(args))
+
+    return guard(go)
 
 
 if __name__ == "__main__":

@@ -1,18 +1,95 @@
-"""``fleet run``, ``fleet coordinator`` and ``fleet agent``: a fleet, or a part of one, in this process."""
+"""``fleet run``: the whole fleet (or a part of it) in this process."""
 
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
-from fleet.cli.common import EXIT_INTERRUPTED, EXIT_OK, _announce, _finish, _load, _robot_list
+from fleet.cli.argtypes import non_negative_float, positive_float
+from fleet.cli.common import (
+    SubParsers,
+    add_command,
+    add_config,
+    add_endpoint,
+    add_outputs,
+    add_traffic,
+    announce,
+    finish,
+    load,
+    robot_list,
+)
+from fleet.types import TreeKind
+
+EPILOG = """\
+examples:
+  fleet run configs/warehouse_patrol.yaml                    # real time until Ctrl-C
+  fleet run configs/warehouse_patrol.yaml --duration 300 --speed 10
+  fleet run configs/warehouse_patrol_30.yaml --speed 0 --duration 600 --report r.json --plot r.png
+  fleet run configs/warehouse_patrol.yaml --agents robot1,robot2 --backend remote
+      (robots of a `fleet sim` in another process; the other robots run `fleet agent`)
+  fleet run configs/warehouse_picking.yaml --tree picking --speed 0 --duration 300
+      (picking trees: the coordinator hands out the config's tasks instead of its routes)
+
+--duration and --speed are in simulated seconds; --speed 0 runs as fast as the CPU allows.
+"""
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
+def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
+    """Add ``fleet run`` to ``fleet``'s subcommands."""
+    p = add_command(
+        sub,
+        "run",
+        handle,
+        help="run a fleet: simulator + agents + coordinator in one process",
+        description="Start a Zenoh router on the endpoint, the simulator with N robots, one agent (behavior "
+        "tree) per robot and the coordinator; show a live table; print a summary at the end.",
+        epilog=EPILOG,
+    )
+    add_config(p)
+    p.add_argument(
+        "--duration",
+        "-d",
+        type=positive_float,
+        metavar="S",
+        help="simulated seconds to run (default: until Ctrl-C)",
+    )
+    p.add_argument(
+        "--speed",
+        "-s",
+        type=non_negative_float,
+        default=1.0,
+        metavar="X",
+        help="multiple of real time; 0 = as fast as possible (default 1)",
+    )
+    add_endpoint(p)
+    add_outputs(p)
+    add_traffic(p)
+    p.add_argument(
+        "--backend", default="sim", metavar="NAME", help="navigation backend (default sim; see docs/cli.md)"
+    )
+    p.add_argument(
+        "--agents",
+        default="all",
+        metavar="LIST",
+        help="robots whose agents run here: all (default) or robot1,robot2",
+    )
+    p.add_argument("--no-coordinator", action="store_true", help="do not run the coordinator in this process")
+    p.add_argument(
+        "--tree",
+        choices=tuple(TreeKind),
+        default=TreeKind.PATROL,
+        help="behavior tree of every robot: patrol (the coordinator assigns the config's routes; "
+        "default) or picking (it assigns the config's tasks, each done once; not with --traffic)",
+    )
+    return p
+
+
+def handle(args: argparse.Namespace) -> int:
+    """Run the fleet; print the summary; write the report and plot. Exit code 0, or 130 if
+    interrupted."""
     from fleet.runtime.runner import FleetRunner
 
-    config = _load(args)
-    agents: str | list[str] = "all" if args.agents == "all" else _robot_list(args.agents)
+    config = load(args)
+    agents: str | list[str] = "all" if args.agents == "all" else robot_list(args.agents)
     runner = FleetRunner(
         config,
         duration=args.duration,
@@ -25,45 +102,5 @@ def _cmd_run(args: argparse.Namespace) -> int:
         tree_kind=args.tree,
         traffic=args.traffic,
     )
-    _announce(runner, f"{len(runner.agent_names)} agents" + ("" if args.no_coordinator else " + coordinator"))
-    return _finish(runner, runner.run(), args)
-
-
-def _remote_runner(
-    args: argparse.Namespace, agents: list[str], *, coordinator: bool, live: bool | None
-) -> Any:
-    """A runner for robots of a `fleet sim` in another process (`fleet coordinator`,
-    `fleet agent`): remote backend, as fast as the simulator's clock moves."""
-    from fleet.runtime.runner import FleetRunner
-
-    return FleetRunner(
-        _load(args),
-        duration=args.duration,
-        speed=0.0,
-        endpoint=args.endpoint,
-        backend="remote",
-        agents=agents,
-        coordinator=coordinator,
-        live=live,
-        traffic=args.traffic,
-    )
-
-
-def _cmd_coordinator(args: argparse.Namespace) -> int:
-    runner = _remote_runner(
-        args, _robot_list(args.agents), coordinator=True, live=False if args.no_live else None
-    )
-    _announce(
-        runner, "coordinator" + (f" + agents {', '.join(runner.agent_names)}" if runner.agent_names else "")
-    )
-    return _finish(runner, runner.run(), args)
-
-
-def _cmd_agent(args: argparse.Namespace) -> int:
-    robots = [r for item in args.robot for r in _robot_list(item)]
-    runner = _remote_runner(args, robots, coordinator=False, live=False)
-    _announce(runner, f"agent {', '.join(robots)}")
-    report = runner.run()
-    for r in report.per_robot:
-        print(f"{r.name}: {r.final_state}, {r.distance_m:.1f} m, battery {r.battery_final:.0%}")
-    return EXIT_INTERRUPTED if report.interrupted else EXIT_OK
+    announce(runner, f"{len(runner.agent_names)} agents" + ("" if args.no_coordinator else " + coordinator"))
+    return finish(runner, runner.run(), args)

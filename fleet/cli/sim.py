@@ -1,36 +1,92 @@
-"""``fleet sim`` and ``fleet sim-ros``: the simulator served over Zenoh or as namespaced Nav2."""
+"""``fleet sim``: the simulator served over Zenoh for agents in other processes."""
 
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
-from fleet.cli.common import EXIT_INTERRUPTED, EXIT_OK, _load
-from fleet.errors import BackendError
+from fleet.cli.argtypes import non_negative_float, positive_float
+from fleet.cli.common import (
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    SubParsers,
+    add_command,
+    add_config,
+    add_endpoint,
+    load,
+)
+
+#: Plain progress lines of ``fleet sim`` (not a terminal) come this often (wall seconds).
+PROGRESS_EVERY_S = 10.0
 
 
-def _cmd_sim_ros(argv: list[str]) -> int:
-    """``fleet sim-ros``: imported lazily so the core never imports rclpy."""
-    try:
-        from fleet.ros.nav2_server import main as sim_ros_main
-    except ImportError as e:
-        raise BackendError(
-            f"fleet sim-ros needs ROS 2 Jazzy and nav2_msgs ({e}); run `make setup-ros`"
-        ) from None
-    return int(sim_ros_main(argv) or 0)
+def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
+    """Add ``fleet sim`` to ``fleet``'s subcommands."""
+    p = add_command(
+        sub,
+        "sim",
+        handle,
+        help="serve the simulator over Zenoh for agents in other processes",
+        description="Run the kinematic simulator with the config's robots and serve their navigation "
+        "actions and the simulated clock over Zenoh (listening on the endpoint).",
+        epilog="example:\n  fleet sim configs/warehouse_patrol.yaml --speed 5 --duration 600\n",
+    )
+    add_config(p)
+    p.add_argument(
+        "--speed",
+        "-s",
+        type=non_negative_float,
+        default=1.0,
+        metavar="X",
+        help="multiple of real time (default 1)",
+    )
+    p.add_argument(
+        "--duration", "-d", type=positive_float, metavar="S", help="simulated seconds (default: forever)"
+    )
+    add_endpoint(p)
+    p.add_argument("--plot", type=Path, metavar="PATH", help="write a PNG of the trajectories at the end")
+    return p
 
 
-def _cmd_sim(args: argparse.Namespace) -> int:
-    from fleet.runtime.serve import serve_simulator
+def handle(args: argparse.Namespace) -> int:
+    """Serve until the duration, Ctrl-C or SIGTERM; progress on stdout; the plot at the end."""
+    from fleet.runtime.serve import ServeProgress, serve_simulator
+    from fleet.viz.display import FleetSnapshot, ProgressDisplay
 
-    config = _load(args)
+    config = load(args)
     endpoint = args.endpoint or config.endpoint
     print(f"fleet sim: {len(config.robots)} robots of {config.name} on {endpoint}", flush=True)
-    result = serve_simulator(config, endpoint=endpoint, speed=args.speed, duration=args.duration)
-    if args.plot is not None and result is not None:
+    display = ProgressDisplay(sys.stdout, line_every_s=PROGRESS_EVERY_S)
+
+    def show(p: ServeProgress) -> None:
+        display.show(
+            FleetSnapshot(
+                sim_time_s=p.sim_time_s,
+                wall_s=p.wall_s,
+                duration_s=args.duration,
+                robots=len(config.robots),
+                note=f"{p.steps} steps, {p.requests} requests",
+                label="fleet sim",
+            )
+        )
+
+    try:
+        result = serve_simulator(
+            config,
+            endpoint=endpoint,
+            speed=args.speed,
+            duration=args.duration,
+            progress=show,
+            progress_every_s=display.interval_s,
+        )
+    finally:
+        display.close()
+    if args.plot is not None:
         from fleet.viz.plot import plot_run
 
         sim = result.simulator
         trajectories = {r.name: sim.trajectory(r.namespace) for r in config.robots}
         plot_run(config, trajectories, args.plot, title=f"{config.name}: {len(config.robots)} robots")
         print(f"plot: {args.plot}")
-    return EXIT_INTERRUPTED if result is not None and result.interrupted else EXIT_OK
+    return EXIT_INTERRUPTED if result.interrupted else EXIT_OK

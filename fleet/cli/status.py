@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import signal
 import sys
 import threading
@@ -28,8 +29,11 @@ from typing import Any, TextIO
 
 from fleet.bus.session import DEFAULT_ENDPOINT, open_session
 from fleet.bus.status_bus import StatusBus
+from fleet.cli.common import SubParsers, add_command
+from fleet.cli.logs import add_log_level, configure_logging, resolve_level
 from fleet.errors import BusError
-from fleet.viz.table import LiveTable, render_table, robot_sort_key
+from fleet.viz.display import FleetSnapshot, LiveTable
+from fleet.viz.table import render_table, robot_sort_key
 
 EPILOG = """\
 examples:
@@ -39,14 +43,14 @@ examples:
 """
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="fleet status",
-        description="Attach to a running fleet over Zenoh (as a client) and show the fleet table built "
-        "from the robots' status messages (fleet/*/status) and liveliness tokens (fleet/*/alive).",
-        epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+DESCRIPTION = (
+    "Attach to a running fleet over Zenoh (as a client) and show the fleet table built from the robots' "
+    "status messages (fleet/*/status) and liveliness tokens (fleet/*/alive)."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``fleet status``."""
     p.add_argument(
         "--endpoint",
         "-e",
@@ -73,6 +77,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--connect-timeout", type=float, default=2.0, metavar="S", help="wait S s for the router (2)"
     )
+
+
+def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
+    """Add ``fleet status`` to ``fleet``'s subcommands."""
+    p = add_command(
+        sub,
+        "status",
+        handle,
+        help="attach to a running fleet and show its live table from the bus",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+    )
+    add_arguments(p)
+    return p
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of ``python -m fleet.cli.status`` (the options of ``fleet status``)."""
+    p = argparse.ArgumentParser(
+        prog="fleet status",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_arguments(p)
+    add_log_level(p)
     return p
 
 
@@ -112,6 +142,12 @@ def _wait_for_robots(bus: StatusBus, wait_s: float, settle_s: float, stop: threa
 def status_main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     """Run ``fleet status`` with ``argv`` (without the program name); returns the exit code."""
     args = build_parser().parse_args(list(sys.argv[1:] if argv is None else argv))
+    configure_logging(resolve_level(args.log_level))
+    return handle(args, out)
+
+
+def handle(args: argparse.Namespace, out: TextIO | None = None) -> int:
+    """``fleet status`` with parsed arguments (see the module docstring for the exit codes)."""
     out = out or sys.stdout
     stop = threading.Event()
     old = None
@@ -128,18 +164,7 @@ def status_main(argv: Sequence[str] | None = None, out: TextIO | None = None) ->
             bus.watch_alive()
             bus.subscribe_statuses()
             if args.once:
-                if not _wait_for_robots(bus, args.wait, args.settle, stop):
-                    print(
-                        f"no robot status seen on {args.endpoint} within {args.wait:g} s "
-                        "(is a fleet running there? start one with `fleet run CONFIG`)",
-                        file=sys.stderr,
-                    )
-                    return 1
-                if args.json:
-                    print(json.dumps(snapshot(bus)), file=out, flush=True)
-                else:
-                    print(render_table(bus.latest(), bus.alive()), file=out, flush=True)
-                return 0
+                return _once(bus, args, out, stop)
             return _live(bus, args, out, stop)
         except KeyboardInterrupt:
             return 0
@@ -150,21 +175,51 @@ def status_main(argv: Sequence[str] | None = None, out: TextIO | None = None) ->
             signal.signal(signal.SIGTERM, old)
 
 
+def _once(bus: StatusBus, args: argparse.Namespace, out: TextIO, stop: threading.Event) -> int:
+    if not _wait_for_robots(bus, args.wait, args.settle, stop):
+        print(
+            f"no robot status seen on {args.endpoint} within {args.wait:g} s "
+            "(is a fleet running there? start one with `fleet run CONFIG`)",
+            file=sys.stderr,
+        )
+        return 1
+    if args.json:
+        print(json.dumps(snapshot(bus)), file=out, flush=True)
+    else:
+        width = shutil.get_terminal_size().columns if out.isatty() else None
+        print(render_table(bus.latest(), bus.alive(), width=width), file=out, flush=True)
+    return 0
+
+
 def _live(bus: StatusBus, args: argparse.Namespace, out: TextIO, stop: threading.Event) -> int:
     end = None if args.duration is None else time.monotonic() + args.duration
-    table = None if args.json else LiveTable(out, min_interval_s=args.interval)
+    table = None if args.json else LiveTable(out, interval_s=args.interval)
     if table is not None and not table.tty:
         print(f"fleet status: watching {args.endpoint} (Ctrl-C to stop)", file=out, flush=True)
-    while not stop.is_set() and (end is None or time.monotonic() < end):
+    t0 = time.monotonic()
+    next_line = t0
+    try:
+        while not stop.is_set() and (end is None or time.monotonic() < end):
+            if table is None:
+                print(json.dumps(snapshot(bus)), file=out, flush=True)
+            elif time.monotonic() >= next_line:
+                table.show(_snapshot(bus, time.monotonic() - t0))
+                next_line = time.monotonic() + table.interval_s
+            stop.wait(args.interval)
+    finally:
         if table is not None:
-            table.update(bus.latest(), bus.alive())
-        else:
-            print(json.dumps(snapshot(bus)), file=out, flush=True)
-        stop.wait(args.interval)
-    if table is not None:
-        table.update(bus.latest(), bus.alive(), force=True)
-        table.close()
+            table.close(_snapshot(bus, time.monotonic() - t0))
     return 0
+
+
+def _snapshot(bus: StatusBus, wall_s: float) -> FleetSnapshot:
+    latest = bus.latest()
+    return FleetSnapshot(
+        sim_time_s=max((r.t for r in latest.values()), default=0.0),
+        wall_s=wall_s,
+        records=[latest[n] for n in sorted(latest, key=robot_sort_key)],
+        alive=bus.alive(),
+    )
 
 
 if __name__ == "__main__":

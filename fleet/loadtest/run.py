@@ -19,25 +19,34 @@ At the end it writes the report JSON of ``fleet run`` (:class:`fleet.runtime.rep
 
 Large fleets: agents tick at ``--tick-hz`` (default :data:`DEFAULT_TICK_HZ`) instead of the
 config's 10 Hz and publish their status on the bus at ``--status-hz`` (default
-:data:`DEFAULT_STATUS_HZ`; the in-process coordinator still sees every tick's status). Both
-are written to the report.
+:data:`DEFAULT_STATUS_HZ`: the config's ``bus.status_hz``, which the agents honour; the
+in-process coordinator still sees every tick's status). Both are written to the report.
+
+Nothing here prints: :func:`run_loadtest` reports its progress to callbacks (``fleet loadtest``
+shows it with :mod:`fleet.viz.display`).
 
 Units: simulated seconds unless a name says ``wall``; meters in the ``map`` frame."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
 import socket
-import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any
 
+from fleet.config.model import FleetConfig
 from fleet.errors import ConfigError
 from fleet.loadtest.sampler import DEFAULT_SAMPLE_S, HEAT_BIN_M, FleetSampler, loadtest_block
+from fleet.viz.display import FleetSnapshot, NullDisplay
+
+if TYPE_CHECKING:
+    from fleet.runtime.report import RunReport
 
 #: Default agent tick rate of a load test (simulated Hz).
 DEFAULT_TICK_HZ = 2.0
@@ -66,7 +75,7 @@ def prepare_config(
     step_s: float | None = None,
     route_copies: int | None = None,
     seed: int = 1,
-) -> Any:
+) -> FleetConfig:
     """Generate the warehouse for ``n_robots`` into ``out_dir`` and load it as a load-test config.
 
     The config's ``agent.tick_hz``, ``bus.status_hz`` and (if given) ``sim.step_s`` are replaced;
@@ -75,8 +84,6 @@ def prepare_config(
     :func:`auto_route_copies`). Raises :class:`ConfigError`
     for values that cannot work (e.g. a tick period shorter than the step).
     """
-    import dataclasses
-
     from fleet.config.loader import load_config
     from fleet.warehouse import generate_warehouse
 
@@ -104,7 +111,7 @@ def prepare_config(
     return cfg
 
 
-def auto_route_copies(cfg: Any) -> int:
+def auto_route_copies(cfg: FleetConfig) -> int:
     """Robots per patrol loop when ``--route-copies`` is not given: enough for half the fleet,
     but at most one robot per :data:`PATROL_SPACING_M` of the shortest loop, and at least 1."""
     n, routes = len(cfg.robots), len(cfg.routes)
@@ -122,11 +129,47 @@ def auto_route_copies(cfg: Any) -> int:
 class LoadTestResult:
     """What :func:`run_loadtest` produced: the run report, the full JSON dict and file paths."""
 
-    report: Any
+    report: RunReport
     data: dict[str, Any]
     report_path: Path
     plots: dict[str, Path]
     interrupted: bool
+
+
+@dataclass(frozen=True)
+class _Outputs:
+    """Where a load test writes: the generated warehouse, the report and the plots."""
+
+    out_dir: Path
+    report_path: Path
+    plot_dir: Path
+
+
+def _check(
+    n_robots: int,
+    backend: str,
+    rates: dict[str, float],
+    out_dir: str | Path | None,
+    report_path: str | Path | None,
+    plot_dir: str | Path | None,
+) -> _Outputs:
+    """Validate the arguments (:class:`ConfigError` naming the option) and resolve the paths."""
+    from fleet.runtime.backends import BACKENDS, backend_names
+
+    src = "fleet loadtest"
+    for name, val in rates.items():
+        if not (math.isfinite(val) and val > 0):
+            raise ConfigError(src, name, f"must be a positive number, got {val}")
+    if backend not in BACKENDS:
+        raise ConfigError(
+            src, "--backend", f"unknown backend {backend!r}; known: {', '.join(backend_names())}"
+        )
+    out = Path(out_dir) if out_dir is not None else Path("out") / f"loadtest-{n_robots}"
+    return _Outputs(
+        out,
+        Path(report_path) if report_path is not None else out / "report.json",
+        Path(plot_dir) if plot_dir is not None else out,
+    )
 
 
 def run_loadtest(
@@ -146,67 +189,33 @@ def run_loadtest(
     seed: int = 1,
     endpoint: str | None = None,
     dpi: int = 100,
-    out: TextIO | None = None,
     traffic: bool = False,
+    on_config: Callable[[FleetConfig], None] | None = None,
+    on_progress: Callable[[FleetSnapshot], None] | None = None,
 ) -> LoadTestResult:
     """Run one load test (see the module docstring) and write its report and plots.
 
     Defaults: ``out_dir`` ``out/loadtest-<N>``; ``report_path`` ``<out_dir>/report.json``;
-    ``plot_dir`` ``out_dir``; ``endpoint`` a free TCP port on 127.0.0.1. Raises
-    :class:`ConfigError` for bad arguments, :class:`BusError` / :class:`BackendError` when the
-    bus or backend cannot be set up.
+    ``plot_dir`` ``out_dir``; ``endpoint`` a free TCP port on 127.0.0.1. ``on_config`` is
+    called with the generated config before the run; ``on_progress`` with a progress snapshot
+    every few wall seconds. Raises :class:`ConfigError` for bad arguments, :class:`BusError` /
+    :class:`BackendError` when the bus or backend cannot be set up.
     """
-    from fleet.runtime.backends import BACKENDS, backend_names
-    from fleet.runtime.runner import FleetRunner
-
-    stream = out or sys.stdout
-    src = "fleet loadtest"
-    for name, val in (("--tick-hz", tick_hz), ("--status-hz", status_hz), ("--sample-s", sample_s)):
-        if not (math.isfinite(val) and val > 0):
-            raise ConfigError(src, name, f"must be a positive number, got {val}")
-    if backend not in BACKENDS:
-        raise ConfigError(
-            src, "--backend", f"unknown backend {backend!r}; known: {', '.join(backend_names())}"
-        )
-    out_dir = Path(out_dir) if out_dir is not None else Path("out") / f"loadtest-{n_robots}"
-    report_path = Path(report_path) if report_path is not None else out_dir / "report.json"
-    plot_dir = Path(plot_dir) if plot_dir is not None else out_dir
-    w0 = time.monotonic()
+    rates = {"--tick-hz": tick_hz, "--status-hz": status_hz, "--sample-s": sample_s}
+    paths = _check(n_robots, backend, rates, out_dir, report_path, plot_dir)
     cfg = prepare_config(
         n_robots,
-        out_dir,
+        paths.out_dir,
         tick_hz=tick_hz,
         status_hz=status_hz,
         step_s=step_s,
         route_copies=route_copies,
         seed=seed,
     )
-    print(
-        f"fleet loadtest: {len(cfg.robots)} robots, {len(cfg.routes)} patrol routes, map "
-        f"{cfg.grid.extent[1]:g} x {cfg.grid.extent[3]:g} m, backend {backend}, agents at {tick_hz:g} Hz, "
-        f"status at {status_hz:g} Hz, step {cfg.sim.step_s:g} s; config {cfg.path} "
-        f"({time.monotonic() - w0:.1f} s)",
-        file=stream,
-        flush=True,
-    )
-    sampler = FleetSampler(
-        len(cfg.robots), cfg.grid.extent, sample_s=sample_s, status_hz=status_hz, out=stream
-    )
-    runner = FleetRunner(
-        cfg,
-        duration=duration,
-        speed=speed,
-        endpoint=endpoint or _free_endpoint(),
-        backend=backend,
-        live=False,
-        out=_DropRunnerProgress(stream),  # type: ignore[arg-type]  # a write-only TextIO
-        traffic=traffic,
-    )
-    runner.observers.append(sampler)
-    sampler.start()
-    report = runner.run()
-    if runner.world is not None and report.sim_time_s > (sampler.t[-1] if sampler.t else -1) + 1e-6:
-        sampler.sample(report.sim_time_s, runner, time.monotonic())  # the final state
+    if on_config is not None:
+        on_config(cfg)
+    sampler = FleetSampler(len(cfg.robots), cfg.grid.extent, sample_s=sample_s, on_progress=on_progress)
+    report = _run(cfg, sampler, duration, backend=backend, speed=speed, endpoint=endpoint, traffic=traffic)
     data = report.to_dict()
     data["loadtest"] = loadtest_block(
         report, sampler, backend=backend, tick_hz=tick_hz, status_hz=status_hz, step_s=cfg.sim.step_s
@@ -214,42 +223,63 @@ def run_loadtest(
     base = [r for r in cfg.routes if not re.search(r"_c\d+$", r.name)]
     data["loadtest"]["patrol_routes"] = len(cfg.routes)
     data["loadtest"]["route_copies"] = len(cfg.routes) // max(1, len(base))
+    plots = _plot(cfg, sampler, data, report, paths.plot_dir, backend=backend, dpi=dpi)
+    data["loadtest"]["plots"] = {k: str(v) for k, v in plots.items()}
+    paths.report_path.parent.mkdir(parents=True, exist_ok=True)
+    paths.report_path.write_text(json.dumps(data, indent=2) + "\n")
+    return LoadTestResult(report, data, paths.report_path, plots, bool(report.interrupted))
+
+
+def _run(
+    cfg: FleetConfig,
+    sampler: FleetSampler,
+    duration: float,
+    *,
+    backend: str,
+    speed: float,
+    endpoint: str | None,
+    traffic: bool,
+) -> RunReport:
+    """The fleet run of a load test, sampled by ``sampler`` (its final state included)."""
+    from fleet.runtime.runner import FleetRunner
+
+    runner = FleetRunner(
+        cfg,
+        duration=duration,
+        speed=speed,
+        endpoint=endpoint or _free_endpoint(),
+        backend=backend,
+        live=False,
+        display=NullDisplay(),  # the sampler reports the progress
+        traffic=traffic,
+    )
+    runner.observers.append(sampler)
+    sampler.start()
+    report = runner.run()
+    if runner.world is not None and report.sim_time_s > (sampler.t[-1] if sampler.t else -1) + 1e-6:
+        sampler.sample(report.sim_time_s, runner, time.monotonic())  # the final state
+    return report
+
+
+def _plot(
+    cfg: FleetConfig,
+    sampler: FleetSampler,
+    data: dict[str, Any],
+    report: RunReport,
+    plot_dir: Path,
+    *,
+    backend: str,
+    dpi: int,
+) -> dict[str, Path]:
+    """The three pictures of the load test (see :mod:`fleet.viz.loadtest_plots`)."""
     from fleet.viz.loadtest_plots import plot_congestion, plot_states, plot_throughput
 
     title = f"{report.robots} robots, {backend}, {report.sim_time_s:.0f} s simulated"
     series = data["loadtest"]["series"]
-    plots = {
+    return {
         "throughput": plot_throughput(series, plot_dir / "throughput.png", title=title, dpi=dpi),
         "states": plot_states(series, plot_dir / "states.png", title=title, dpi=dpi),
         "congestion": plot_congestion(
             cfg, sampler.heat, plot_dir / "congestion.png", bin_m=HEAT_BIN_M, title=title, dpi=dpi
         ),
     }
-    data["loadtest"]["plots"] = {k: str(v) for k, v in plots.items()}
-    report_path.parent.mkdir(parents=True, exist_ok=True)
-    report_path.write_text(json.dumps(data, indent=2) + "\n")
-    return LoadTestResult(report, data, report_path, plots, bool(report.interrupted))
-
-
-class _DropRunnerProgress:
-    """The runner's output stream minus its own progress lines (the sampler prints richer ones)."""
-
-    def __init__(self, stream: TextIO) -> None:
-        self._s = stream
-        self._dropping = False
-
-    def write(self, text: str) -> int:
-        if text.startswith("[t=") or (self._dropping and text == "\n"):
-            self._dropping = text != "\n"
-            return len(text)
-        self._dropping = False
-        return self._s.write(text)
-
-    def flush(self) -> None:
-        self._s.flush()
-
-    def isatty(self) -> bool:
-        return False
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._s, name)

@@ -4,12 +4,20 @@ congestion heat map over simulated time."""
 from __future__ import annotations
 
 import math
-import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from fleet.types import DRIVING_MODES
+from fleet.viz.display import FleetSnapshot
+
+if TYPE_CHECKING:
+    from fleet.coordination.coordinator import CoordinatorState
+    from fleet.runtime.report import RunReport
+    from fleet.runtime.runner import FleetRunner
 
 #: Default sampling period of the time series (simulated seconds).
 DEFAULT_SAMPLE_S = 5.0
@@ -33,9 +41,6 @@ PROGRESS_EVERY_S = 5.0
 
 #: Robot states in the ``states`` time series, in plotting order.
 STATES = ("patrol", "picking", "recovery", "charging", "idle", "stuck", "dead")
-
-
-DRIVING_MODES = ("patrol", "recovery", "picking")
 
 
 #: Fields of the ``loadtest`` block of the report.
@@ -69,30 +74,11 @@ SERIES_FIELDS = (
 )
 
 
-class _ThrottledBus:
-    """A status bus proxy that publishes each robot's status at most every ``period_s``
-    (simulated seconds, from the record's ``t``); everything else goes to ``bus``."""
-
-    def __init__(self, bus: Any, period_s: float) -> None:
-        self._bus = bus
-        self._period = period_s
-        self._last: dict[str, float] = {}
-
-    def publish_status(self, rec: Any) -> None:
-        last = self._last.get(rec.robot)
-        if last is None or rec.t >= last + self._period - 1e-9:
-            self._last[rec.robot] = rec.t
-            self._bus.publish_status(rec)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._bus, name)
-
-
 @dataclass
 class FleetSampler:
     """The runner observer of a load test: samples the fleet every ``sample_s`` simulated
-    seconds, prints a progress line every :data:`PROGRESS_EVERY_S` wall seconds and throttles
-    the agents' status publishing to ``status_hz``. See the module docstring for the metrics.
+    seconds and hands a progress snapshot to ``on_progress`` every :data:`PROGRESS_EVERY_S`
+    wall seconds. See :mod:`fleet.loadtest.run` for the metrics.
 
     ``extent`` is the map's ``(xmin, xmax, ymin, ymax)`` (m); ``n_robots`` normalizes the
     throughput (laps per robot-hour over every robot of the fleet).
@@ -101,8 +87,7 @@ class FleetSampler:
     n_robots: int
     extent: tuple[float, float, float, float]
     sample_s: float = DEFAULT_SAMPLE_S
-    status_hz: float | None = None
-    out: TextIO | None = None
+    on_progress: Callable[[FleetSnapshot], None] | None = None
     t: list[float] = field(default_factory=list)
     wall: list[float] = field(default_factory=list)
     laps: list[int] = field(default_factory=list)
@@ -126,38 +111,29 @@ class FleetSampler:
         self._loop_wall0: float | None = None
         self._loop_t0 = 0.0
         self._next_progress = 0.0
-        self._throttled = False
 
     def start(self) -> None:
         """Mark the wall-clock start of the run (before the runner sets up)."""
         self._wall0 = time.monotonic()
 
-    def __call__(self, now: float, runner: Any) -> None:
+    def __call__(self, now: float, runner: FleetRunner) -> None:
         w = time.monotonic()
         if self._loop_wall0 is None:
             self._loop_wall0 = w
             self._loop_t0 = now
             self.setup_wall_s = w - self._wall0
             self._next_progress = w + PROGRESS_EVERY_S
-            self._throttle(runner)
         if self._next_sample is None or now >= self._next_sample - 1e-9:
             self.sample(now, runner, w)
             self._next_sample = (now if self._next_sample is None else self._next_sample) + self.sample_s
         if w >= self._next_progress:
-            self.progress(now, runner, w)
+            if self.on_progress is not None:
+                self.on_progress(self.progress(now, runner, w))
             self._next_progress = w + PROGRESS_EVERY_S
 
-    def _throttle(self, runner: Any) -> None:
-        if self.status_hz is None or self.status_hz >= runner.config.tick_hz:
-            return
-        for a in runner.agents:
-            if a.bus is not None:
-                a.bus = _ThrottledBus(a.bus, 1.0 / self.status_hz)
-        self._throttled = True
-
-    def sample(self, now: float, runner: Any, wall: float) -> None:
+    def sample(self, now: float, runner: FleetRunner, wall: float) -> None:
         """Record one sample of every time series at simulated time ``now``."""
-        st = runner.coordinator.state if runner.coordinator is not None else None
+        st: CoordinatorState | None = runner.coordinator.state if runner.coordinator is not None else None
         counts = dict.fromkeys(STATES, 0)
         dt = None if self._t_last_sample is None else now - self._t_last_sample
         n_wait = 0
@@ -196,7 +172,7 @@ class FleetSampler:
         laps = (
             st.laps_completed()
             if st is not None
-            else sum(int(a.last_status.laps) for a in runner.agents if a.last_status)
+            else sum(int(a.last_status.laps) for a in runner.agents if a.last_status is not None)
         )
         coll = runner.world.collisions() if runner.world is not None else None
         self.t.append(round(float(now), 3))
@@ -209,23 +185,22 @@ class FleetSampler:
             self.states[s].append(counts[s])
         self._t_last_sample = now
 
-    def progress(self, now: float, runner: Any, wall: float) -> None:
-        """Print one progress line: sim time, x real time, laps, collisions, deadlocks, states."""
-        out = self.out or sys.stdout
+    def progress(self, now: float, runner: FleetRunner, wall: float) -> FleetSnapshot:
+        """The progress now: sim time, x real time, laps, collisions, deadlocks, robots per state
+        (as of the last sample)."""
         loop_wall = wall - (self._loop_wall0 or wall)
-        rtf = (now - self._loop_t0) / loop_wall if loop_wall > 0 else 0.0
         st = runner.coordinator.state if runner.coordinator is not None else None
-        laps = st.laps_completed() if st is not None else 0
         coll = runner.world.collisions() if runner.world is not None else None
-        dl = st.deadlocks if st is not None else 0
-        states = ", ".join(
-            f"{s} {self.states[s][-1]}" for s in STATES if self.states[s] and self.states[s][-1]
-        )
-        print(
-            f"[loadtest t={now:8.1f} s sim, {wall - self._wall0:7.1f} s wall, {rtf:5.2f}x real time] "
-            f"{laps} laps, {coll or 0} collisions, {dl} deadlocks; {states}",
-            file=out,
-            flush=True,
+        return FleetSnapshot(
+            sim_time_s=now,
+            wall_s=wall - self._wall0,
+            duration_s=runner.duration,
+            laps=st.laps_completed() if st is not None else 0,
+            collisions=coll or 0,
+            deadlocks=st.deadlocks if st is not None else 0,
+            states={s: self.states[s][-1] for s in STATES if self.states[s]},
+            real_time_factor=(now - self._loop_t0) / loop_wall if loop_wall > 0 else 0.0,
+            label="loadtest",
         )
 
     def series(self) -> dict[str, Any]:
@@ -275,7 +250,7 @@ class FleetSampler:
 
 
 def loadtest_block(
-    report: Any, sampler: FleetSampler, *, backend: str, tick_hz: float, status_hz: float, step_s: float
+    report: RunReport, sampler: FleetSampler, *, backend: str, tick_hz: float, status_hz: float, step_s: float
 ) -> dict[str, Any]:
     """The ``loadtest`` block of the report (fields :data:`LOADTEST_FIELDS`).
 

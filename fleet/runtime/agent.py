@@ -14,22 +14,50 @@ of an order that has been superseded) is ignored, so a message can never be appl
 Orders are queued by the bus callback thread and applied on the ticking thread only.
 With traffic management the agent also takes the robot's traffic grants
 (``fleet/<robot>/grant``, newest ``seq`` wins) into the blackboard key ``grant``.
+
+Status rate: with ``status_hz`` (the config's ``bus.status_hz``) the agent publishes its status
+on the bus at most that often (simulated time, from the records' ``t``): a record is published
+when at least ``1 / status_hz`` s passed since the last one published; ``None`` publishes every
+tick. ``on_status`` (an in-process coordinator) still gets every tick's record.
 """
 
 from __future__ import annotations
 
+import logging
+import math
 import threading
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING, Protocol
 
-from fleet.types import Pose2D
+from fleet.messages import Grant, StatusRecord, TaskMessage
+from fleet.types import Mode, Pose2D, TaskKind, TreeKind
 
 if TYPE_CHECKING:
     from fleet.navigation import Clock, NavigationBackend
     from fleet.robots import BatteryModel
 
+logger = logging.getLogger(__name__)
+
 #: Remember this many applied order ids (older ones are forgotten first).
 SEEN_IDS = 256
+
+
+class Declared(Protocol):
+    """Something declared on the bus (a subscription, a liveliness token)."""
+
+    def undeclare(self) -> None: ...
+
+
+class AgentBus(Protocol):
+    """What an agent needs of the bus (:class:`fleet.bus.status_bus.StatusBus` has it)."""
+
+    def publish_status(self, rec: StatusRecord) -> None: ...
+
+    def subscribe_tasks(self, robot: str, callback: Callable[[TaskMessage], None]) -> Declared: ...
+
+    def subscribe_grants(self, robot: str, callback: Callable[[Grant], None]) -> Declared: ...
+
+    def declare_alive(self, robot: str) -> Declared: ...
 
 
 class RobotAgent:
@@ -39,15 +67,19 @@ class RobotAgent:
         namespace: the robot's namespace.
         backend: its :class:`~fleet.navigation.NavigationBackend`.
         clock: the fleet clock (simulated seconds); status timestamps come from it.
-        bus: a :class:`~fleet.bus.status_bus.StatusBus`, or ``None`` for an agent without a
-            network (orders then come only through :meth:`deliver`).
+        bus: a :class:`~fleet.bus.status_bus.StatusBus` (any :class:`AgentBus`), or ``None``
+            for an agent without a network (orders then come only through :meth:`deliver`).
         tree_kind: ``"patrol"`` or ``"picking"`` (see :func:`nodes.build_tree`).
         battery_model: the battery thresholds the tree's battery guard uses.
         tick_hz: how often the runner should call :meth:`tick` (simulated Hz).
-        on_status: called with every status record published (e.g. to feed an in-process
-            coordinator directly).
+        on_status: called with every tick's status record (e.g. to feed an in-process
+            coordinator directly), whatever ``status_hz``.
         traffic: build the traffic-managed tree (``docs/traffic.md``): the robot drives only
             what its traffic grants (``fleet/<robot>/grant``, or :meth:`deliver_grant`) allow.
+        status_hz: publish the status on the bus at most this often (simulated Hz, > 0);
+            ``None``: every tick. See the module docstring.
+
+    ``published`` counts the records published on the bus.
     """
 
     def __init__(
@@ -55,12 +87,13 @@ class RobotAgent:
         namespace: str,
         backend: NavigationBackend,
         clock: Clock,
-        bus: Any | None,
-        tree_kind: str = "patrol",
+        bus: AgentBus | None,
+        tree_kind: str = TreeKind.PATROL,
         battery_model: BatteryModel | None = None,
         tick_hz: float = 10.0,
-        on_status: Callable[[Any], None] | None = None,
+        on_status: Callable[[StatusRecord], None] | None = None,
         traffic: bool = False,
+        status_hz: float | None = None,
     ) -> None:
         from fleet.robots import BatteryModel
         from nodes import build_tree
@@ -74,6 +107,12 @@ class RobotAgent:
         self.tick_hz = float(tick_hz)
         self.tree_kind = tree_kind
         self.on_status = on_status
+        if status_hz is not None and not (math.isfinite(status_hz) and status_hz > 0):
+            raise ValueError(f"status_hz must be a positive number of Hz or None, got {status_hz}")
+        #: Least simulated time between two records published on the bus (None: every tick).
+        self.status_period_s = None if status_hz is None else 1.0 / status_hz
+        self._last_published: float | None = None
+        self.published = 0
         # py_trees' blackboard is process-global: start from the defaults, not from what an
         # earlier agent of the same namespace in this process left behind
         clear_robot_blackboard(self.namespace)
@@ -85,17 +124,17 @@ class RobotAgent:
         self.seq = 0
         self.ticks = 0
         self.charges = 0
-        self.last_status: Any = None
+        self.last_status: StatusRecord | None = None
         self._seen: dict[str, None] = {}
-        self._inbox: list[Any] = []
-        self._grant: Any = None
+        self._inbox: list[TaskMessage] = []
+        self._grant: Grant | None = None
         self._grant_seq = 0
         self.grants_applied = 0
         self._lock = threading.Lock()
-        self._last_mode = "idle"
-        self._token: Any = None
-        self._sub: Any = None
-        self._grant_sub: Any = None
+        self._last_mode: str = Mode.IDLE
+        self._token: Declared | None = None
+        self._sub: Declared | None = None
+        self._grant_sub: Declared | None = None
         if bus is not None:
             self._sub = bus.subscribe_tasks(self.name, self.deliver)
             if traffic:
@@ -104,17 +143,16 @@ class RobotAgent:
 
     # -- orders ------------------------------------------------------------------------
 
-    def deliver(self, msg: Any) -> None:
-        """Queue an order (a :class:`~fleet.bus.status_bus.TaskMessage`); thread-safe. It is
-        applied at the start of the next :meth:`tick`."""
+    def deliver(self, msg: TaskMessage) -> None:
+        """Queue an order; thread-safe. It is applied at the start of the next :meth:`tick`."""
         with self._lock:
             self._inbox.append(msg)
 
-    def deliver_grant(self, grant: Any) -> None:
-        """Keep a traffic :class:`~fleet.traffic.Grant` for the next :meth:`tick`; thread-safe.
+    def deliver_grant(self, grant: Grant) -> None:
+        """Keep a traffic :class:`~fleet.messages.Grant` for the next :meth:`tick`; thread-safe.
         Only the newest (highest ``seq``) of those received counts; older or duplicate copies
         (the bus copy of a grant also handed over in-process) are ignored."""
-        if getattr(grant, "robot", self.name) != self.name:
+        if grant.robot != self.name:
             return
         with self._lock:
             if self._grant is None or grant.seq > self._grant.seq:
@@ -131,30 +169,27 @@ class RobotAgent:
             self.bb.grant = grant
             self.grants_applied += 1
 
-    def apply(self, msg: Any) -> bool:
+    def apply(self, msg: TaskMessage) -> bool:
         """Apply one order to the blackboard now; returns False if it was ignored (an id
         already applied, or addressed to another robot)."""
-        robot = getattr(msg, "robot", None)
-        if robot not in (None, self.name):
+        if msg.robot not in (None, self.name):
             return False
-        tid = getattr(msg, "task_id", None)
+        tid = msg.task_id
         if tid is not None:
             if tid in self._seen:
                 return False
             self._seen[tid] = None
             if len(self._seen) > SEEN_IDS:
                 self._seen.pop(next(iter(self._seen)))
-        kind = getattr(msg, "kind", "idle")
-        charger = getattr(msg, "charger", None)
-        if charger is not None:
-            self.bb.charger = _pose(charger)
-        if kind == "patrol":
+        if msg.charger is not None:
+            self.bb.charger = _pose(msg.charger)
+        if msg.kind == TaskKind.PATROL:
             self.bb.pick = None
-            self.bb.route = tuple(_pose(p) for p in getattr(msg, "poses", ()))
+            self.bb.route = tuple(_pose(p) for p in msg.poses)
             self.bb.task_id = tid
-        elif kind == "pick":
+        elif msg.kind == TaskKind.PICK:
             self.bb.route = None
-            self.bb.pick = getattr(msg, "pick", None)
+            self.bb.pick = msg.pick
             self.bb.task_id = tid
         else:
             self.bb.route = None
@@ -164,27 +199,35 @@ class RobotAgent:
 
     # -- ticking -----------------------------------------------------------------------
 
-    def tick(self) -> Any:
-        """Apply queued orders, tick the tree once, publish and return the status record."""
+    def tick(self) -> StatusRecord:
+        """Apply queued orders, tick the tree once, publish (see ``status_hz``) and return
+        the status record."""
         self._apply_orders()
         self.root.tick_once()
         self.ticks += 1
         mode = str(self.bb.mode)
-        if mode == "charging" and self._last_mode != "charging":
+        if mode == Mode.CHARGING and self._last_mode != Mode.CHARGING:
             self.charges += 1
         self._last_mode = mode
         rec = self.status()
         self.last_status = rec
-        if self.bus is not None:
-            self.bus.publish_status(rec)
+        self._publish(rec)
         if self.on_status is not None:
             self.on_status(rec)
         return rec
 
-    def status(self) -> Any:
-        """The current :class:`~fleet.bus.status_bus.StatusRecord` of this robot."""
-        from fleet.messages import StatusRecord
+    def _publish(self, rec: StatusRecord) -> None:
+        if self.bus is None:
+            return
+        last, period = self._last_published, self.status_period_s
+        if period is not None and last is not None and rec.t < last + period - 1e-9:
+            return
+        self._last_published = rec.t
+        self.published += 1
+        self.bus.publish_status(rec)
 
+    def status(self) -> StatusRecord:
+        """The current status record of this robot (each call takes the next ``seq``)."""
         self.seq += 1
         st = self.backend.robot_state()
         bb = self.bb
@@ -217,19 +260,18 @@ class RobotAgent:
 
         try:
             self.root.stop(Status.INVALID)
-        except Exception:  # noqa: BLE001 - best effort on shutdown
-            pass
+        except Exception as e:  # noqa: BLE001 - best effort on shutdown
+            logger.debug("robot %s: stopping the tree failed: %s", self.name, e)
         for handle in (self._token, self._sub, self._grant_sub):
-            undeclare = getattr(handle, "undeclare", None)
-            if undeclare is not None:
+            if handle is not None:
                 try:
-                    undeclare()
-                except Exception:  # noqa: BLE001
-                    pass
+                    handle.undeclare()
+                except Exception as e:  # noqa: BLE001 - keep releasing the rest
+                    logger.debug("robot %s: undeclare failed: %s", self.name, e)
         self._token = self._sub = self._grant_sub = None
 
 
-def _pose(p: Any) -> Pose2D:
+def _pose(p: Pose2D | Iterable[float]) -> Pose2D:
     if isinstance(p, Pose2D):
         return p
     return Pose2D(*(float(v) for v in p))

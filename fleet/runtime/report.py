@@ -29,15 +29,31 @@ JSON fields (``RunReport.to_dict``), units in the names:
   ``battery_final``, ``final_state`` (the tree's mode at the end, or ``dead`` / ``unknown``),
   ``leaf``, ``task_id``, ``collisions``, ``charges`` (times it went to charge).
 
-Trajectories (for :mod:`fleet.viz.plot`) are kept on the object but not written to JSON.
+Trajectories (for :mod:`fleet.viz.plot`) are kept on the object but not written to JSON:
+the world's own (the simulator and SUMO sample every robot every 0.5 s) for the robots of
+this process, else bounded ones sampled from the robots' statuses on the bus
+(:class:`fleet.runtime.trajectory.Trajectory`: at most 1024 samples per robot, decimated
+evenly over the run).
+
+:class:`ReportBuilder` assembles a :class:`RunReport` from what a run leaves behind (the
+world, the coordinator's state, the traffic policy, the latest status of each robot).
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from fleet.messages import StatusRecord
+
+if TYPE_CHECKING:
+    from fleet.config.model import FleetConfig
+    from fleet.coordination.coordinator import Assignment, CoordinatorState, Reassignment
+    from fleet.runtime.worlds import World
+    from fleet.traffic.policy import ReservationTraffic
 
 REQUIRED_FIELDS = (
     "robots",
@@ -101,7 +117,7 @@ class RunReport:
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON-ready dict (trajectories left out)."""
-        d = asdict(self)
+        d = asdict(replace(self, trajectories={}))
         d.pop("trajectories", None)
         d["sim_time_s"] = round(self.sim_time_s, 3)
         d["wall_time_s"] = round(self.wall_time_s, 3)
@@ -121,39 +137,166 @@ class RunReport:
         return p
 
     def summary(self) -> str:
-        """A short human-readable summary (several lines, no trailing newline)."""
-        rate = self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else float("inf")
-        lines = [
-            f"{'interrupted' if self.interrupted else 'finished'}: {self.robots} robots, "
-            f"{self.sim_time_s:.1f} s simulated in {self.wall_time_s:.1f} s wall ({rate:.1f}x real time)",
-            f"patrols: {self.patrols_assigned} assigned, {self.patrols_completed} completed, "
-            f"{self.laps_completed} laps"
-            + (
-                " (" + ", ".join(f"{k}: {v}" for k, v in self.laps_by_route.items()) + ")"
-                if self.laps_by_route
-                else ""
-            ),
-        ]
-        if self.picks_assigned:
-            lines.append(f"picks: {self.picks_assigned} assigned, {self.picks_completed} completed")
-        lines += [
-            f"collisions: {self.collisions}   deadlocks: {self.deadlocks}   reassignments: {self.reassignments}"
-            f"   throughput: {self.throughput_laps_per_robot_hour:.1f} laps/robot-hour",
-        ]
-        if self.traffic is not None:
-            t = self.traffic
-            lines.append(
-                f"traffic: mean wait {t['mean_wait_s']:.1f} s (max {t['max_wait_s']:.1f} s), "
-                f"wait-for cycles {t['cycles_detected']} found / {t['cycles_resolved']} resolved, "
-                f"{t['reroutes']} reroutes, {t['sidesteps']} side steps, {t['stalls']} stalls"
-            )
-        for e in self.reassignment_events:
-            to = f"-> {e['to_robot']} at {e['t_reassigned']:.1f} s" if e.get("to_robot") else "(waiting)"
-            lines.append(f"  t={e['t']:.1f} s {e['route']}: {e['from_robot']} {e['reason']} {to}")
-        width = max((len(r.name) for r in self.per_robot), default=5)
-        lines.append(f"  {'robot':<{width}}  {'dist m':>8}  {'laps':>4}  {'battery':>7}  state")
-        for r in self.per_robot:
-            lines.append(
-                f"  {r.name:<{width}}  {r.distance_m:8.1f}  {r.laps:4d}  {r.battery_final:7.0%}  {r.final_state}"
-            )
-        return "\n".join(lines)
+        """The end-of-run summary as plain text (several lines, no trailing newline); see
+        :mod:`fleet.viz.summary`."""
+        from fleet.viz.summary import summary_text
+
+        return summary_text(self.to_dict())
+
+
+@dataclass
+class ReportBuilder:
+    """Builds the :class:`RunReport` of one run.
+
+    Args:
+        config: the fleet config; its robots give the report's row order.
+        backend: the backend name; ``speed``: the requested multiple of real time.
+        local: the robots whose agents ran in this process (their trajectories come from the
+            world; the others' from ``bus_trajectory``).
+        t0: the simulated time the loop started at (for the throughput).
+    """
+
+    config: FleetConfig
+    backend: str
+    speed: float
+    local: Sequence[str]
+    t0: float = 0.0
+
+    def build(
+        self,
+        world: World,
+        records: Mapping[str, StatusRecord],
+        *,
+        wall_s: float,
+        interrupted: bool,
+        state: CoordinatorState | None = None,
+        traffic: ReservationTraffic | None = None,
+        charges: Mapping[str, int] | None = None,
+        bus_trajectory: Callable[[str], list[tuple[float, float, float]]] = lambda name: [],
+        malformed: int = 0,
+    ) -> RunReport:
+        """The report: ``records`` are the latest status per robot; ``state`` the coordinator's
+        (``None`` without a coordinator: laps come from the records); ``traffic`` the traffic
+        policy when traffic management was on; ``charges`` times each local robot went to
+        charge; ``malformed`` bus payloads dropped."""
+        names = [r.name for r in self.config.robots if r.name in records or r.name in self.local]
+        rows = [self._row(n, records.get(n), state, charges or {}) for n in names]
+        trajectories = {n: self._trajectory(world, n, bus_trajectory) for n in names}
+        collisions = world.collisions()
+        if collisions is None:  # a blind world: every robot reports its own contacts
+            collisions = sum(r.collisions for r in rows) // 2
+        now = world.clock.now()
+        laps = state.laps_completed() if state is not None else sum(r.laps for r in rows)
+        robot_hours = len(rows) * max(0.0, now - self.t0) / 3600.0
+        deadlocks = (
+            traffic.deadlocks if traffic is not None else (state.deadlocks if state is not None else 0)
+        )
+        return RunReport(
+            config=str(self.config.path),
+            backend=self.backend,
+            robots=len(rows),
+            sim_time_s=float(now),
+            wall_time_s=float(wall_s),
+            speed=self.speed,
+            patrols_assigned=len(state.assignments) if state is not None else 0,
+            patrols_completed=state.patrols_completed() if state is not None else 0,
+            laps_completed=laps,
+            collisions=int(collisions),
+            deadlocks=int(deadlocks),
+            reassignments=len(state.reassignments) if state is not None else 0,
+            per_robot=rows,
+            laps_by_route=state.laps_by_route() if state is not None else {},
+            reassignment_events=[reassignment_dict(r) for r in state.reassignments]
+            if state is not None
+            else [],
+            assignments=[assignment_dict(a) for a in state.assignments] if state is not None else [],
+            malformed_messages=int(malformed),
+            interrupted=interrupted,
+            trajectories=trajectories,
+            throughput_laps_per_robot_hour=laps / robot_hours if robot_hours > 0 else 0.0,
+            mean_wait_s=traffic.mean_wait_s(now) if traffic is not None else None,
+            traffic=traffic_dict(traffic, now) if traffic is not None else None,
+            picks_assigned=len(state.pick_assignments) if state is not None else 0,
+            picks_completed=state.picks_completed() if state is not None else 0,
+        )
+
+    def _row(
+        self,
+        name: str,
+        rec: StatusRecord | None,
+        state: CoordinatorState | None,
+        charges: Mapping[str, int],
+    ) -> RobotReport:
+        spec = self.config.robot(name)
+        dead = state is not None and name in state.robots and not state.robots[name].alive
+        if state is not None:
+            laps = state.laps_by_robot().get(name, 0)
+        else:
+            laps = int(rec.laps) if rec is not None else 0
+        return RobotReport(
+            name=name,
+            namespace=spec.namespace,
+            distance_m=float(rec.distance_m) if rec is not None else 0.0,
+            laps=laps,
+            battery_final=float(rec.battery) if rec is not None else float(spec.battery),
+            final_state="dead" if dead else (str(rec.mode) if rec is not None else "unknown"),
+            leaf=str(rec.leaf) if rec is not None else "",
+            task_id=rec.task_id if rec is not None else None,
+            collisions=int(rec.collisions) if rec is not None else 0,
+            charges=charges.get(name, 0),
+        )
+
+    def _trajectory(
+        self, world: World, name: str, bus_trajectory: Callable[[str], list[tuple[float, float, float]]]
+    ) -> list[tuple[float, float, float]]:
+        traj = world.trajectory(self.config.robot(name).namespace) if name in self.local else None
+        return traj if traj is not None else bus_trajectory(name)
+
+
+def traffic_dict(tp: ReservationTraffic, now: float) -> dict[str, Any]:
+    """The report's ``traffic`` block (see the module docstring)."""
+    m = tp.manager
+    met = m.metrics
+    waits = [m.wait_stats(r, now)[0] for r in m.robots]
+    return {
+        "robots_managed": len(m.robots),
+        "deadlock_s": tp.deadlock_s,
+        "deadlock_events": [{"t": round(t, 3), "robots": list(rs)} for t, rs in tp.deadlock_events],
+        "mean_wait_s": round(tp.mean_wait_s(now), 3),
+        "max_wait_s": round(max(waits, default=0.0), 3),
+        "wait_events": met.wait_events,
+        "cycles_detected": met.deadlocks_detected,
+        "cycles_resolved": met.deadlocks_resolved,
+        "reroutes": met.reroutes,
+        "sidesteps": met.sidesteps,
+        "nudges": met.nudges,
+        "stalls": met.deaths,
+    }
+
+
+def reassignment_dict(r: Reassignment) -> dict[str, Any]:
+    """One entry of the report's ``reassignment_events``."""
+    return {
+        "t": round(r.t, 3),
+        "route": r.route,
+        "from_robot": r.from_robot,
+        "reason": r.reason,
+        "old_task_id": r.old_task_id,
+        "to_robot": r.to_robot,
+        "new_task_id": r.new_task_id,
+        "t_reassigned": None if r.t_reassigned is None else round(r.t_reassigned, 3),
+    }
+
+
+def assignment_dict(a: Assignment) -> dict[str, Any]:
+    """One entry of the report's ``assignments``."""
+    return {
+        "task_id": a.task_id,
+        "route": a.route,
+        "robot": a.robot,
+        "t_assigned": round(a.t_assigned, 3),
+        "laps": a.laps,
+        "t_first_lap": None if a.t_first_lap is None else round(a.t_first_lap, 3),
+        "ended": None if a.ended is None else round(a.ended, 3),
+        "end_reason": a.end_reason,
+    }

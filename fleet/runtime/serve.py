@@ -1,19 +1,34 @@
-"""``fleet sim``: serve the kinematic simulator's robots over Zenoh and step it in (paced) time."""
+"""``fleet sim``: serve the kinematic simulator's robots over Zenoh and step it in (paced) time.
+
+:func:`serve_simulator` steps the simulator at ``speed`` x real time with the one
+:class:`fleet.clock.Pacer`, applies the navigation requests received before every step and
+publishes the robots' states and the simulated clock ``publish_hz`` times per wall second
+(:class:`fleet.bus.nav_server.SimNavServer`). It prints nothing: progress goes to an optional
+callback (``fleet sim`` shows it with :mod:`fleet.viz.display`).
+"""
 
 from __future__ import annotations
 
+import logging
 import math
 import signal
-import sys
 import threading
-import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any, TextIO
+from typing import TYPE_CHECKING
 
 import zenoh
 
 from fleet.bus.nav_server import SimNavServer
+from fleet.clock import Pacer, WallClock
+from fleet.config.model import FleetConfig
 from fleet.errors import BackendError
+
+if TYPE_CHECKING:
+    from sim.simulator import Simulator
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass
@@ -21,15 +36,26 @@ class ServeResult:
     """What :func:`serve_simulator` returns: the simulator, steps taken, simulated and wall
     seconds, and whether it was interrupted (Ctrl-C / SIGTERM / ``stop_event``)."""
 
-    simulator: Any
+    simulator: Simulator
     steps: int
     sim_time_s: float
     wall_time_s: float
     interrupted: bool
 
 
-def simulator_from_config(config: Any) -> Any:
-    """A :class:`sim.simulator.Simulator` with every robot of a :class:`fleet.config.FleetConfig`."""
+@dataclass(frozen=True)
+class ServeProgress:
+    """Progress of :func:`serve_simulator`: simulated seconds served, wall seconds since the
+    start, simulator steps taken and navigation requests applied so far."""
+
+    sim_time_s: float
+    wall_s: float
+    steps: int
+    requests: int
+
+
+def simulator_from_config(config: FleetConfig) -> Simulator:
+    """A :class:`sim.simulator.Simulator` with every robot of a fleet config."""
     from fleet.clock import SimClock
     from sim.simulator import Simulator
 
@@ -39,8 +65,21 @@ def simulator_from_config(config: Any) -> Any:
     return sim
 
 
+@contextmanager
+def _sigterm_sets(stop: threading.Event) -> Iterator[None]:
+    """While inside, SIGTERM sets ``stop`` (main thread only; elsewhere nothing changes)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
 def serve_simulator(
-    simulator: Any,
+    simulator: Simulator | FleetConfig,
     session: zenoh.Session | None = None,
     *,
     endpoint: str | None = None,
@@ -49,7 +88,7 @@ def serve_simulator(
     stop_event: threading.Event | None = None,
     publish_hz: float = 50.0,
     quiet: bool = False,
-    out: TextIO | None = None,
+    progress: Callable[[ServeProgress], None] | None = None,
     progress_every_s: float = 10.0,
 ) -> ServeResult:
     """Step ``simulator`` at ``speed`` x real time (``0``: as fast as possible) and serve it
@@ -60,76 +99,82 @@ def serve_simulator(
     Without ``session`` a router session listening on ``endpoint`` is opened and closed here
     (:class:`~fleet.errors.BusError` if it cannot be). Requests are applied before every step;
     states and the clock are published ``publish_hz`` times per wall second. Unless ``quiet``,
-    a progress line is printed every ``progress_every_s`` wall seconds to ``out`` (stdout).
+    ``progress`` is called every ``progress_every_s`` wall seconds. Raises
+    :class:`~fleet.errors.BackendError` for a negative or infinite ``speed``.
     """
     from fleet.bus.session import DEFAULT_ENDPOINT, open_session
 
     if speed < 0 or not math.isfinite(speed):
         raise BackendError(f"speed must be >= 0, got {speed}")
-    sim = simulator if hasattr(simulator, "step") else simulator_from_config(simulator)
+    sim = simulator_from_config(simulator) if isinstance(simulator, FleetConfig) else simulator
     stop = stop_event or threading.Event()
-    own = session is None
     sess = open_session(endpoint or DEFAULT_ENDPOINT, "router") if session is None else session
-    old_handler: Any = None
-    main = threading.current_thread() is threading.main_thread()
-    if main:
-        old_handler = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     server: SimNavServer | None = None
-    interrupted = False
-    period = 1.0 / publish_hz
-    wall0 = time.monotonic()
-    t0 = sim.clock.now()
-    steps = 0
-    step_s = float(sim.params.step_s)
+    loop = _ServeLoop(sim, speed, duration, stop, 1.0 / publish_hz)
     try:
-        server = SimNavServer(sess, sim)
-        server.speed = speed
-        server.process()
-        server.publish()
-        next_pub = time.monotonic() + period
-        next_progress = time.monotonic() + progress_every_s
-        end = None if duration is None else t0 + duration
-        try:
-            while not stop.is_set():
-                if end is not None and sim.clock.now() >= end - 1e-9:
-                    break
-                now_w = time.monotonic()
-                target = math.inf if speed == 0 else t0 + speed * (now_w - wall0)
-                # step until caught up with the target time or it is time to publish
-                while sim.clock.now() + step_s <= target + 1e-9 and time.monotonic() < next_pub:
-                    if end is not None and sim.clock.now() >= end - 1e-9:
-                        break
-                    server.process()
-                    sim.step()
-                    steps += 1
-                now_w = time.monotonic()
-                if now_w >= next_pub:
-                    server.process()
-                    server.publish()
-                    next_pub = max(next_pub + period, now_w)
-                    if not quiet and now_w >= next_progress:
-                        print(
-                            f"[fleet sim] t={sim.clock.now():8.1f} s sim, {now_w - wall0:7.1f} s wall, "
-                            f"{steps} steps, {server.requests} requests",
-                            file=out or sys.stdout,
-                            flush=True,
-                        )
-                        next_progress = now_w + progress_every_s
-                if speed > 0:
-                    nxt = min(next_pub, wall0 + (sim.clock.now() + step_s - t0) / speed)
-                    delay = nxt - time.monotonic()
-                    if delay > 0:
-                        stop.wait(min(delay, period))
-        except KeyboardInterrupt:
-            interrupted = True
-        server.process()
-        server.publish()
-        interrupted = interrupted or stop.is_set()
+        with _sigterm_sets(stop):
+            server = SimNavServer(sess, sim)
+            server.speed = speed
+            loop.run(server, None if quiet else progress, progress_every_s)
     finally:
         if server is not None:
             server.close()
-        if own:
-            sess.close()
-        if main:
-            signal.signal(signal.SIGTERM, old_handler)
-    return ServeResult(sim, steps, float(sim.clock.now() - t0), time.monotonic() - wall0, interrupted)
+        if session is None:
+            sess.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves Session.close unannotated
+    return ServeResult(sim, loop.steps, float(sim.clock.now() - loop.t0), loop.wall_s(), loop.interrupted)
+
+
+class _ServeLoop:
+    """The paced stepping loop of :func:`serve_simulator`."""
+
+    def __init__(
+        self, sim: Simulator, speed: float, duration: float | None, stop: threading.Event, period_s: float
+    ) -> None:
+        self.sim = sim
+        self.stop = stop
+        self.period_s = period_s
+        self.wall = WallClock()
+        self.pacer = Pacer(sim.clock, speed, self.wall)
+        self.t0 = sim.clock.now()
+        self.w0 = self.wall.now()
+        self.end = None if duration is None else self.t0 + duration
+        self.steps = 0
+        self.interrupted = False
+
+    def wall_s(self) -> float:
+        return self.wall.now() - self.w0
+
+    def run(
+        self, server: SimNavServer, progress: Callable[[ServeProgress], None] | None, progress_every_s: float
+    ) -> None:
+        """Step, publish and report progress until the end, ``stop`` or Ctrl-C."""
+        server.process()
+        server.publish()
+        self.pacer.start()
+        next_pub = self.wall.now() + self.period_s
+        next_progress = self.wall.now() + progress_every_s
+        try:
+            while not self.stop.is_set():
+                if self.end is not None and self.sim.clock.now() >= self.end - 1e-9:
+                    break
+                ahead = self.pacer.ahead()
+                if ahead <= 0:  # due (or unpaced): one step
+                    server.process()
+                    self.sim.step()
+                    self.steps += 1
+                else:  # early: wait for the step's time or the next publication
+                    self.stop.wait(min(ahead, max(0.0, next_pub - self.wall.now())))
+                w = self.wall.now()
+                if w < next_pub:
+                    continue
+                server.process()
+                server.publish()
+                next_pub = max(next_pub + self.period_s, w)
+                if progress is not None and w >= next_progress:
+                    progress(ServeProgress(self.sim.clock.now(), w - self.w0, self.steps, server.requests))
+                    next_progress = w + progress_every_s
+        except KeyboardInterrupt:
+            self.interrupted = True
+        server.process()
+        server.publish()
+        self.interrupted = self.interrupted or self.stop.is_set()

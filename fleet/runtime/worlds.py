@@ -3,15 +3,19 @@ time), and the two built-in worlds: the in-process simulator and a simulator ser
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
-from fleet.clock import SimClock
+import zenoh
+
+from fleet.clock import SimClock, WallClock
 from fleet.config.model import FleetConfig
-from fleet.errors import BackendError
+from fleet.errors import BackendError, BusError
 from fleet.navigation import Clock, NavigationBackend
 from fleet.robots import RobotSpec
+
+if TYPE_CHECKING:
+    from fleet.bus.nav_client import ZenohNavBackend
 
 #: How long a remote world waits for the simulator's clock (wall seconds).
 CONNECT_TIMEOUT_S = 10.0
@@ -47,14 +51,21 @@ class World(Protocol):
         """Robot-robot collision events so far, or None if this world cannot count them."""
         ...
 
-    def collision_points(self) -> list[tuple[float, float]]: ...
+    def collision_points(self) -> list[tuple[float, float]]:
+        """Where robots touched, ``(x, y)`` in the ``map`` frame (empty if it cannot see)."""
+        ...
 
-    def trajectory(self, namespace: str) -> list[tuple[float, float, float]] | None: ...
+    def trajectory(self, namespace: str) -> list[tuple[float, float, float]] | None:
+        """The robot's ``(t, x, y)`` samples so far, or None if this world does not record
+        them (the runner then samples them, bounded, from the robot's statuses)."""
+        ...
 
     def close(self) -> None: ...
 
 
-WorldFactory = Callable[[FleetConfig, list[RobotSpec], Any], World]
+#: ``factory(config, robots, session) -> World``: ``robots`` are the robots whose agents run
+#: in this process; ``session`` the runner's Zenoh session.
+WorldFactory = Callable[[FleetConfig, list[RobotSpec], zenoh.Session], World]
 
 
 class SimWorld:
@@ -62,7 +73,7 @@ class SimWorld:
 
     remote = False
 
-    def __init__(self, config: FleetConfig, robots: list[RobotSpec], session: Any) -> None:
+    def __init__(self, config: FleetConfig, robots: list[RobotSpec], session: zenoh.Session | None) -> None:
         from sim.simulator import Simulator
 
         self.clock = SimClock()
@@ -111,47 +122,43 @@ class RemoteWorld(BlindWorld):
     #: ``fleet sim`` hosts the Zenoh router: the runner connects to it instead of listening.
     bus_elsewhere = True
 
-    def __init__(self, config: FleetConfig, robots: list[RobotSpec], session: Any) -> None:
+    def __init__(self, config: FleetConfig, robots: list[RobotSpec], session: zenoh.Session) -> None:
         from fleet.bus.clock import BusClock
-        from fleet.bus.nav_client import ZenohNavBackend
 
         self._session = session
-        self._make = ZenohNavBackend
+        self._wall = WallClock()
         self.clock = BusClock(session)
         self.step_s = config.sim.step_s
-        self._backends: dict[str, NavigationBackend] = {}
+        self._backends: dict[str, ZenohNavBackend] = {}
         if not self.clock.wait_first(CONNECT_TIMEOUT_S):
             self.clock.close()
-            from fleet.errors import BusError
-
             raise BusError(
                 f"no simulator clock on the bus after {CONNECT_TIMEOUT_S:g} s: start `fleet sim "
                 f"{config.path}` on the same endpoint first"
             )
         self._last = self.clock.now()
-        self._last_wall = time.monotonic()
+        self._last_wall = self._wall.now()
 
     def backend(self, namespace: str) -> NavigationBackend:
+        from fleet.bus.nav_client import ZenohNavBackend
+
         b = self._backends.get(namespace)
         if b is None:
-            b = self._make(self._session, namespace)
-            self._backends[namespace] = b
+            b = self._backends[namespace] = ZenohNavBackend(self._session, namespace)
         return b
 
     def advance(self) -> None:
+        """Wait up to 50 ms for the simulator's clock to move; raises :class:`BackendError`
+        when it has not moved for :data:`SIM_SILENT_S` wall seconds."""
         if self.clock.wait_until(self._last + 1e-6, 0.05):
             self._last = self.clock.now()
-            self._last_wall = time.monotonic()
-        elif time.monotonic() - self._last_wall > SIM_SILENT_S:
+            self._last_wall = self._wall.now()
+        elif self._wall.now() - self._last_wall > SIM_SILENT_S:
             raise BackendError(
                 f"the simulator's clock has not moved for {SIM_SILENT_S:g} s (did `fleet sim` stop?)"
             )
 
     def close(self) -> None:
         for b in self._backends.values():
-            close = getattr(b, "close", None)
-            if close is not None:
-                close()
-        close = getattr(self.clock, "close", None)
-        if close is not None:
-            close()
+            b.close()
+        self.clock.close()

@@ -1,30 +1,82 @@
-"""The live fleet table: one row per robot from its latest status record.
+"""The fleet table: one row per robot from its latest status record, drawn with ``rich``.
 
-:func:`render_table` returns plain text with fixed-width columns: robot, pose (x, y in m,
-yaw in degrees), battery %, charging, behavior-tree status and active leaf, mode, task id,
-laps, lap progress and flags (``STUCK``; ``DEAD`` when the robot's liveliness token is gone;
-``SILENT`` when its last record is more than ``silent_s`` simulated seconds older than
-``now``). Up to 29 robots fit 100 columns one per line; from 30 robots on, a compact
-layout puts two robots per line.
+Columns, in the order shown: robot, ``x`` / ``y`` (m, ``map`` frame), ``yaw`` (degrees),
+``bat`` (battery %), ``chg`` (charging), ``bt`` (root status), ``leaf`` (active leaf),
+``mode``, ``task`` (assignment id), ``laps``, ``prog`` (progress through the lap) and
+``flags``: ``STUCK``; ``DEAD`` when the robot's liveliness token is gone; ``SILENT`` when its
+last record is more than ``silent_s`` simulated seconds older than ``now``.
 
-:class:`LiveTable` redraws the table in place on a TTY (ANSI cursor-up) at most every
-``min_interval_s`` wall seconds, or prints one summary line every ``line_every_s`` wall
-seconds when the output is not a TTY.
+The layout adapts to the space it is drawn in (:class:`FleetTable` reads the console's width
+and height, so a live table follows a resized terminal):
+
+* the essential columns (robot, x, y, bat, mode, task, laps, flags) are always shown; the
+  others are added in the order prog, leaf, yaw, bt, chg while they fit the width, and the
+  leaf column widens into what is left (up to :data:`LEAF_MAX`);
+* one robot per line; when the robots do not fit the height but the width holds two or more
+  panes of the essential columns, the robots are split over side-by-side panes;
+* when they still do not fit, the robots with flags are shown first and a last line says how
+  many robots are not shown (``fleet status --json`` lists every robot).
+
+:func:`render_table` returns the table as plain text (no colors), e.g. for ``fleet status
+--once``; without a width it uses every column.
 """
 
 from __future__ import annotations
 
+import io
 import math
-import time
-from collections.abc import Callable, Iterable, Mapping
-from typing import Any, TextIO
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Literal
 
-#: From this many robots on, the table uses the two-per-line compact layout.
-COMPACT_FROM = 30
+from rich.console import Console, ConsoleOptions, RenderResult
+from rich.table import Table
+from rich.text import Text
+
+from fleet.messages import StatusRecord
+
 #: A record this many simulated seconds older than ``now`` is flagged SILENT.
 SILENT_S = 5.0
+#: The width the leaf column gets when it fits, and the widest it grows to (characters).
+LEAF_WANTED = 14
+LEAF_MAX = 24
+#: Width used for the natural (unconstrained) layout when none is given.
+NATURAL_WIDTH = 200
 
 _BT_SHORT = {"RUNNING": "RUN", "SUCCESS": "OK", "FAILURE": "FAIL", "INVALID": "-"}
+_MODE_STYLE = {"patrol": "cyan", "picking": "magenta", "charging": "green", "recovery": "yellow"}
+_PANE_GAP = " │ "
+
+Records = Mapping[str, StatusRecord] | Iterable[StatusRecord]
+
+
+@dataclass(frozen=True)
+class Column:
+    """One column: ``width`` in characters (the minimum for ``leaf``); ``rank`` 0 for the
+    essential columns, else the order in which optional columns are added when they fit."""
+
+    key: str
+    header: str
+    width: int
+    rank: int
+    justify: Literal["left", "right"] = "left"
+
+
+COLUMNS: tuple[Column, ...] = (
+    Column("robot", "robot", 5, 0),
+    Column("x", "x", 6, 0, "right"),
+    Column("y", "y", 6, 0, "right"),
+    Column("yaw", "yaw", 4, 3, "right"),
+    Column("bat", "bat", 4, 0, "right"),
+    Column("chg", "chg", 3, 5),
+    Column("bt", "bt", 4, 4),
+    Column("leaf", "leaf", 10, 2),
+    Column("mode", "mode", 8, 0),
+    Column("task", "task", 8, 0),
+    Column("laps", "laps", 4, 0, "right"),
+    Column("prog", "prog", 4, 1, "right"),
+    Column("flags", "flags", 5, 0),
+)
 
 
 def robot_sort_key(name: str) -> tuple[str, int, str]:
@@ -34,29 +86,17 @@ def robot_sort_key(name: str) -> tuple[str, int, str]:
     return (head, int(tail) if tail else -1, name)
 
 
-def _records(records: Mapping[str, Any] | Iterable[Any]) -> dict[str, Any]:
+def as_mapping(records: Records) -> dict[str, StatusRecord]:
+    """The records by robot name (a mapping is copied; an iterable is keyed by ``robot``)."""
     if isinstance(records, Mapping):
         return dict(records)
-    out: dict[str, Any] = {}
-    for r in records:
-        rec: Any = r
-        out[rec.robot] = rec
-    return out
+    return {r.robot: r for r in records}
 
 
-def _cut(text: str, width: int) -> str:
-    text = str(text)
-    return text if len(text) <= width else text[: width - 1] + "~"
-
-
-def _num(v: float, width: int, digits: int = 1) -> str:
-    s = f"{v:.{digits}f}"
-    if len(s) > width:
-        s = f"{v:.0f}"
-    return s.rjust(width)
-
-
-def _flags(name: str, rec: Any, alive: set[str] | None, now: float | None, silent_s: float) -> str:
+def flags(
+    name: str, rec: StatusRecord | None, alive: set[str] | None, now: float | None, silent_s: float
+) -> list[str]:
+    """The flags of one robot: ``STUCK``, then ``DEAD`` or ``SILENT`` (see the module docstring)."""
     out = []
     if rec is not None and rec.stuck:
         out.append("STUCK")
@@ -64,14 +104,12 @@ def _flags(name: str, rec: Any, alive: set[str] | None, now: float | None, silen
         out.append("DEAD")
     elif rec is not None and now is not None and now - rec.t > silent_s:
         out.append("SILENT")
-    return " ".join(out)
+    return out
 
 
-def summary_line(
-    records: Mapping[str, Any] | Iterable[Any], alive: set[str] | None = None, now: float | None = None
-) -> str:
+def summary_line(records: Records, alive: set[str] | None = None, now: float | None = None) -> str:
     """One line: robot count, alive count, time, laps, charging, stuck and dead robots."""
-    recs = _records(records)
+    recs = as_mapping(records)
     names = set(recs) | (alive or set())
     if now is None:
         now = max((r.t for r in recs.values()), default=0.0)
@@ -86,130 +124,215 @@ def summary_line(
     )
 
 
-def render_table(
-    records: Mapping[str, Any] | Iterable[Any],
-    alive: set[str] | None = None,
-    now: float | None = None,
+@dataclass(frozen=True)
+class Layout:
+    """How the table is laid out: the columns (with their widths), the number of side-by-side
+    panes, the robots shown (in display order) and how many are left out."""
+
+    columns: tuple[tuple[Column, int], ...]
+    panes: int
+    shown: tuple[str, ...]
+    hidden: int
+    hidden_flagged: int
+
+
+def _line_width(cols: Sequence[tuple[Column, int]]) -> int:
+    return sum(w for _, w in cols) + max(0, len(cols) - 1)
+
+
+def _columns_for(width: int, fixed: Mapping[str, int]) -> tuple[tuple[Column, int], ...]:
+    """The columns that fit ``width`` characters: the essential ones, then the optional ones
+    by rank (the leaf column at :data:`LEAF_WANTED`, or narrower down to its minimum); the
+    leaf column then takes the width left over, up to :data:`LEAF_MAX`. ``fixed`` overrides
+    the widths of some columns (robot, task, flags: from the names and ids shown)."""
+    widths = {c.key: fixed.get(c.key, c.width) for c in COLUMNS}
+    chosen = {c.key for c in COLUMNS if c.rank == 0}
+    used = sum(widths[k] for k in chosen) + len(chosen) - 1
+    for c in sorted((c for c in COLUMNS if c.rank), key=lambda c: c.rank):
+        want = max(c.width, min(LEAF_WANTED, width - used - 1)) if c.key == "leaf" else widths[c.key]
+        if used + 1 + want <= width:
+            chosen.add(c.key)
+            widths[c.key] = want
+            used += 1 + want
+    if "leaf" in chosen:
+        widths["leaf"] = min(LEAF_MAX, widths["leaf"] + max(0, width - used))
+    return tuple((c, widths[c.key]) for c in COLUMNS if c.key in chosen)
+
+
+def plan_layout(
+    names: Sequence[str],
+    flagged: set[str],
+    width: int,
+    height: int | None,
     *,
-    silent_s: float = SILENT_S,
-    compact: bool | None = None,
-) -> str:
-    """The fleet table as text (no trailing newline).
-
-    ``records``: latest :class:`~fleet.bus.status_bus.StatusRecord` per robot (a mapping by name
-    or an iterable); ``alive``: robots whose liveliness token is held (``None``: unknown, no
-    DEAD flags); ``now``: simulated seconds (default: the newest record's ``t``). Robots that
-    are alive but never sent a status get a row too. ``compact`` forces a layout.
-    """
-    recs = _records(records)
-    if now is None:
-        now = max((r.t for r in recs.values()), default=0.0)
-    names = sorted(set(recs) | (alive or set()), key=robot_sort_key)
-    use_compact = len(names) >= COMPACT_FROM if compact is None else compact
-    lines = [summary_line(recs, alive, now)]
-    if not names:
-        lines.append("(no robots seen yet)")
-        return "\n".join(lines)
-    if use_compact:
-        cells = [_compact_cell(n, recs.get(n), alive, now, silent_s) for n in names]
-        head = f"{'robot':<9} {'x':>5} {'y':>5} {'bat':>4} {'mode':<8} {'lap':>3} {'flag':<5}"
-        lines.append(f"{head} | {head}".rstrip())
-        for i in range(0, len(cells), 2):
-            pair = cells[i : i + 2]
-            lines.append(" | ".join(pair).rstrip())
-        return "\n".join(lines)
-    lines.append(
-        f"{'robot':<9} {'x':>6} {'y':>6} {'yaw':>4} {'bat':>4} {'chg':<3} {'bt':<4} {'leaf':<16} "
-        f"{'mode':<8} {'task':<10} {'laps':>4} {'prog':>4} flags"
-    )
-    for n in names:
-        rec = recs.get(n)
-        if rec is None:
-            lines.append(f"{_cut(n, 9):<9} (no status yet) {_flags(n, None, alive, now, silent_s)}".rstrip())
-            continue
-        if rec.pose is not None:
-            x, y, th = rec.pose
-            pose = f"{_num(x, 6)} {_num(y, 6)} {math.degrees(th):4.0f}"
-        else:
-            pose = f"{'-':>6} {'-':>6} {'-':>4}"
-        lines.append(
-            f"{_cut(n, 9):<9} {pose} {rec.battery * 100:3.0f}% {'yes' if rec.charging else '':<3} "
-            f"{_BT_SHORT.get(rec.bt, _cut(rec.bt, 4)):<4} {_cut(rec.leaf, 16):<16} {_cut(rec.mode, 8):<8} "
-            f"{_cut(rec.task_id or '-', 10):<10} {rec.laps:>4} {rec.progress * 100:3.0f}% "
-            f"{_flags(n, rec, alive, now, silent_s)}".rstrip()
-        )
-    return "\n".join(lines)
+    fixed: Mapping[str, int] | None = None,
+) -> Layout:
+    """Lay out ``names`` (in natural order) in ``width`` x ``height`` characters (``height``
+    ``None``: unlimited). Two lines go to the summary and the header, one to the "not shown"
+    line when some robots do not fit. See the module docstring for the rules."""
+    fixed = dict(fixed or {})
+    essential = _line_width([(c, fixed.get(c.key, c.width)) for c in COLUMNS if c.rank == 0])
+    max_panes = max(1, (width + len(_PANE_GAP)) // (essential + len(_PANE_GAP)))
+    n = len(names)
+    rows = None if height is None else max(1, height - 2)
+    panes = 1
+    if rows is not None and n > rows:
+        panes = min(max_panes, math.ceil(n / rows))
+    pane_w = (width - (panes - 1) * len(_PANE_GAP)) // panes
+    cols = _columns_for(pane_w, fixed)
+    capacity = n if rows is None else panes * rows
+    if n <= capacity:
+        return Layout(cols, panes, tuple(names), 0, 0)
+    capacity = max(1, panes * (rows - 1)) if rows is not None and rows > 1 else 1
+    first = [nm for nm in names if nm in flagged][:capacity]
+    rest = [nm for nm in names if nm not in flagged][: capacity - len(first)]
+    keep = set(first) | set(rest)
+    shown = tuple(nm for nm in names if nm in keep)
+    hidden = [nm for nm in names if nm not in keep]
+    return Layout(cols, panes, shown, len(hidden), sum(1 for nm in hidden if nm in flagged))
 
 
-def _compact_cell(name: str, rec: Any, alive: set[str] | None, now: float, silent_s: float) -> str:
-    flags = _flags(name, rec, alive, now, silent_s)
-    flag = {"STUCK": "STUCK", "DEAD": "DEAD", "SILENT": "SLNT"}.get(flags.split(" ")[-1], "") if flags else ""
-    if "DEAD" in flags:
-        flag = "DEAD"
+def _cut(text: str, width: int) -> str:
+    return text if len(text) <= width else text[: max(0, width - 1)] + "~"
+
+
+def _num(v: float, width: int, digits: int = 1) -> str:
+    s = f"{v:.{digits}f}"
+    return s if len(s) <= width else f"{v:.0f}"
+
+
+def _battery_style(b: float) -> str:
+    return "bold red" if b < 0.25 else ("yellow" if b < 0.5 else "")
+
+
+def _cells(
+    name: str, rec: StatusRecord | None, fl: list[str], cols: Sequence[tuple[Column, int]]
+) -> list[Text]:
+    """One row's cells, cut to their column widths."""
     if rec is None:
-        return f"{_cut(name, 9):<9} {'-':>5} {'-':>5} {'-':>4} {'-':<8} {'-':>3} {flag:<5}"
-    x, y = (rec.pose[0], rec.pose[1]) if rec.pose is not None else (math.nan, math.nan)
-    xs = _num(x, 5) if rec.pose is not None else f"{'-':>5}"
-    ys = _num(y, 5) if rec.pose is not None else f"{'-':>5}"
-    return (
-        f"{_cut(name, 9):<9} {xs} {ys} {rec.battery * 100:3.0f}% {_cut(rec.mode, 8):<8} "
-        f"{min(rec.laps, 999):>3} {flag:<5}"
-    )
+        values: dict[str, Text] = {k: Text("-", style="dim") for k in ("x", "y", "bat", "mode", "task")}
+        values["robot"] = Text(name)
+        values["leaf"] = Text("(no status yet)", style="dim")
+    else:
+        pose = rec.pose
+        values = {
+            "robot": Text(name),
+            "x": Text(_num(pose[0], 6) if pose is not None else "-"),
+            "y": Text(_num(pose[1], 6) if pose is not None else "-"),
+            "yaw": Text(str(round(math.degrees(pose[2]))) if pose is not None else "-"),
+            "bat": Text(f"{rec.battery * 100:.0f}%", style=_battery_style(rec.battery)),
+            "chg": Text("yes" if rec.charging else ""),
+            "bt": Text(_BT_SHORT.get(rec.bt, rec.bt)),
+            "leaf": Text(rec.leaf),
+            "mode": Text(rec.mode, style=_MODE_STYLE.get(rec.mode, "")),
+            "task": Text(rec.task_id or "-"),
+            "laps": Text(str(rec.laps)),
+            "prog": Text(f"{rec.progress * 100:.0f}%"),
+        }
+    values["flags"] = Text(" ".join(fl), style="bold red" if fl else "")
+    out = []
+    for c, w in cols:
+        cell = values.get(c.key, Text(""))
+        out.append(Text(_cut(cell.plain, w), style=cell.style))
+    return out
 
 
-class LiveTable:
-    """Shows the fleet table on ``out`` as it changes (see the module docstring).
+def _pane(
+    names: Sequence[str],
+    recs: Mapping[str, StatusRecord],
+    fl: Mapping[str, list[str]],
+    cols: Sequence[tuple[Column, int]],
+) -> Table:
+    t = Table(box=None, padding=(0, 1, 0, 0), pad_edge=False, show_edge=False, header_style="bold")
+    for c, w in cols:
+        t.add_column(c.header, justify=c.justify, width=w, min_width=w, max_width=w, no_wrap=True,
+                     overflow="crop")  # fmt: skip
+    for n in names:
+        style = "dim" if "DEAD" in fl[n] else ""
+        t.add_row(*_cells(n, recs.get(n), fl[n], cols), style=style)
+    return t
 
-    ``tty`` defaults to ``out.isatty()``; ``wall`` is a monotonic clock (seconds).
+
+class FleetTable:
+    """The fleet table as a rich renderable (see the module docstring).
+
+    ``records``: latest :class:`~fleet.messages.StatusRecord` per robot (a mapping by name or
+    an iterable); ``alive``: robots whose liveliness token is held (``None``: unknown, no DEAD
+    flags); ``now``: simulated seconds (default: the newest record's ``t``). Robots that are
+    alive but never sent a status get a row too. ``height`` caps the lines used (``None``:
+    unlimited); the width is the console's.
     """
 
     def __init__(
         self,
-        out: TextIO,
-        *,
-        min_interval_s: float = 0.5,
-        line_every_s: float = 5.0,
-        tty: bool | None = None,
-        wall: Callable[[], float] = time.monotonic,
-    ) -> None:
-        self.out = out
-        self.tty = bool(out.isatty()) if tty is None else tty
-        self.min_interval_s = min_interval_s
-        self.line_every_s = line_every_s
-        self._wall = wall
-        self._last: float | None = None
-        self._lines = 0
-        self.draws = 0
-
-    def update(
-        self,
-        records: Mapping[str, Any] | Iterable[Any],
+        records: Records,
         alive: set[str] | None = None,
         now: float | None = None,
         *,
-        force: bool = False,
-    ) -> bool:
-        """Redraw (TTY) or print a summary line (not a TTY) if enough wall time passed since
-        the last one (or ``force``). Returns whether something was written."""
-        w = self._wall()
-        every = self.min_interval_s if self.tty else self.line_every_s
-        if not force and self._last is not None and w - self._last < every:
-            return False
-        self._last = w
-        if self.tty:
-            text = render_table(records, alive, now)
-            prefix = f"\x1b[{self._lines}F\x1b[J" if self._lines else ""
-            self.out.write(prefix + text + "\n")
-            self._lines = text.count("\n") + 1
-        else:
-            self.out.write(summary_line(records, alive, now) + "\n")
-        self.out.flush()
-        self.draws += 1
-        return True
+        silent_s: float = SILENT_S,
+        height: int | None = None,
+    ) -> None:
+        self.records = as_mapping(records)
+        self.alive = alive
+        self.now = now if now is not None else max((r.t for r in self.records.values()), default=0.0)
+        self.silent_s = silent_s
+        self.height = height
+        self.names = sorted(set(self.records) | (alive or set()), key=robot_sort_key)
+        self.flags = {n: flags(n, self.records.get(n), alive, self.now, silent_s) for n in self.names}
 
-    def close(self) -> None:
-        """Nothing to release; the last table stays on screen."""
-        try:
-            self.out.flush()
-        except Exception:  # noqa: BLE001 - a closed stream
-            pass
+    def layout(self, width: int, height: int | None) -> Layout:
+        """The layout for ``width`` x ``height`` characters."""
+        fixed = {
+            "robot": min(16, max([5, *(len(n) for n in self.names)])),
+            "task": min(12, max([4, *(len(r.task_id or "") for r in self.records.values())])),
+            "flags": max([5, *(len(" ".join(f)) for f in self.flags.values())]),
+        }
+        flagged = {n for n, f in self.flags.items() if f}
+        return plan_layout(self.names, flagged, width, height, fixed=fixed)
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        yield Text(summary_line(self.records, self.alive, self.now), style="bold")
+        if not self.names:
+            yield Text("(no robots seen yet)")
+            return
+        lay = self.layout(options.max_width, self.height)
+        per = math.ceil(len(lay.shown) / lay.panes)
+        chunks = [lay.shown[i * per : (i + 1) * per] for i in range(lay.panes)]
+        panes = [_pane(c, self.records, self.flags, lay.columns) for c in chunks if c]
+        if len(panes) == 1:
+            yield panes[0]
+        else:
+            grid = Table.grid(padding=0)
+            cells: list[Table | Text] = []
+            for i, p in enumerate(panes):
+                if i:
+                    grid.add_column(no_wrap=True)
+                    cells.append(Text("\n".join([_PANE_GAP] * (per + 1)), style="dim"))
+                grid.add_column(no_wrap=True)
+                cells.append(p)
+            grid.add_row(*cells)
+            yield grid
+        if lay.hidden:
+            more = f" ({lay.hidden_flagged} of them flagged)" if lay.hidden_flagged else ""
+            yield Text(
+                f"... {lay.hidden} more robots not shown{more}: `fleet status --json` lists all", style="dim"
+            )
+
+
+def render_table(
+    records: Records,
+    alive: set[str] | None = None,
+    now: float | None = None,
+    *,
+    silent_s: float = SILENT_S,
+    width: int | None = None,
+    height: int | None = None,
+) -> str:
+    """The fleet table as plain text (no trailing newline): :class:`FleetTable` drawn ``width``
+    characters wide (default: wide enough for every column) and at most ``height`` lines."""
+    table = FleetTable(records, alive, now, silent_s=silent_s, height=height)
+    buf = io.StringIO()
+    console = Console(file=buf, width=width or NATURAL_WIDTH, color_system=None, force_terminal=False,
+                      legacy_windows=False, emoji=False, highlight=False)  # fmt: skip
+    console.print(table, soft_wrap=False)
+    return "\n".join(line.rstrip() for line in buf.getvalue().rstrip("\n").splitlines())

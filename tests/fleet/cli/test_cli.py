@@ -1,5 +1,6 @@
 """The ``fleet`` command line: help that teaches, one-line errors with exit code 2,
-``validate``, and a short ``run`` that writes a complete report and a plot."""
+``validate``, ``--log-level`` / ``FLEET_LOG_LEVEL``, and a short ``run`` that writes a complete
+report and a plot."""
 
 from __future__ import annotations
 
@@ -26,17 +27,19 @@ def test_help_lists_commands_with_examples(capsys: pytest.CaptureFixture[str]) -
         main(["--help"])
     assert e.value.code == 0
     out = capsys.readouterr().out
-    for cmd in ("run", "status", "agent", "coordinator", "sim", "validate"):
-        assert cmd in out
+    for cmd in ("run", "status", "agent", "coordinator", "sim", "sim-ros", "validate", "loadtest"):
+        assert f"\n    {cmd} " in out, cmd
+    assert "--log-level" in out
     assert "examples:" in out and "fleet run configs/warehouse_patrol.yaml" in out
 
 
-@pytest.mark.parametrize("cmd", ["run", "agent", "coordinator", "sim", "validate"])
+@pytest.mark.parametrize("cmd", ["run", "agent", "coordinator", "sim", "validate", "status", "loadtest"])
 def test_subcommand_help(cmd: str, capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as e:
         main([cmd, "--help"])
     assert e.value.code == 0
-    assert "example" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "example" in out and "--log-level" in out
 
 
 def test_no_command_prints_help_and_fails(capsys: pytest.CaptureFixture[str]) -> None:
@@ -138,3 +141,54 @@ def test_console_script_help() -> None:
     exe = Path(sys.executable).parent / "fleet"
     res = subprocess.run([str(exe), "--help"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0 and "fleet run" in res.stdout
+
+
+def test_log_level_before_or_after_the_command_and_from_the_environment(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv("FLEET_LOG_LEVEL", raising=False)
+    run = ["run", str(PATROL), "--robots", "2", "--speed", "0", "--duration", "2", "--no-live"]
+    for argv in (["--log-level", "info", *run], [*run, "--log-level", "INFO"]):
+        assert main([*argv, "--endpoint", free_endpoint()]) == 0
+        err = capsys.readouterr().err
+        assert "info: warehouse_patrol: backend sim ready, 2 agents + coordinator" in err, err
+        assert "info: warehouse_patrol: run ended at t=2.0 s" in err
+    assert main([*run, "--endpoint", free_endpoint()]) == 0  # default: warnings only
+    assert "info:" not in capsys.readouterr().err
+    monkeypatch.setenv("FLEET_LOG_LEVEL", "debug")
+    assert main([*run, "--endpoint", free_endpoint()]) == 0
+    err = capsys.readouterr().err
+    assert " info fleet.runtime.runner: warehouse_patrol: backend sim ready" in err  # time and logger name
+    assert main(["--log-level", "error", *run, "--endpoint", free_endpoint()]) == 0  # the option wins
+    assert "info" not in capsys.readouterr().err
+
+
+def test_bad_log_levels_exit_2(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    with pytest.raises(SystemExit) as e:
+        main(["--log-level", "loud", "validate", str(PATROL)])
+    assert e.value.code == 2 and "unknown level 'loud'" in capsys.readouterr().err
+    monkeypatch.setenv("FLEET_LOG_LEVEL", "loud")
+    assert main(["validate", str(PATROL)]) == EXIT_ERROR
+    err = capsys.readouterr().err
+    assert err.strip() == (
+        "error: environment: FLEET_LOG_LEVEL: unknown level 'loud'; one of debug, info, warning, error, critical"
+    )
+
+
+def test_sim_ros_passes_its_arguments_through(capsys: pytest.CaptureFixture[str]) -> None:
+    """Without ROS: one error line, exit 2; with it, ``--help`` is the ROS server's own help.
+    ``--log-level`` is taken out of the passed-through arguments either way."""
+    try:
+        import fleet.ros.nav2_server  # noqa: F401
+
+        ros = True
+    except ImportError:
+        ros = False
+    if ros:
+        with pytest.raises(SystemExit) as e:
+            main(["--log-level", "info", "sim-ros", "--help", "--log-level", "debug"])
+        assert e.value.code == 0 and "--speed" in capsys.readouterr().out
+    else:
+        assert main(["sim-ros", "--log-level", "info", "--help"]) == EXIT_ERROR
+        err = capsys.readouterr().err
+        assert err.startswith("error: fleet sim-ros needs ROS 2 Jazzy") and len(err.strip().splitlines()) == 1

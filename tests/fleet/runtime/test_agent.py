@@ -1,12 +1,13 @@
 """RobotAgent: orders applied to the robot's blackboard (duplicates and superseded ids
-ignored), one tree tick + one status record per tick, the liveliness token, all on real
-Zenoh, the real simulator and the real tree."""
+ignored), one tree tick + one status record per tick, the status published on the bus at
+most at ``status_hz``, the liveliness token, all on real Zenoh, the real simulator and the
+real tree."""
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,7 @@ from fleet.bus.status_bus import StatusBus
 from fleet.clock import SimClock
 from fleet.config.loader import load_config
 from fleet.config.model import FleetConfig
-from fleet.messages import TaskMessage
+from fleet.messages import Grant, StatusRecord, TaskMessage
 from fleet.runtime.agent import RobotAgent
 from fleet.types import Pose2D
 from sim.simulator import Simulator
@@ -45,8 +46,12 @@ def bus() -> Iterator[StatusBus]:
             pass
 
 
+#: Hang guard of the waits on the bus (s): far more than loopback needs on a loaded machine.
+WAIT_S = 30.0
+
+
 def make_agent(
-    config: FleetConfig, bus: StatusBus | None, name: str = "robot1"
+    config: FleetConfig, bus: Any, name: str = "robot1", **kw: Any
 ) -> tuple[RobotAgent, Simulator]:
     clock = SimClock()
     sim = Simulator(config.grid, config.sim, clock)
@@ -54,9 +59,46 @@ def make_agent(
         sim.add_robot(r)
     spec = config.robot(name)
     agent = RobotAgent(
-        spec.namespace, sim.backend(spec.namespace), clock, bus, battery_model=config.sim.battery
+        spec.namespace, sim.backend(spec.namespace), clock, bus, battery_model=config.sim.battery, **kw
     )
     return agent, sim
+
+
+class Handle:
+    def undeclare(self) -> None:
+        return None
+
+
+class CountingBus:
+    """A bus that only counts what is published (an :class:`~fleet.runtime.agent.AgentBus`)."""
+
+    def __init__(self) -> None:
+        self.statuses: list[StatusRecord] = []
+
+    def publish_status(self, rec: StatusRecord) -> None:
+        self.statuses.append(rec)
+
+    def subscribe_tasks(self, robot: str, callback: Callable[[TaskMessage], None]) -> Handle:
+        return Handle()
+
+    def subscribe_grants(self, robot: str, callback: Callable[[Grant], None]) -> Handle:
+        return Handle()
+
+    def declare_alive(self, robot: str) -> Handle:
+        return Handle()
+
+
+def wait_until(
+    pred: Callable[[], bool], what: str, timeout: float = WAIT_S, act: Callable[[], Any] | None = None
+) -> None:
+    """Poll ``pred`` (calling ``act`` before each check) until it holds; fail after ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while not pred():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        if act is not None:
+            act()
+        threading.Event().wait(0.01)
 
 
 def route(config: FleetConfig, name: str = "aisles_1_2") -> tuple[Pose2D, ...]:
@@ -117,10 +159,28 @@ def test_tick_drives_the_route_and_reports_laps_for_the_current_id(config: Fleet
         agent.close()
 
 
+def test_status_hz_limits_what_is_published_not_what_is_ticked(config: FleetConfig) -> None:
+    """Ticking at 10 Hz with ``status_hz=2``: 1 record in 5 is published (0.5 s apart), every
+    record goes to ``on_status``; without ``status_hz`` every record is published."""
+    for hz, every in ((2.0, 5), (None, 1), (20.0, 1)):
+        bus = CountingBus()
+        fed: list[StatusRecord] = []
+        agent, sim = make_agent(config, bus, status_hz=hz, on_status=fed.append)
+        try:
+            run(agent, sim, 5.0)
+        finally:
+            agent.close()
+        assert len(fed) == 50 and agent.ticks == 50
+        assert len(bus.statuses) == agent.published == 50 // every, hz
+        assert [r.seq for r in bus.statuses] == [r.seq for r in fed][::every]
+    with pytest.raises(ValueError, match="status_hz"):
+        make_agent(config, CountingBus(), status_hz=0.0)
+
+
 def test_status_and_liveliness_on_the_bus(config: FleetConfig, bus: StatusBus) -> None:
     seen: list[Any] = []
-    joined: list[str] = []
-    left: list[str] = []
+    joined = threading.Event()
+    left = threading.Event()
     got = threading.Event()
 
     def on_status(rec: Any) -> None:
@@ -128,26 +188,19 @@ def test_status_and_liveliness_on_the_bus(config: FleetConfig, bus: StatusBus) -
         got.set()
 
     bus.subscribe_statuses(on_status)
-    bus.watch_alive(joined.append, left.append)
+    bus.watch_alive(
+        lambda robot: joined.set() if robot == "robot1" else None,
+        lambda robot: left.set() if robot == "robot1" else None,
+    )
     agent, sim = make_agent(config, bus)
     try:
+        assert joined.wait(WAIT_S)
         agent.tick()
-        assert got.wait(5.0)
-        deadline = time.monotonic() + 5.0
-        while "robot1" not in joined and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert "robot1" in joined
+        assert got.wait(WAIT_S)
         assert seen[0].robot == "robot1" and seen[0].battery == pytest.approx(1.0)
-        # an order published on the bus reaches the agent
+        # an order published on the bus reaches the agent (applied at its next tick)
         bus.publish_task(patrol_msg(config, "p-0007"))
-        deadline = time.monotonic() + 5.0
-        while agent.bb.task_id != "p-0007" and time.monotonic() < deadline:
-            time.sleep(0.05)
-            agent.tick()
-        assert agent.bb.task_id == "p-0007"
+        wait_until(lambda: agent.bb.task_id == "p-0007", "the order on the agent", act=agent.tick)
     finally:
         agent.close()
-    deadline = time.monotonic() + 5.0
-    while "robot1" not in left and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert "robot1" in left
+    assert left.wait(WAIT_S)

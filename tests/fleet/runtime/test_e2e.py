@@ -4,7 +4,8 @@ collisions), a low-battery robot whose route is covered while it charges, ``flee
 coordinator reassigns (simulator, coordinator and agents in separate processes).
 
 Real Zenoh on loopback (a free port per test), real py_trees trees, the real simulator.
-Every subprocess is terminated, then killed, in ``finally``.
+Every subprocess is terminated, then killed, in ``finally``. Waits are on conditions (a line
+in a process's output, a status on the bus) with generous deadlines, never fixed sleeps.
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +30,7 @@ from ports import free_endpoint
 from fleet.bus.session import open_session
 from fleet.bus.status_bus import StatusBus
 from fleet.cli.main import main
+from fleet.messages import StatusRecord
 
 ROOT = Path(__file__).resolve().parents[3]
 PATROL = ROOT / "configs" / "warehouse_patrol.yaml"
@@ -70,28 +73,105 @@ def processes() -> Iterator[list[subprocess.Popen[str]]]:
                 p.wait(timeout=10)
 
 
+class Output:
+    """A process's output, copied line by line to ``log`` by a reader thread;
+    :meth:`wait_line` waits for a line containing some text."""
+
+    def __init__(self, p: subprocess.Popen[str], log: Path) -> None:
+        self.log = log
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        self._done = False
+        self._thread = threading.Thread(target=self._read, args=(p,), daemon=True)
+        self._thread.start()
+
+    def _read(self, p: subprocess.Popen[str]) -> None:
+        assert p.stdout is not None
+        with open(self.log, "w") as f:
+            for line in p.stdout:
+                f.write(line)
+                f.flush()
+                with self._cond:
+                    self.lines.append(line)
+                    self._cond.notify_all()
+        with self._cond:
+            self._done = True
+            self._cond.notify_all()
+
+    def wait_line(self, text: str, timeout: float) -> str:
+        """The first line containing ``text``; fails after ``timeout`` s or when the output ends."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                hit = next((line for line in self.lines if text in line), None)
+                if hit is not None:
+                    return hit
+                left = deadline - time.monotonic()
+                if left <= 0 or self._done:
+                    raise AssertionError(f"no line with {text!r} in {self.log.name}:\n{''.join(self.lines)}")
+                self._cond.wait(left)
+
+
+_outputs: dict[int, Output] = {}
+
+
 def spawn(procs: list[subprocess.Popen[str]], args: list[str], log: Path) -> subprocess.Popen[str]:
+    """Start ``fleet <args>``; its output goes to ``log`` (see :func:`output`)."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    f = open(log, "w")  # noqa: SIM115 - closed with the process by the OS
-    p = subprocess.Popen([*FLEET, *args], stdout=f, stderr=subprocess.STDOUT, text=True, cwd=ROOT, env=env)
+    p = subprocess.Popen(
+        [*FLEET, *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT, env=env
+    )
     procs.append(p)
+    _outputs[p.pid] = Output(p, log)
     return p
 
 
-def wait_for(pred: Any, timeout: float, what: str, step: float = 0.2) -> None:
+def output(p: subprocess.Popen[str]) -> Output:
+    """The output of a process started by :func:`spawn`."""
+    return _outputs[p.pid]
+
+
+def wait_for(pred: Callable[[], bool], timeout: float, what: str, step: float = 0.05) -> None:
+    """Wait until ``pred()`` holds, checking every ``step`` s; fail after ``timeout`` s (for
+    conditions nothing signals; prefer :meth:`BusWatch.wait` and :meth:`Output.wait_line`)."""
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return
-        time.sleep(step)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+    while not pred():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        threading.Event().wait(step)
+
+
+class BusWatch:
+    """A bus client seeing every status; :meth:`wait` re-checks its condition at each status."""
+
+    def __init__(self, bus: StatusBus) -> None:
+        self.bus = bus
+        self._cond = threading.Condition()
+        bus.subscribe_statuses(self._on_status)
+
+    def _on_status(self, rec: StatusRecord) -> None:
+        with self._cond:
+            self._cond.notify_all()
+
+    def latest(self) -> dict[str, StatusRecord]:
+        return self.bus.latest()
+
+    def wait(self, pred: Callable[[dict[str, StatusRecord]], bool], timeout: float, what: str) -> None:
+        """Wait until ``pred(latest statuses)`` holds; fail after ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while not pred(self.bus.latest()):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+                self._cond.wait(left)
 
 
 @dataclass
 class SplitFleet:
     """A fleet split over processes (see :func:`split_fleet`)."""
 
-    bus: StatusBus
+    bus: BusWatch
     sim: subprocess.Popen[str]
     agent: subprocess.Popen[str]
     coord: subprocess.Popen[str]
@@ -119,17 +199,16 @@ def split_fleet(
     report = tmp_path / "coord.json"
     with processes() as procs:
         sim = spawn(procs, ["sim", str(cfg), "--endpoint", ep, "--speed", str(speed)], tmp_path / "sim.log")
-        wait_for(lambda: "fleet sim:" in (tmp_path / "sim.log").read_text(), 30, "fleet sim")
-        session = open_session(ep, "client", connect_timeout_s=10.0)
-        bus = StatusBus(session)
+        output(sim).wait_line("fleet sim:", 60)
+        session = open_session(ep, "client", connect_timeout_s=30.0)
+        bus = BusWatch(StatusBus(session))
         try:
-            bus.subscribe_statuses()
             agent = spawn(
                 procs,
                 ["agent", str(cfg), "--robot", victim, "--endpoint", ep, *extra],
                 tmp_path / "agent.log",
             )
-            wait_for(lambda: victim in bus.latest(), 30, f"{victim}'s first status")
+            bus.wait(lambda latest: victim in latest, 60, f"{victim}'s first status")
             coord = spawn(
                 procs,
                 ["coordinator", str(cfg), "--endpoint", ep, "--agents", others, "--duration", str(duration),
@@ -138,7 +217,7 @@ def split_fleet(
             )  # fmt: skip
             yield SplitFleet(bus, sim, agent, coord, report)
         finally:
-            bus.close()
+            bus.bus.close()
             session.close()
 
 
@@ -200,22 +279,20 @@ def test_status_once_sees_every_robot_of_a_run(tmp_path: Path) -> None:
     with processes() as procs:
         run = spawn(procs, ["run", str(PATROL), "--speed", "1", "--duration", "120", "--no-live", "--endpoint", ep],
                     tmp_path / "run.log")  # fmt: skip
-        wait_for(
-            lambda: "fleet:" in (tmp_path / "run.log").read_text() or run.poll() is not None, 30, "fleet run"
-        )
-        time.sleep(2.0)
-        assert run.poll() is None, (tmp_path / "run.log").read_text()
+        output(run).wait_line("fleet:", 60)
+        # waits until every robot holding a liveliness token has sent a status
         res = subprocess.run(
-            [*FLEET, "status", "--once", "--endpoint", ep],
-            capture_output=True, text=True, timeout=60, cwd=ROOT,
+            [*FLEET, "status", "--once", "--endpoint", ep, "--wait", "60", "--settle", "10"],
+            capture_output=True, text=True, timeout=120, cwd=ROOT,
         )  # fmt: skip
         assert res.returncode == 0, res.stderr
         for i in range(1, 7):
             assert f"robot{i}" in res.stdout, res.stdout
+        assert run.poll() is None, "".join(output(run).lines)
         run.send_signal(signal.SIGINT)
-        run.wait(timeout=30)
-        assert run.returncode == 130, (tmp_path / "run.log").read_text()
-        assert "interrupted: 6 robots" in (tmp_path / "run.log").read_text()
+        run.wait(timeout=60)
+        assert run.returncode == 130, "".join(output(run).lines)
+        output(run).wait_line("interrupted: 6 robots", 30)
 
 
 @pytest.mark.slow
@@ -234,9 +311,9 @@ def test_killed_agent_process_route_is_reassigned_and_completed(tmp_path: Path) 
     with split_fleet(tmp_path, cfg, victim, "robot1,robot3", speed, duration) as f:
         bus = f.bus
         # let the victim get its route and drive it for 20 simulated seconds
-        wait_for(lambda: bus.latest()[victim].task_id is not None, 30, f"{victim}'s route")
+        bus.wait(lambda latest: latest[victim].task_id is not None, 60, f"{victim}'s route")
         t_route = bus.latest()[victim].t
-        wait_for(lambda: bus.latest()[victim].t >= t_route + 20.0, 30, f"{victim} driving")
+        bus.wait(lambda latest: latest[victim].t >= t_route + 20.0, 60, f"{victim} driving")
         t_kill = bus.latest()[victim].t  # simulated seconds of the victim's last status
         kill(f.agent, tmp_path / "agent.log")
         r = f.result(duration / speed + 60)

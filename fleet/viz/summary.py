@@ -1,0 +1,104 @@
+"""The end-of-run summary of a fleet run, drawn with ``rich`` from the report's JSON fields
+(``RunReport.to_dict()``, see ``docs/cli.md``).
+
+Lines: ``finished`` (or ``interrupted``) with robots and simulated / wall seconds; patrols and
+laps per route; picks (picking trees); collisions, deadlocks, reassignments and throughput;
+the traffic line (traffic management); the reassignments (at most
+:data:`MAX_EVENTS_SHOWN`, the report has them all); then one row per robot: distance, laps,
+battery and final state. :func:`summary_text` is the same as plain text.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Mapping
+from typing import Any
+
+from rich.console import Console, Group
+from rich.table import Table
+from rich.text import Text
+
+#: At most this many reassignment lines are shown.
+MAX_EVENTS_SHOWN = 30
+
+
+def _headline(r: Mapping[str, Any]) -> Text:
+    sim, wall = float(r["sim_time_s"]), float(r["wall_time_s"])
+    rate = sim / wall if wall > 0 else float("inf")
+    word = "interrupted" if r.get("interrupted") else "finished"
+    t = Text(word, style="bold yellow" if r.get("interrupted") else "bold green")
+    t.append(f": {r['robots']} robots, {sim:.1f} s simulated in {wall:.1f} s wall ({rate:.1f}x real time)")
+    return t
+
+
+def _counts(r: Mapping[str, Any]) -> list[Text]:
+    by_route: Mapping[str, int] = r.get("laps_by_route") or {}
+    routes = " (" + ", ".join(f"{k}: {v}" for k, v in by_route.items()) + ")" if by_route else ""
+    lines = [
+        Text(
+            f"patrols: {r['patrols_assigned']} assigned, {r['patrols_completed']} completed, "
+            f"{r['laps_completed']} laps{routes}"
+        )
+    ]
+    if r.get("picks_assigned"):
+        lines.append(Text(f"picks: {r['picks_assigned']} assigned, {r['picks_completed']} completed"))
+    line = Text("collisions: ")
+    line.append(str(r["collisions"]), style="bold red" if r["collisions"] else "")
+    line.append(f"   deadlocks: {r['deadlocks']}   reassignments: {r['reassignments']}")
+    line.append(f"   throughput: {float(r.get('throughput_laps_per_robot_hour', 0.0)):.1f} laps/robot-hour")
+    lines.append(line)
+    t = r.get("traffic")
+    if t is not None:
+        lines.append(
+            Text(
+                f"traffic: mean wait {t['mean_wait_s']:.1f} s (max {t['max_wait_s']:.1f} s), "
+                f"wait-for cycles {t['cycles_detected']} found / {t['cycles_resolved']} resolved, "
+                f"{t['reroutes']} reroutes, {t['sidesteps']} side steps, {t['stalls']} stalls"
+            )
+        )
+    return lines
+
+
+def _events(r: Mapping[str, Any]) -> list[Text]:
+    events = list(r.get("reassignment_events") or [])
+    lines = []
+    for e in events[:MAX_EVENTS_SHOWN]:
+        to = f"-> {e['to_robot']} at {e['t_reassigned']:.1f} s" if e.get("to_robot") else "(waiting)"
+        lines.append(Text(f"  t={e['t']:.1f} s {e['route']}: {e['from_robot']} {e['reason']} {to}"))
+    if len(events) > MAX_EVENTS_SHOWN:
+        lines.append(
+            Text(f"  ... {len(events) - MAX_EVENTS_SHOWN} more reassignments in the report", style="dim")
+        )
+    return lines
+
+
+def _robots(r: Mapping[str, Any]) -> Table:
+    t = Table(box=None, padding=(0, 2, 0, 0), pad_edge=False, header_style="bold")
+    t.add_column("  robot", no_wrap=True)
+    t.add_column("dist m", justify="right")
+    t.add_column("laps", justify="right")
+    t.add_column("battery", justify="right")
+    t.add_column("state", no_wrap=True)
+    for row in r.get("per_robot") or []:
+        state = str(row["final_state"])
+        t.add_row(
+            "  " + str(row["name"]),
+            f"{float(row['distance_m']):.1f}",
+            str(row["laps"]),
+            f"{float(row['battery_final']):.0%}",
+            Text(state, style="bold red" if state == "dead" else ""),
+        )
+    return t
+
+
+def summary_renderable(report: Mapping[str, Any]) -> Group:
+    """The summary of ``report`` (the JSON fields of a run report) as a rich renderable."""
+    return Group(_headline(report), *_counts(report), *_events(report), _robots(report))
+
+
+def summary_text(report: Mapping[str, Any], width: int = 200) -> str:
+    """The summary as plain text (no colors, no trailing newline); lines up to ``width``."""
+    buf = io.StringIO()
+    console = Console(file=buf, width=width, color_system=None, force_terminal=False, highlight=False)
+    console.print(summary_renderable(report))
+    return "\n".join(line.rstrip() for line in buf.getvalue().rstrip("\n").splitlines())
