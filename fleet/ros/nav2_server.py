@@ -47,6 +47,7 @@ from rclpy.signals import SignalHandlerOptions  # noqa: E402
 
 from fleet.clock import Pacer, WallClock  # noqa: E402
 from fleet.errors import BackendError, FleetError  # noqa: E402
+from fleet.navigation import Clock  # noqa: E402
 from fleet.ros.conversions import seconds_to_time  # noqa: E402
 from fleet.ros.nav2_facade import Profile, RobotFacade  # noqa: E402
 from fleet.ros.nav2_services import LIFECYCLE_NODES, costmap_from_grid  # noqa: E402
@@ -77,6 +78,8 @@ class Nav2SimServer:
             Nav2 interface, ``lean`` the seven navigation actions, lifecycle and the topics.
         context: an initialized rclpy ``Context``; by default the server creates and owns one.
         domain_id: ROS domain of the context it creates (default: ``ROS_DOMAIN_ID``).
+        wall: the wall clock the simulator is paced against (default
+            :class:`~fleet.clock.WallClock`; tests pass their own).
 
     Call :meth:`spin` (blocks until :meth:`request_stop`, e.g. from a signal handler) or
     :meth:`spin_once` in your own loop, then :meth:`close`.
@@ -94,13 +97,14 @@ class Nav2SimServer:
         profile: Profile | str = Profile.FULL,
         context: Context | None = None,
         domain_id: int | None = None,
+        wall: Clock | None = None,
     ) -> None:
         profile = Profile.parse(profile)
         if not speed >= 0 or speed == float("inf"):
             raise BackendError(f"speed must be a finite number >= 0, got {speed}")
         self.sim = sim
         self.speed = float(speed)
-        self.wall = WallClock()
+        self.wall = wall if wall is not None else WallClock()
         self.pacer = Pacer(sim.clock, self.speed, wall=self.wall)
         feedback_period = 1.0 / feedback_hz if feedback_hz > 0 else None
         self._owns_context = context is None
@@ -131,7 +135,9 @@ class Nav2SimServer:
         for r in self.robots.values():
             self.executor.add_node(r.node)
         step = sim.params.step_s
-        self.world.create_timer(max(step / self.speed, 0.01) if self.speed > 0 else PAUSED_TICK_S, self._tick)
+        self.world.create_timer(
+            max(step / self.speed, 0.01) if self.speed > 0 else PAUSED_TICK_S, self.step_to_wall_time
+        )
         if odom_hz > 0:
             self.world.create_timer(1.0 / odom_hz, self._publish_odom)
         if amcl_hz > 0:
@@ -145,10 +151,10 @@ class Nav2SimServer:
         """The header stamp of now: simulated time."""
         return seconds_to_time(self.sim.clock.now())
 
-    def _tick(self) -> None:
-        """Step the simulator up to real time times ``speed`` (at most
-        :data:`MAX_CATCH_UP_STEPS` steps; a larger backlog is dropped), then resolve goals and
-        publish due feedback."""
+    def step_to_wall_time(self) -> None:
+        """Step the simulator while it is at least one step behind ``speed`` times the wall
+        time passed (at most :data:`MAX_CATCH_UP_STEPS` steps; a larger backlog is dropped),
+        then resolve finished goals and publish due feedback. The server's timer calls it."""
         if self.speed > 0:
             step = self.sim.params.step_s
             n = 0
