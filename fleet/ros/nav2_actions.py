@@ -37,6 +37,7 @@ from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, Serv
 from rclpy.node import Node
 from rclpy.task import Future
 
+from fleet.navigation import Clock
 from fleet.ros.conversions import (
     ACTION_TYPES,
     NAVIGATION_ACTIONS,
@@ -52,6 +53,7 @@ from fleet.ros.conversions import (
 from fleet.types import (
     ErrorCode,
     Feedback,
+    FollowWaypoints,
     Goal,
     GoalState,
     GoalStatus,
@@ -111,6 +113,7 @@ class RobotActions:
         stamp: the current header stamp (simulated time).
         feedback_period: wall seconds between two feedback messages of a goal (``None``: no
             feedback).
+        wall: the wall clock the feedback period is measured on (the server's).
 
     The server calls :meth:`poll_all` after every simulator step (and :meth:`destroy` at the
     end).
@@ -124,11 +127,13 @@ class RobotActions:
         actions: tuple[str, ...],
         stamp: Callable[[], Time],
         feedback_period: float | None,
+        wall: Clock,
     ) -> None:
         self.sim = sim
         self.ns = namespace
         self._stamp = stamp
         self._feedback_period = feedback_period
+        self._wall = wall
         #: Goals executing now, by the simulator's goal id.
         self.active: dict[str, ServedGoal] = {}
         self.servers = [
@@ -170,7 +175,7 @@ class RobotActions:
         gid = self.sim.send_goal(self.ns, goal)
         served = ServedGoal(gid, kind, goal_handle, Future(), poses, self.sim.clock.now())
         self.active[gid] = served
-        self.poll(served, time.monotonic())
+        self.poll(served, self._wall.now())
         await served.done
         state: GoalState = served.done.result()
         result = result_to_msg(kind, state, poses, self.sim.clock.now() - served.t0)
@@ -261,7 +266,9 @@ def goal_poses(goal: Goal) -> tuple[Pose2D, ...]:
     ``()`` for behaviors."""
     if isinstance(goal, NavigateToPose):
         return (goal.pose,)
-    return tuple(getattr(goal, "poses", ()))
+    if isinstance(goal, (NavigateThroughPoses, FollowWaypoints)):
+        return goal.poses
+    return ()
 
 
 def plan_through(planner: GridPlanner, start: Pose2D, goals: list[Pose2D]) -> PathPlan:

@@ -29,6 +29,7 @@ from rclpy.context import Context
 from rclpy.node import Node
 
 from fleet.errors import BackendError
+from fleet.navigation import Clock
 from fleet.ros.conversions import (
     ACTION_TYPES,
     AMCL_POSE_QOS,
@@ -94,6 +95,7 @@ class RobotFacade:
         stamp: the current header stamp (simulated time).
         costmap: the costmap ``get_costmap`` answers (built once by the server).
         feedback_period: wall seconds between two feedback messages (``None``: none).
+        wall: the wall clock feedback periods are measured on.
     """
 
     def __init__(
@@ -106,6 +108,7 @@ class RobotFacade:
         stamp: Callable[[], Time],
         costmap: Callable[[], Costmap],
         feedback_period: float | None,
+        wall: Clock,
     ) -> None:
         self.sim = sim
         self.ns = namespace
@@ -117,7 +120,7 @@ class RobotFacade:
             start_parameter_services=False,
             enable_rosout=False,
         )
-        self.actions = RobotActions(self.node, sim, namespace, profile.actions, stamp, feedback_period)
+        self.actions = RobotActions(self.node, sim, namespace, profile.actions, stamp, feedback_period, wall)
         self.lifecycle = LifecycleServices(self.node)
         self.costmaps = CostmapServices(self.node, costmap) if profile is Profile.FULL else None
         self.amcl_pub = self.node.create_publisher(PoseWithCovarianceStamped, "amcl_pose", AMCL_POSE_QOS)

@@ -128,6 +128,7 @@ class Nav2SimServer:
                 stamp=self.stamp,
                 costmap=self.costmap_msg,
                 feedback_period=feedback_period,
+                wall=self.wall,
             )
         #: Wall seconds it took to create every robot's interfaces.
         self.create_time_s = self.wall.now() - t_create
