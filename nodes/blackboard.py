@@ -8,9 +8,10 @@ Keys written by the agent and read by the tree:
 
 * ``route``: ``tuple[Pose2D, ...] | None`` the patrol route (looped).
 * ``task_id``: ``str | None`` id of the current assignment.
-* ``pick``: ``PickTask | None`` (``shelf``, ``dwell_s``, ``drop``) for the picking tree.
+* ``pick``: ``Pick | None`` (``shelf``, ``dwell_s``, ``drop``: a ``fleet.config.PickTask`` or
+  a received ``fleet.messages.PickOrder``) for the picking tree.
 * ``charger``: ``Pose2D | None`` the charger to use when the battery is low.
-* ``grant``: ``fleet.traffic.Grant | None`` the robot's latest traffic grant (only with
+* ``grant``: ``fleet.messages.Grant | None`` the robot's latest traffic grant (only with
   traffic management; see ``docs/traffic.md``).
 
 Keys written by the tree and read by the agent:
@@ -18,7 +19,8 @@ Keys written by the tree and read by the agent:
 * ``laps``: ``int`` completed laps of the current route; ``lap_task_id``: the task id they
   count for.
 * ``active_leaf``: ``str`` name of the action leaf that is RUNNING (or last ran).
-* ``mode``: ``"idle" | "patrol" | "charging" | "recovery" | "picking"``.
+* ``mode``: a :class:`fleet.types.Mode` (``idle``, ``patrol``, ``charging``, ``recovery``,
+  ``picking``; a ``StrEnum``, so it equals its string).
 * ``route_progress``: ``float`` in [0, 1] through the current lap.
 * ``picks_done``: ``int``.
 
@@ -27,42 +29,79 @@ Extra keys of this package (not part of the agent contract, for status and debug
 * ``active_goal``: ``str | None`` id of the goal the tree has outstanding on the backend.
   A leaf that starts a goal first cancels this one, so a preempted goal ends CANCELED.
 * ``last_error``: ``str`` the last failure message of an action leaf (``""`` if none).
+
+:class:`RobotKeys` lists every key with its type; :func:`read_key` returns typed readers.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import TYPE_CHECKING, Literal, Protocol, TypedDict, overload
 
 import py_trees
 from py_trees.blackboard import Blackboard, Client
 
-#: Keys the agent writes and the tree reads, with their defaults.
-INPUT_KEYS: dict[str, Any] = {
+from fleet.types import Mode, Pose2D
+
+if TYPE_CHECKING:
+    from fleet.messages import Grant
+
+
+class Pick(Protocol):
+    """What the picking tree reads from the blackboard ``pick``: drive to ``shelf`` (``map``),
+    stand ``dwell_s`` seconds, drive to ``drop``."""
+
+    @property
+    def shelf(self) -> Pose2D: ...
+
+    @property
+    def drop(self) -> Pose2D: ...
+
+    @property
+    def dwell_s(self) -> float: ...
+
+
+class RobotKeys(TypedDict):
+    """Every key of a robot's blackboard and the type of its value (see the module
+    docstring for who writes it)."""
+
+    route: tuple[Pose2D, ...] | None
+    task_id: str | None
+    pick: Pick | None
+    charger: Pose2D | None
+    grant: Grant | None
+    laps: int
+    lap_task_id: str | None
+    active_leaf: str
+    mode: Mode
+    route_progress: float
+    picks_done: int
+    active_goal: str | None
+    last_error: str
+
+
+#: Every key with its default.
+DEFAULTS: RobotKeys = {
     "route": None,
     "task_id": None,
     "pick": None,
     "charger": None,
     "grant": None,
-}
-#: Keys the tree writes and the agent reads, with their defaults.
-OUTPUT_KEYS: dict[str, Any] = {
     "laps": 0,
     "lap_task_id": None,
     "active_leaf": "",
-    "mode": "idle",
+    "mode": Mode.IDLE,
     "route_progress": 0.0,
     "picks_done": 0,
-}
-#: Keys private to this package (see the module docstring).
-INTERNAL_KEYS: dict[str, Any] = {
     "active_goal": None,
     "last_error": "",
 }
-#: Every key with its default.
-DEFAULTS: dict[str, Any] = {**INPUT_KEYS, **OUTPUT_KEYS, **INTERNAL_KEYS}
-#: The modes the tree writes to ``mode``.
-MODES = ("idle", "patrol", "charging", "recovery", "picking")
+#: Keys the agent writes and the tree reads.
+INPUT_KEYS = ("route", "task_id", "pick", "charger", "grant")
+#: Keys the tree writes and the agent reads.
+OUTPUT_KEYS = ("laps", "lap_task_id", "active_leaf", "mode", "route_progress", "picks_done")
+#: Keys private to this package (see the module docstring).
+INTERNAL_KEYS = ("active_goal", "last_error")
 
 
 def normalize_namespace(namespace: str) -> str:
@@ -109,15 +148,27 @@ def robot_blackboard(namespace: str, name: str | None = None, keys: Iterable[str
     return client
 
 
-def read_key(namespace: str, key: str) -> Callable[[], Any]:
+@overload
+def read_key(namespace: str, key: Literal["route"]) -> Callable[[], tuple[Pose2D, ...] | None]: ...
+@overload
+def read_key(namespace: str, key: Literal["charger"]) -> Callable[[], Pose2D | None]: ...
+@overload
+def read_key(namespace: str, key: Literal["pick"]) -> Callable[[], Pick | None]: ...
+@overload
+def read_key(
+    namespace: str, key: Literal["task_id", "lap_task_id", "active_goal"]
+) -> Callable[[], str | None]: ...
+@overload
+def read_key(namespace: str, key: str) -> Callable[[], object]: ...
+def read_key(namespace: str, key: str) -> Callable[[], object]:
     """A callable that returns the current value of ``key`` of robot ``namespace`` (or its
-    default if it was never written). Use it as the goal source of a leaf, e.g.
-    ``NavigateToPoseAction(backend, read_key("/robot1", "charger"))``."""
+    default if it was never written), typed after :class:`RobotKeys`. Use it as the goal
+    source of a leaf, e.g. ``NavigateToPoseAction(backend, read_key("/robot1", "charger"))``."""
     name = key_path(namespace, key)
     default = DEFAULTS.get(key)
     storage = Blackboard.storage
 
-    def get() -> Any:
+    def get() -> object:
         return storage.get(name, default)
 
     get.__name__ = f"read_key({name!r})"

@@ -40,6 +40,7 @@ from fleet.types import (
     Goal,
     GoalState,
     GoalStatus,
+    Mode,
     NavigateThroughPoses,
     NavigateToPose,
     Pose2D,
@@ -81,7 +82,8 @@ class GoalAction(py_trees.behaviour.Behaviour):
         backend: the robot's navigation backend; its ``namespace`` is the blackboard
             namespace of the leaf.
         goal: the goal, or a callable returning it (or ``None``) evaluated in ``initialise``.
-        mode: if given, written to the blackboard ``mode`` when the leaf starts.
+        mode: if given, written to the blackboard ``mode`` when the leaf starts
+            (:class:`fleet.types.Mode`).
 
     Returns (from ``update``): RUNNING while the goal is PENDING / EXECUTING / CANCELING;
     SUCCESS when it SUCCEEDED; FAILURE when it was ABORTED, REJECTED or CANCELED, when the
@@ -98,7 +100,7 @@ class GoalAction(py_trees.behaviour.Behaviour):
         backend: NavigationBackend,
         goal: Source[Goal] | None = None,
         *,
-        mode: str | None = None,
+        mode: Mode | None = None,
     ) -> None:
         super().__init__(name=name)
         self.backend = backend
@@ -219,7 +221,7 @@ class NavigateToPoseAction(GoalAction):
         pose: Source[Pose2D],
         *,
         name: str = "NavigateToPose",
-        mode: str | None = None,
+        mode: Mode | None = None,
     ) -> None:
         super().__init__(name, backend, mode=mode)
         self._pose = pose
@@ -243,7 +245,7 @@ class NavigateThroughPosesAction(GoalAction):
         poses: Source[Sequence[Pose2D]],
         *,
         name: str = "NavigateThroughPoses",
-        mode: str | None = None,
+        mode: Mode | None = None,
     ) -> None:
         super().__init__(name, backend, mode=mode)
         self._poses = poses
@@ -274,7 +276,7 @@ class FollowWaypointsAction(GoalAction):
         poses: Source[Sequence[Pose2D]],
         *,
         name: str = "FollowWaypoints",
-        mode: str | None = None,
+        mode: Mode | None = None,
     ) -> None:
         super().__init__(name, backend, mode=mode)
         self._poses = poses
@@ -308,7 +310,7 @@ class SpinAction(GoalAction):
         *,
         time_allowance_s: float = 10.0,
         name: str = "Spin",
-        mode: str | None = None,
+        mode: Mode | None = None,
     ) -> None:
         super().__init__(name, backend, mode=mode)
         self._yaw = target_yaw
@@ -335,7 +337,7 @@ class BackUpAction(GoalAction):
         *,
         time_allowance_s: float = 10.0,
         name: str = "BackUp",
-        mode: str | None = None,
+        mode: Mode | None = None,
     ) -> None:
         super().__init__(name, backend, mode=mode)
         self._distance = distance_m
@@ -363,7 +365,7 @@ class DriveOnHeadingAction(GoalAction):
         *,
         time_allowance_s: float = 10.0,
         name: str = "DriveOnHeading",
-        mode: str | None = None,
+        mode: Mode | None = None,
     ) -> None:
         super().__init__(name, backend, mode=mode)
         self._distance = distance_m
@@ -389,7 +391,7 @@ class WaitAction(GoalAction):
         duration_s: Source[float] = 5.0,
         *,
         name: str = "Wait",
-        mode: str | None = None,
+        mode: Mode | None = None,
     ) -> None:
         super().__init__(name, backend, mode=mode)
         self._duration = duration_s
@@ -407,7 +409,7 @@ class Charge(py_trees.behaviour.Behaviour):
     injected ``clock``) of any period in which it is not charging (the robot may still be
     settling on the charger); SUCCESS once the battery is at or above ``resume``; FAILURE
     when it has not been charging for more than ``grace_s`` seconds (not on a charger).
-    Writes ``mode = "charging"`` and ``active_leaf`` when it starts. Cancel: nothing to
+    Writes ``mode = Mode.CHARGING`` and ``active_leaf`` when it starts. Cancel: nothing to
     cancel; the robot simply stays where it is.
     """
 
@@ -434,7 +436,7 @@ class Charge(py_trees.behaviour.Behaviour):
     def initialise(self) -> None:
         self._not_charging_since = None
         self.blackboard.active_leaf = self.name
-        self.blackboard.mode = "charging"
+        self.blackboard.mode = Mode.CHARGING
 
     def update(self) -> Status:
         state = self.backend.robot_state()
@@ -460,7 +462,7 @@ class Charge(py_trees.behaviour.Behaviour):
 class Idle(py_trees.behaviour.Behaviour):
     """The lowest-priority branch: nothing to do.
 
-    Sends no goal; always RUNNING. Writes ``mode = "idle"``, ``active_leaf`` and
+    Sends no goal; always RUNNING. Writes ``mode = Mode.IDLE``, ``active_leaf`` and
     ``route_progress = 0`` when it starts. Cancel: nothing to cancel.
     """
 
@@ -473,7 +475,7 @@ class Idle(py_trees.behaviour.Behaviour):
 
     def initialise(self) -> None:
         self.blackboard.active_leaf = self.name
-        self.blackboard.mode = "idle"
+        self.blackboard.mode = Mode.IDLE
         self.blackboard.route_progress = 0.0
 
     def update(self) -> Status:

@@ -20,6 +20,7 @@ from py_trees.behaviour import Behaviour
 from py_trees.common import Status
 
 from fleet.navigation import NavigationBackend
+from fleet.types import Mode
 from nodes.leaves import BackUpAction, SpinAction, WaitAction
 
 
@@ -186,12 +187,12 @@ def recovery_actions(
     With ``round_robin`` (default) each recovery runs the next action of the cycle (a failing
     action, e.g. a BackUp with something behind the robot, moves on to the next one at once);
     otherwise the three run as a Sequence and the recovery fails if any of them fails. Every
-    leaf writes ``mode = "recovery"``.
+    leaf writes ``mode = Mode.RECOVERY``.
     """
     children: list[Behaviour] = [
-        WaitAction(backend, wait_s, name="RecoveryWait", mode="recovery"),
-        BackUpAction(backend, backup_m, backup_speed_mps, name="RecoveryBackUp", mode="recovery"),
-        SpinAction(backend, spin_rad, name="RecoverySpin", mode="recovery"),
+        WaitAction(backend, wait_s, name="RecoveryWait", mode=Mode.RECOVERY),
+        BackUpAction(backend, backup_m, backup_speed_mps, name="RecoveryBackUp", mode=Mode.RECOVERY),
+        SpinAction(backend, spin_rad, name="RecoverySpin", mode=Mode.RECOVERY),
     ]
     if round_robin:
         return RoundRobin(name, children)

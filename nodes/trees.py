@@ -23,7 +23,7 @@ from py_trees.common import Status
 from fleet.errors import FleetError
 from fleet.navigation import Clock, NavigationBackend
 from fleet.robots import BatteryModel
-from fleet.types import Goal, GoalState, NavigateThroughPoses, NavigateToPose, Pose2D
+from fleet.types import Goal, GoalState, Mode, NavigateThroughPoses, NavigateToPose, Pose2D, TreeKind
 from nodes.blackboard import normalize_namespace, read_key, robot_blackboard
 from nodes.conditions import BatteryLow, HasAssignment
 from nodes.leaves import (
@@ -36,9 +36,6 @@ from nodes.leaves import (
 )
 from nodes.recovery import RecoveryNode, RestartOnChange, recovery_actions
 from nodes.traffic import FollowGrant
-
-#: Tree kinds accepted by :func:`build_tree`.
-TREE_KINDS = ("patrol", "picking")
 
 
 def next_route_index(route: Sequence[Pose2D], pose: Pose2D | None, tolerance_m: float = 0.3) -> int:
@@ -74,7 +71,7 @@ class FollowRoute(NavigateThroughPosesAction):
     needs at least two distinct poses.
 
     Blackboard: on start, if ``task_id`` differs from ``lap_task_id`` the lap counter is
-    restarted (``laps = 0``, ``lap_task_id = task_id``); ``mode = "patrol"``;
+    restarted (``laps = 0``, ``lap_task_id = task_id``); ``mode = Mode.PATROL``;
     ``route_progress`` follows the feedback (lap poses done plus the driven fraction of the
     current goal, over ``n``); when the last leg succeeds
     ``laps += 1`` and ``route_progress = 1``.
@@ -89,7 +86,7 @@ class FollowRoute(NavigateThroughPosesAction):
     def __init__(
         self, backend: NavigationBackend, *, name: str = "FollowRoute", tolerance_m: float = 0.3
     ) -> None:
-        super().__init__(backend, read_key(backend.namespace, "route"), name=name, mode="patrol")
+        super().__init__(backend, read_key(backend.namespace, "route"), name=name, mode=Mode.PATROL)
         self.tolerance_m = tolerance_m
         self.route_bb = robot_blackboard(
             backend.namespace,
@@ -192,7 +189,7 @@ def battery_guard(
     if go_to_charger is None:
         go_to_charger = navigate_with_recovery(
             NavigateToPoseAction(
-                backend, read_key(namespace, "charger"), name="GoToCharger", mode="charging"
+                backend, read_key(namespace, "charger"), name="GoToCharger", mode=Mode.CHARGING
             ),
             backend,
         )
@@ -265,13 +262,15 @@ def pick_branch(namespace: str, backend: NavigationBackend, *, retries: int = 6)
         memory=True,
         children=[
             navigate_with_recovery(
-                NavigateToPoseAction(backend, shelf, name="GoToShelf", mode="picking"),
+                NavigateToPoseAction(backend, shelf, name="GoToShelf", mode=Mode.PICKING),
                 backend,
                 retries=retries,
             ),
-            WaitAction(backend, dwell, name="Dwell", mode="picking"),
+            WaitAction(backend, dwell, name="Dwell", mode=Mode.PICKING),
             navigate_with_recovery(
-                NavigateToPoseAction(backend, drop, name="GoToDrop", mode="picking"), backend, retries=retries
+                NavigateToPoseAction(backend, drop, name="GoToDrop", mode=Mode.PICKING),
+                backend,
+                retries=retries,
             ),
             CompletePick(namespace),
         ],
@@ -299,7 +298,7 @@ def patrol_tree(
 
     Priorities are re-checked every tick: a low battery interrupts the patrol (its goal ends
     CANCELED), the robot charges to ``battery.resume`` and resumes the route near where it
-    is. Without a route the robot idles (``mode = "idle"``). Blackboard keys: see
+    is. Without a route the robot idles (``mode = Mode.IDLE``). Blackboard keys: see
     :mod:`nodes.blackboard`; ``namespace`` is the robot's (``/robot1``) and should equal
     ``backend.namespace``. With ``traffic=True`` the tree is :func:`traffic_patrol_tree`.
     """
@@ -330,17 +329,17 @@ def traffic_patrol_tree(
     """
     ns = normalize_namespace(namespace)
     robot_blackboard(ns, name=f"{ns}-tree")
-    to_charger = FollowGrant(backend, clock, mode="charging", purpose="charge", name="GrantToCharger")
+    to_charger = FollowGrant(backend, clock, mode=Mode.CHARGING, purpose="charge", name="GrantToCharger")
     guard = battery_guard(ns, backend, clock, battery, go_to_charger=to_charger)
     patrol = py_trees.composites.Sequence(
         "Patrol",
         memory=False,
         children=[
             HasAssignment(ns, "route", name="HasRoute"),
-            FollowGrant(backend, clock, mode="patrol", count_laps=True, name="GrantPatrol"),
+            FollowGrant(backend, clock, mode=Mode.PATROL, count_laps=True, name="GrantPatrol"),
         ],
     )
-    idle = FollowGrant(backend, clock, mode="idle", name="GrantIdle")
+    idle = FollowGrant(backend, clock, mode=Mode.IDLE, name="GrantIdle")
     return py_trees.composites.Selector(
         f"TrafficPatrolRobot {ns}", memory=False, children=[guard, patrol, idle]
     )
@@ -372,7 +371,7 @@ def _robot_tree(
 
 
 def build_tree(
-    kind: str,
+    kind: TreeKind | str,
     namespace: str,
     backend: NavigationBackend,
     clock: Clock,
@@ -381,18 +380,23 @@ def build_tree(
     retries: int = 6,
     traffic: bool = False,
 ) -> Behaviour:
-    """Build the tree of ``kind`` (``"patrol"`` or ``"picking"``, see :data:`TREE_KINDS`);
-    ``traffic=True`` builds the traffic-managed variant (patrol only). Raises
-    :class:`~fleet.errors.FleetError` for another kind, or for a picking tree with traffic."""
-    if kind == "patrol":
+    """Build the tree of ``kind`` (a :class:`fleet.types.TreeKind`, or its name as a user
+    wrote it: ``"patrol"``, ``"picking"``); ``traffic=True`` builds the traffic-managed variant
+    (patrol only). Raises :class:`~fleet.errors.FleetError` for an unknown kind, or for a
+    picking tree with traffic."""
+    try:
+        tree = TreeKind(kind)
+    except ValueError:
+        raise FleetError(
+            f"unknown behavior tree kind {kind!r}; known kinds: {', '.join(k.value for k in TreeKind)}"
+        ) from None
+    if tree is TreeKind.PATROL:
         return patrol_tree(namespace, backend, clock, battery, retries=retries, traffic=traffic)
-    if kind == "picking" and traffic:
+    if traffic:
         raise FleetError(
             "traffic management drives patrol trees only; run picking trees without traffic management"
         )
-    if kind == "picking":
-        return picking_tree(namespace, backend, clock, battery, retries=retries)
-    raise FleetError(f"unknown behavior tree kind {kind!r}; known kinds: {', '.join(TREE_KINDS)}")
+    return picking_tree(namespace, backend, clock, battery, retries=retries)
 
 
 def dump_tree(root: Behaviour, *, unicode: bool = False, show_status: bool = False) -> str:

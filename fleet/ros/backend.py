@@ -33,39 +33,38 @@ callbacks run on the executor thread; shared state is guarded by one lock.
 from __future__ import annotations
 
 import itertools
-import math
+import os
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Protocol
 
 from fleet.ros.env import apply_ros_env_defaults
 
 apply_ros_env_defaults()
 
 import rclpy  # noqa: E402
-import rclpy.task  # noqa: E402
 from action_msgs.msg import GoalStatus as RosGoalStatus  # noqa: E402
-from geometry_msgs.msg import PoseWithCovarianceStamped  # noqa: E402
-from nav_msgs.msg import Odometry  # noqa: E402
-from rclpy.action import ActionClient  # noqa: E402
+from builtin_interfaces.msg import Time  # noqa: E402
+from rclpy.action.client import ActionClient, ClientGoalHandle  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.signals import SignalHandlerOptions  # noqa: E402
+from rclpy.task import Future  # noqa: E402
 
 from fleet.errors import BackendError  # noqa: E402
 from fleet.ros.conversions import (  # noqa: E402
     ACTION_TYPES,
-    AMCL_POSE_QOS,
     NAVIGATION_ACTIONS,
+    FeedbackMsg,
     goal_to_msg,
     msg_to_feedback,
-    pose_to_pose2d,
 )
-from fleet.types import ErrorCode, Feedback, Goal, GoalState, GoalStatus, Pose2D, RobotState  # noqa: E402
+from fleet.ros.robot_state import RobotStateTracker  # noqa: E402
+from fleet.types import ErrorCode, Feedback, Goal, GoalState, GoalStatus, RobotState  # noqa: E402
 
 #: Goal kinds (= Nav2 action names) the backend sends.
 BACKEND_KINDS = NAVIGATION_ACTIONS
@@ -86,7 +85,9 @@ class _Goal:
     error_code: int = 0
     error_msg: str = ""
     missed: tuple[int, ...] = ()
-    handle: Any = None
+    #: ``None`` until the request is sent, the request's future until the server answers,
+    #: then the server's goal handle.
+    handle: ClientGoalHandle | Future | None = None
     cancel_wanted: bool = False
     sent_at: float = 0.0
     unavailable_since: float | None = None
@@ -102,19 +103,10 @@ class _Goal:
         self.status, self.error_code, self.error_msg = status, int(code), msg
 
 
-def _compose(a: Pose2D, b: Pose2D) -> Pose2D:
-    """a ∘ b: pose b expressed in a's parent frame."""
-    c, s = math.cos(a.theta), math.sin(a.theta)
-    return Pose2D(a.x + c * b.x - s * b.y, a.y + s * b.x + c * b.y, _wrap(a.theta + b.theta))
+class _FeedbackMessage(Protocol):
+    """What an action client's feedback callback receives (``<Action>.Impl.FeedbackMessage``)."""
 
-
-def _inverse(a: Pose2D) -> Pose2D:
-    c, s = math.cos(a.theta), math.sin(a.theta)
-    return Pose2D(-(c * a.x + s * a.y), -(-s * a.x + c * a.y), _wrap(-a.theta))
-
-
-def _wrap(t: float) -> float:
-    return (t + math.pi) % (2.0 * math.pi) - math.pi
+    feedback: FeedbackMsg
 
 
 class RosNavigationBackend:
@@ -137,23 +129,7 @@ class RosNavigationBackend:
         self._goals: dict[str, _Goal] = {}
         self._ids = itertools.count(1)
         self._current: _Goal | None = None
-        # localization: map pose = T_map_odom ∘ odom pose (T from the last amcl_pose)
-        self._odom: Pose2D | None = None
-        self._map_from_odom: Pose2D | None = None
-        self._amcl: Pose2D | None = None
-        self._v = 0.0
-        self._w = 0.0
-        self._distance = 0.0
-        self._battery = 1.0
-        self._charging = False
-        self.node.create_subscription(PoseWithCovarianceStamped, "amcl_pose", self._on_amcl, AMCL_POSE_QOS)
-        self.node.create_subscription(Odometry, "odom", self._on_odom, 10)
-        try:
-            from sensor_msgs.msg import BatteryState
-
-            self.node.create_subscription(BatteryState, "battery_state", self._on_battery, 10)
-        except ImportError:  # sensor_msgs is optional
-            pass
+        self.tracker = RobotStateTracker(self.node, self._lock, owner.saw_stamp)
 
     # -- protocol -------------------------------------------------------------------------
 
@@ -196,17 +172,9 @@ class RosNavigationBackend:
         self._owner.call_soon(lambda: self._cancel_remote(rec))
 
     def robot_state(self) -> RobotState:
-        with self._lock:
-            pose = self._pose_locked()
-            return RobotState(
-                pose=pose,
-                linear_velocity=self._v,
-                angular_velocity=self._w,
-                battery=self._battery,
-                charging=self._charging,
-                stuck=False,
-                distance_m=self._distance,
-            )
+        """Pose, velocities, battery and distance from the robot's topics (see
+        :mod:`fleet.ros.robot_state`)."""
+        return self.tracker.state()
 
     def wait_for_servers(self, timeout_s: float, kinds: Iterable[str] = BACKEND_KINDS) -> bool:
         """Block until the action servers ``kinds`` are discovered (True) or ``timeout_s``."""
@@ -224,37 +192,6 @@ class RosNavigationBackend:
 
     # -- executor thread ------------------------------------------------------------------
 
-    def _pose_locked(self) -> Pose2D | None:
-        if self._odom is not None and self._map_from_odom is not None:
-            return _compose(self._map_from_odom, self._odom)
-        return self._amcl
-
-    def _on_amcl(self, msg: PoseWithCovarianceStamped) -> None:
-        pose = pose_to_pose2d(msg.pose.pose)
-        self._owner.saw_stamp(msg.header.stamp)
-        with self._lock:
-            self._amcl = pose
-            if self._odom is not None:
-                self._map_from_odom = _compose(pose, _inverse(self._odom))
-
-    def _on_odom(self, msg: Odometry) -> None:
-        pose = pose_to_pose2d(msg.pose.pose)
-        self._owner.saw_stamp(msg.header.stamp)
-        with self._lock:
-            if self._odom is not None:
-                self._distance += math.hypot(pose.x - self._odom.x, pose.y - self._odom.y)
-            elif self._amcl is not None:
-                self._map_from_odom = _compose(self._amcl, _inverse(pose))
-            self._odom = pose
-            self._v = float(msg.twist.twist.linear.x)
-            self._w = float(msg.twist.twist.angular.z)
-
-    def _on_battery(self, msg: Any) -> None:
-        with self._lock:
-            if math.isfinite(msg.percentage):
-                self._battery = max(0.0, min(1.0, float(msg.percentage)))
-            self._charging = msg.power_supply_status == 1  # POWER_SUPPLY_STATUS_CHARGING
-
     def _send_remote(self, rec: _Goal) -> None:
         with self._lock:
             if rec.status.terminal:
@@ -269,8 +206,8 @@ class RosNavigationBackend:
         rec.handle = fut  # marks "request sent"
         fut.add_done_callback(lambda f: self._on_goal_response(rec, f))
 
-    def _on_goal_response(self, rec: _Goal, fut: Any) -> None:
-        handle = fut.result() if fut.exception() is None else None
+    def _on_goal_response(self, rec: _Goal, fut: Future) -> None:
+        handle: ClientGoalHandle | None = fut.result() if fut.exception() is None else None
         cancel = False
         with self._lock:
             if handle is None or not handle.accepted:
@@ -285,15 +222,15 @@ class RosNavigationBackend:
             handle.cancel_goal_async()
         handle.get_result_async().add_done_callback(lambda f: self._on_result(rec, f))
 
-    def _on_feedback(self, rec: _Goal, msg: Any) -> None:
+    def _on_feedback(self, rec: _Goal, msg: _FeedbackMessage) -> None:
         fb = msg_to_feedback(rec.kind, msg.feedback)
         with self._lock:
             if not rec.status.terminal:
                 rec.feedback = fb
-                if fb.current_pose is not None and self._odom is None:
-                    self._amcl = fb.current_pose
+                if fb.current_pose is not None:
+                    self.tracker.feedback_pose(fb.current_pose)
 
-    def _on_result(self, rec: _Goal, fut: Any) -> None:
+    def _on_result(self, rec: _Goal, fut: Future) -> None:
         if fut.exception() is not None:
             with self._lock:
                 rec.finish(
@@ -321,7 +258,7 @@ class RosNavigationBackend:
                 if rec.cancel_wanted:
                     rec.finish(GoalStatus.CANCELED, 0, "")
             return
-        if hasattr(handle, "cancel_goal_async"):
+        if isinstance(handle, ClientGoalHandle):
             handle.cancel_goal_async()
         # else the request is in flight: _on_goal_response cancels it once accepted
 
@@ -338,7 +275,7 @@ class RosNavigationBackend:
             with self._lock:
                 if ready:
                     rec.unavailable_since = None
-                    if isinstance(rec.handle, rclpy.task.Future) and now - rec.sent_at > self._timeout:
+                    if isinstance(rec.handle, Future) and now - rec.sent_at > self._timeout:
                         rec.finish(
                             GoalStatus.ABORTED,
                             ErrorCode.SERVER_UNAVAILABLE,
@@ -428,7 +365,8 @@ class RosBackends:
                 time.sleep(0.05)
         return missing
 
-    def saw_stamp(self, stamp: Any) -> None:
+    def saw_stamp(self, stamp: Time) -> None:
+        """Record a header stamp seen on a robot's topic (executor thread)."""
         t = float(stamp.sec) + float(stamp.nanosec) * 1e-9
         if t > self.latest_stamp:
             self.latest_stamp = t
@@ -495,7 +433,7 @@ def make_ros_backends(
             rb.close()
             raise BackendError(
                 f"no Nav2 action servers found within {wait_s:.0f} s for {', '.join(missing)} "
-                f"(ROS_DOMAIN_ID={__import__('os').environ.get('ROS_DOMAIN_ID', '0')}; is `fleet sim-ros` running?)"
+                f"(ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}; is `fleet sim-ros` running?)"
             )
     return rb
 

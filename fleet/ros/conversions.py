@@ -8,7 +8,7 @@ is named by the goal's ``kind`` (Nav2's action server name, e.g. ``navigate_to_p
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TypeAlias
 
 from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion
@@ -55,6 +55,55 @@ from fleet.types import (
     Wait,
 )
 
+#: A Nav2 action type, and the Goal / Feedback / Result messages of one. nav2_msgs carries no
+#: type information (mypy sees these as ``Any``); the aliases name what a function takes.
+ActionType: TypeAlias = (
+    NavigateThroughPosesAction
+    | NavigateToPoseAction
+    | FollowWaypointsAction
+    | SpinAction
+    | BackUpAction
+    | DriveOnHeadingAction
+    | WaitAction
+    | FollowPath
+    | ComputePathToPose
+    | ComputePathThroughPoses
+)
+GoalMsg: TypeAlias = (
+    NavigateThroughPosesAction.Goal
+    | NavigateToPoseAction.Goal
+    | FollowWaypointsAction.Goal
+    | SpinAction.Goal
+    | BackUpAction.Goal
+    | DriveOnHeadingAction.Goal
+    | WaitAction.Goal
+    | FollowPath.Goal
+    | ComputePathToPose.Goal
+    | ComputePathThroughPoses.Goal
+)
+FeedbackMsg: TypeAlias = (
+    NavigateThroughPosesAction.Feedback
+    | NavigateToPoseAction.Feedback
+    | FollowWaypointsAction.Feedback
+    | SpinAction.Feedback
+    | BackUpAction.Feedback
+    | DriveOnHeadingAction.Feedback
+    | WaitAction.Feedback
+    | FollowPath.Feedback
+)
+ResultMsg: TypeAlias = (
+    NavigateThroughPosesAction.Result
+    | NavigateToPoseAction.Result
+    | FollowWaypointsAction.Result
+    | SpinAction.Result
+    | BackUpAction.Result
+    | DriveOnHeadingAction.Result
+    | WaitAction.Result
+    | FollowPath.Result
+    | ComputePathToPose.Result
+    | ComputePathThroughPoses.Result
+)
+
 #: The navigation actions a robot serves and the fleet's backend drives (Nav2's server names).
 NAVIGATION_ACTIONS = (
     "navigate_through_poses",
@@ -75,7 +124,7 @@ AMCL_POSE_QOS = QoSProfile(
 
 #: Nav2 action type of each goal kind (the kind is also the action server's name): the
 #: :data:`NAVIGATION_ACTIONS` first, then the controller and planner actions.
-ACTION_TYPES: dict[str, Any] = {
+ACTION_TYPES: dict[str, type[ActionType]] = {
     "navigate_through_poses": NavigateThroughPosesAction,
     "navigate_to_pose": NavigateToPoseAction,
     "follow_waypoints": FollowWaypointsAction,
@@ -149,7 +198,7 @@ def pose_stamped_to_pose2d(msg: PoseStamped) -> Pose2D:
 # -- goals --------------------------------------------------------------------------------
 
 
-def goal_to_msg(goal: Goal) -> Any:
+def goal_to_msg(goal: Goal) -> GoalMsg:
     """The Nav2 ``<Action>.Goal`` message of a fleet goal (send it to the action ``goal.kind``)."""
     if isinstance(goal, NavigateThroughPoses):
         g = NavigateThroughPosesAction.Goal()
@@ -183,7 +232,7 @@ def goal_to_msg(goal: Goal) -> Any:
     raise TypeError(f"no Nav2 action for goal type {type(goal).__name__}")
 
 
-def msg_to_goal(kind: str, msg: Any) -> Goal:
+def msg_to_goal(kind: str, msg: GoalMsg) -> Goal:
     """The fleet goal of a Nav2 goal message received on action ``kind``.
 
     BackUp takes the magnitude of ``target.x`` and ``speed`` (as Nav2's behavior server does);
@@ -213,7 +262,7 @@ def msg_to_goal(kind: str, msg: Any) -> Goal:
 # -- feedback -----------------------------------------------------------------------------
 
 
-def feedback_to_msg(kind: str, fb: Feedback, stamp: Time | None = None) -> Any:
+def feedback_to_msg(kind: str, fb: Feedback, stamp: Time | None = None) -> FeedbackMsg:
     """The Nav2 ``<Action>.Feedback`` for the fleet feedback of a goal on action ``kind``."""
     action = ACTION_TYPES[kind]
     m = action.Feedback()
@@ -239,7 +288,7 @@ def feedback_to_msg(kind: str, fb: Feedback, stamp: Time | None = None) -> Any:
     return m
 
 
-def msg_to_feedback(kind: str, m: Any) -> Feedback:
+def msg_to_feedback(kind: str, m: FeedbackMsg) -> Feedback:
     """The fleet :class:`~fleet.types.Feedback` of a Nav2 feedback message on action ``kind``."""
     if kind in ("navigate_through_poses", "navigate_to_pose"):
         return Feedback(
@@ -266,7 +315,9 @@ def msg_to_feedback(kind: str, m: Any) -> Feedback:
 # -- results ------------------------------------------------------------------------------
 
 
-def result_to_msg(kind: str, state: GoalState, poses: tuple[Pose2D, ...] = (), elapsed_s: float = 0.0) -> Any:
+def result_to_msg(
+    kind: str, state: GoalState, poses: tuple[Pose2D, ...] = (), elapsed_s: float = 0.0
+) -> ResultMsg:
     """The Nav2 ``<Action>.Result`` of a finished goal: ``error_code`` / ``error_msg`` from the
     state; FollowWaypoints lists its missed waypoints (``poses`` are the goal's poses);
     behaviors report ``total_elapsed_time``."""

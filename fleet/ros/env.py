@@ -7,21 +7,32 @@ so a user's own ``ROS_DOMAIN_ID`` / FastDDS profile always wins:
 * ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (traffic stays on this machine);
 * ``FASTRTPS_DEFAULT_PROFILES_FILE`` = this package's ``discovery.xml`` (fast initial
   announcements: discovery in 0.1-0.5 s instead of 2-3 s on loopback).
+
+:func:`ros_available` tells whether the ROS 2 layer can run here; ``FLEET_DISABLE_ROS=1``
+makes it answer no on a machine that has ROS (to check what users without ROS see: the ROS
+tests and the ROS conformance harness are reported as skipped, with
+:func:`ros_unavailable_reason`).
 """
 
 from __future__ import annotations
 
 import importlib.util
 import os
+from collections.abc import MutableMapping
 from pathlib import Path
 
 #: The FastDDS profile shipped with the package.
 DISCOVERY_PROFILE = Path(__file__).with_name("discovery.xml")
+#: Set to ``1`` to behave as if ROS were not installed.
+DISABLE_VAR = "FLEET_DISABLE_ROS"
+#: The Python packages the ROS layer needs (the ROS 2 Jazzy wheels, and the interface
+#: packages ``make setup-ros`` builds).
+REQUIRED_MODULES = ("rclpy", "nav2_msgs", "geographic_msgs")
 
 
 def apply_ros_env_defaults(
-    domain_id: int | None = None, *, environ: dict[str, str] | None = None
-) -> dict[str, str]:
+    domain_id: int | None = None, *, environ: MutableMapping[str, str] | None = None
+) -> MutableMapping[str, str]:
     """Set the fleet's ROS defaults in ``environ`` (default ``os.environ``) where unset.
 
     ``domain_id`` (0-101 for FastDDS on Linux), when given, overrides ``ROS_DOMAIN_ID``.
@@ -37,9 +48,25 @@ def apply_ros_env_defaults(
         if not 0 <= int(domain_id) <= 232:
             raise ValueError(f"ROS_DOMAIN_ID must be in 0..232, got {domain_id}")
         env["ROS_DOMAIN_ID"] = str(int(domain_id))
-    return env  # type: ignore[return-value]
+    return env
 
 
-def ros_available() -> bool:
-    """True when rclpy and the nav2_msgs / geographic_msgs interfaces can be imported."""
-    return all(importlib.util.find_spec(m) is not None for m in ("rclpy", "nav2_msgs", "geographic_msgs"))
+def ros_unavailable_reason(environ: MutableMapping[str, str] | None = None) -> str | None:
+    """Why the ROS 2 layer cannot run here (a sentence naming the fix), or ``None`` when it
+    can: rclpy, nav2_msgs and geographic_msgs are importable and ``FLEET_DISABLE_ROS`` is not
+    ``1`` in ``environ`` (default ``os.environ``)."""
+    env = os.environ if environ is None else environ
+    if env.get(DISABLE_VAR, "") == "1":
+        return f"ROS 2 disabled by {DISABLE_VAR}=1"
+    missing = [m for m in REQUIRED_MODULES if importlib.util.find_spec(m) is None]
+    if missing:
+        return (
+            f"ROS 2 Jazzy (rclpy + nav2_msgs) not installed ({', '.join(missing)} missing): "
+            "run make setup-ros"
+        )
+    return None
+
+
+def ros_available(environ: MutableMapping[str, str] | None = None) -> bool:
+    """True when the ROS 2 layer can run here (see :func:`ros_unavailable_reason`)."""
+    return ros_unavailable_reason(environ) is None

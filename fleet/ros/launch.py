@@ -15,11 +15,21 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 from fleet.errors import BackendError
 from fleet.ros.env import apply_ros_env_defaults
+
+
+class ReadyInfo(TypedDict):
+    """The ready file a server writes once every robot's interfaces exist."""
+
+    pid: int
+    robots: list[str]
+    create_s: float
+    domain_id: str
 
 
 def private_domain_id(base: int = 40, span: int = 150) -> int:
@@ -32,7 +42,7 @@ class ServerProcess:
     ready file). Use as a context manager, or call :meth:`stop`."""
 
     def __init__(
-        self, argv: list[str], *, env: dict[str, str] | None = None, ready_timeout_s: float = 60.0
+        self, argv: list[str], *, env: Mapping[str, str] | None = None, ready_timeout_s: float = 60.0
     ) -> None:
         self._tmp = tempfile.TemporaryDirectory(prefix="fleet-sim-ros-")
         self.ready_file = str(Path(self._tmp.name) / "ready.json")
@@ -44,24 +54,34 @@ class ServerProcess:
         self.proc = subprocess.Popen(
             self.argv, stdout=self._log, stderr=subprocess.STDOUT, env=e, start_new_session=True
         )
-        self.info: dict[str, Any] = {}
         try:
-            self._wait_ready(ready_timeout_s)
+            #: What the server wrote to its ready file.
+            self.info: ReadyInfo = self._wait_ready(ready_timeout_s)
         except BaseException:
             self.stop()
             raise
 
     @classmethod
-    def for_config(cls, config: str | os.PathLike[str], *extra: str, **kw: Any) -> ServerProcess:
+    def for_config(
+        cls,
+        config: str | os.PathLike[str],
+        *extra: str,
+        env: Mapping[str, str] | None = None,
+        ready_timeout_s: float = 60.0,
+    ) -> ServerProcess:
         """Serve the robots of a fleet config: ``fleet sim-ros CONFIG EXTRA...``."""
-        return cls([sys.executable, "-m", "fleet.ros.nav2_server", str(config), *extra], **kw)
+        return cls(
+            [sys.executable, "-m", "fleet.ros.nav2_server", str(config), *extra],
+            env=env,
+            ready_timeout_s=ready_timeout_s,
+        )
 
-    def _wait_ready(self, timeout_s: float) -> None:
+    def _wait_ready(self, timeout_s: float) -> ReadyInfo:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if os.path.exists(self.ready_file):
-                self.info = json.loads(Path(self.ready_file).read_text())
-                return
+                info: ReadyInfo = json.loads(Path(self.ready_file).read_text())
+                return info
             if self.proc.poll() is not None:
                 raise BackendError(f"Nav2 simulator server exited with {self.proc.returncode}:\n{self.log()}")
             time.sleep(0.05)

@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import os
 import time
-from typing import Any
 
+from fleet.config.model import FleetConfig
 from fleet.navigation import NavigationBackend
+from fleet.robots import RobotSpec
 from fleet.ros.backend import RosBackends, make_ros_backends
 from fleet.runtime.worlds import BlindWorld
 
@@ -41,7 +42,7 @@ class RosWorld(BlindWorld):
 
     remote = True
 
-    def __init__(self, config: Any, robots: list[Any], session: Any = None) -> None:
+    def __init__(self, config: FleetConfig, robots: list[RobotSpec], session: object = None) -> None:
         wait_s = float(os.environ.get("FLEET_ROS_WAIT_S", "30"))
         self.step_s = float(config.sim.step_s)
         self._rb = make_ros_backends([r.namespace for r in robots], wait_s=wait_s)

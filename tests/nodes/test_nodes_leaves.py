@@ -10,7 +10,7 @@ import pytest
 from nodes_world import BOX, CHARGER, Loop, make_world, pose_of
 from py_trees.common import Status
 
-from fleet.types import ErrorCode, GoalStatus, Pose2D
+from fleet.types import ErrorCode, GoalStatus, Mode, Pose2D
 from nodes.blackboard import key_path, robot_blackboard
 from nodes.leaves import (
     BackUpAction,
@@ -44,7 +44,7 @@ def sim():  # type: ignore[no-untyped-def]
 
 
 def test_navigate_to_pose_succeeds_and_records_its_goal(sim) -> None:  # type: ignore[no-untyped-def]
-    leaf = NavigateToPoseAction(sim.backend(NS), Pose2D(5.0, 3.0, 0.0), mode="patrol")
+    leaf = NavigateToPoseAction(sim.backend(NS), Pose2D(5.0, 3.0, 0.0), mode=Mode.PATROL)
     loop = Loop(sim, leaf)
     loop.tick()
     assert leaf.status == Status.RUNNING

@@ -24,7 +24,7 @@ from fleet.clock import SimClock
 from fleet.config.model import PickTask
 from fleet.errors import FleetError
 from fleet.robots import BatteryModel
-from fleet.types import GoalStatus, NavigateThroughPoses, NavigateToPose, Pose2D
+from fleet.types import GoalStatus, NavigateThroughPoses, NavigateToPose, Pose2D, TreeKind
 from nodes.blackboard import robot_blackboard
 from nodes.trees import FollowRoute, build_tree, dump_tree, next_route_index, patrol_tree, picking_tree
 
@@ -200,8 +200,8 @@ def test_two_robots_have_independent_blackboards() -> None:
 def test_build_tree_and_dump() -> None:
     sim = make_world({NS: Pose2D(2.0, 2.0)})
     b = sim.backend(NS)
-    patrol = build_tree("patrol", NS, b, sim.clock, BATTERY)
-    picking = build_tree("picking", NS, b, sim.clock, BATTERY)
+    patrol = build_tree(TreeKind.PATROL, NS, b, sim.clock, BATTERY)
+    picking = build_tree("picking", NS, b, sim.clock, BATTERY)  # a kind as the user wrote it
     text = dump_tree(patrol)
     for name in (
         "BatteryGuard",
@@ -214,8 +214,10 @@ def test_build_tree_and_dump() -> None:
     ):
         assert name in text
     assert "GoToShelf" in dump_tree(picking, unicode=True)
-    with pytest.raises(FleetError, match="unknown behavior tree kind"):
+    with pytest.raises(FleetError, match="unknown behavior tree kind 'dance'; known kinds: patrol, picking"):
         build_tree("dance", NS, b, sim.clock, BATTERY)
+    with pytest.raises(FleetError, match="traffic management drives patrol trees only"):
+        build_tree(TreeKind.PICKING, NS, b, sim.clock, BATTERY, traffic=True)
 
 
 def test_trees_never_read_the_wall_clock(monkeypatch: pytest.MonkeyPatch) -> None:

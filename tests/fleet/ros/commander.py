@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import enum
 import time
+from collections.abc import Callable
 from typing import Any
 
 from action_msgs.msg import GoalStatus
@@ -51,9 +52,10 @@ class TaskResult(enum.Enum):
 
 class Commander(Node):
     """BasicNavigator's client-side protocol, per namespace. ``timeout_s`` bounds every wait
-    (BasicNavigator waits forever; a test must not)."""
+    (BasicNavigator waits forever; a test must not): a hang guard, several times what
+    discovery takes on a loaded 2-core machine."""
 
-    def __init__(self, namespace: str, context: Context, timeout_s: float = 30.0) -> None:
+    def __init__(self, namespace: str, context: Context, timeout_s: float = 60.0) -> None:
         super().__init__("basic_navigator", namespace=namespace, context=context)
         self.timeout_s = timeout_s
         self._executor = SingleThreadedExecutor(context=context)
@@ -92,6 +94,15 @@ class Commander(Node):
         self._executor.spin_until_future_complete(
             future, timeout_sec=timeout_s if timeout_s is not None else self.timeout_s
         )
+
+    def spin_until(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
+        """Spin this node until ``predicate()`` is true; ``TimeoutError`` naming ``what``
+        after ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{self.get_namespace()}: {what} not within {timeout_s:.0f} s")
+            self._executor.spin_once(timeout_sec=0.05)
 
     def _wait_server(self, key: str) -> None:
         deadline = time.monotonic() + self.timeout_s
@@ -140,21 +151,23 @@ class Commander(Node):
                 raise TimeoutError(f"{node_name}/get_state not available")
         state = "unknown"
         while state != "active":
+            # one request at a time, polled until its reply or the deadline (BasicNavigator
+            # polls the same way, without a deadline)
             fut = client.call_async(GetState.Request())
-            self._spin_until(fut)
+            self._spin_until(fut, max(0.0, deadline - time.monotonic()))
             if fut.result() is not None:
                 state = fut.result().current_state.label
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"{node_name} never became active (last state {state!r})")
             if state != "active":
-                time.sleep(0.2)
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"{node_name} never became active (last state {state!r})")
+                self._executor.spin_once(timeout_sec=0.2)  # poll period while it is not active
         self.destroy_client(client)
 
     def waitUntilNav2Active(self, navigator: str = "bt_navigator", localizer: str = "amcl") -> None:
         self._wait_for_node_active(localizer)
         deadline = time.monotonic() + self.timeout_s
         while not self.initial_pose_received:
-            self._set_initial_pose()
+            self._set_initial_pose()  # republished until amcl_pose answers, as BasicNavigator does
             self._executor.spin_once(timeout_sec=0.5)
             if time.monotonic() > deadline:
                 raise TimeoutError("amcl_pose never received")

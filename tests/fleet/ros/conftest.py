@@ -1,8 +1,11 @@
 """Fixtures of the ROS 2 tests: a private ROS domain, an rclpy context for the clients in
 this process, and the Nav2 simulator server in a child process.
 
-Every test here is marked ``ros`` and skipped when rclpy or the built nav2_msgs are missing
-(``make setup-ros`` provides them).
+Every test module here that needs ROS is marked ``ros``. When ROS cannot run (rclpy or the
+built nav2_msgs missing: ``make setup-ros`` provides them; or ``FLEET_DISABLE_ROS=1``) those
+tests are still collected and each is reported as skipped with the reason
+(:func:`fleet.ros.env.ros_unavailable_reason`), so the modules import nothing from ROS at
+import time. ``wait_until`` is the tests' one way to wait for something to happen.
 """
 
 from __future__ import annotations
@@ -10,18 +13,24 @@ from __future__ import annotations
 import os
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
-from fleet.ros.env import apply_ros_env_defaults, ros_available
+from fleet.ros.env import apply_ros_env_defaults, ros_unavailable_reason
 from fleet.ros.launch import ServerProcess, private_domain_id
+
+if TYPE_CHECKING:
+    from rclpy.context import Context
 
 ROOT = Path(__file__).resolve().parents[3]
 WAREHOUSE = ROOT / "configs" / "warehouse_patrol.yaml"
+HERE = Path(__file__).resolve().parent
 
-if not ros_available():
-    collect_ignore_glob = ["test_*.py"]
-else:
+#: Why the ROS tests cannot run here (``None``: they can).
+UNAVAILABLE = ros_unavailable_reason()
+
+if UNAVAILABLE is None:
     # Before any rclpy participant exists in this process: a private domain, loopback only,
     # the fast-discovery FastDDS profile. Child processes inherit it.
     os.environ.setdefault("ROS_DOMAIN_ID", str(private_domain_id()))
@@ -29,13 +38,16 @@ else:
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Skip every ``ros`` test of this directory, with the reason, when ROS cannot run."""
+    if UNAVAILABLE is None:
+        return
     for item in items:
-        if "tests/fleet/ros/" in str(item.fspath).replace(os.sep, "/"):
-            item.add_marker(pytest.mark.ros)
+        if item.path.is_relative_to(HERE) and item.get_closest_marker("ros") is not None:
+            item.add_marker(pytest.mark.skip(reason=UNAVAILABLE))
 
 
 @pytest.fixture(scope="session")
-def ros_context() -> Iterator[object]:
+def ros_context() -> Iterator[Context]:
     import rclpy
     from rclpy.context import Context
     from rclpy.signals import SignalHandlerOptions

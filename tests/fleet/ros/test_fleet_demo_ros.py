@@ -17,7 +17,8 @@ from fleet.runtime.runner import FleetRunner
 
 WAREHOUSE = Path(__file__).resolve().parents[3] / "configs" / "warehouse_patrol.yaml"
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+#: Each test takes 25-45 s on an idle 2-core machine (two fleet runs and a server).
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.timeout(600)]
 
 DURATION_S = 150.0
 

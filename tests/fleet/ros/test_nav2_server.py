@@ -11,13 +11,18 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
-from commander import Commander, TaskResult
+from waiting import DISCOVERY_S, GOAL_S
 
-from fleet.ros.conversions import pose2d_to_pose_stamped, pose_stamped_to_pose2d
+from fleet.ros.env import ros_available
 from fleet.types import ErrorCode, Pose2D
+
+if ros_available() or TYPE_CHECKING:  # else every test here is skipped (conftest.py)
+    from commander import Commander, TaskResult
+
+    from fleet.ros.conversions import pose2d_to_pose_stamped, pose_stamped_to_pose2d
 
 pytestmark = pytest.mark.ros
 
@@ -41,14 +46,23 @@ def navs(warehouse_server: Any, ros_context: Any) -> Iterator[dict[str, Commande
         n.close()
 
 
-def _run(nav: Commander, timeout_s: float = 30.0) -> list[Any]:
+def _run(nav: Commander, timeout_s: float = GOAL_S) -> list[Any]:
+    """Spin until the task is complete (``isTaskComplete`` spins 0.1 s); the feedback seen."""
     feedback = []
     deadline = time.monotonic() + timeout_s
     while not nav.isTaskComplete():
         if nav.getFeedback() is not None:
             feedback.append(nav.getFeedback())
-        assert time.monotonic() < deadline, "task did not finish"
+        assert time.monotonic() < deadline, f"task did not finish within {timeout_s:.0f} s"
     return feedback
+
+
+def _wait_executing(nav: Commander, timeout_s: float = GOAL_S) -> None:
+    """Spin until the server has published feedback for the task: it is executing."""
+    deadline = time.monotonic() + timeout_s
+    while nav.getFeedback() is None:
+        assert not nav.isTaskComplete(), f"task ended before it executed: {nav.result_message()}"
+        assert time.monotonic() < deadline, f"no feedback within {timeout_s:.0f} s"
 
 
 def test_several_robots_navigate_concurrently(navs: dict[str, Commander]) -> None:
@@ -57,7 +71,7 @@ def test_several_robots_navigate_concurrently(navs: dict[str, Commander]) -> Non
         navs[ns].waitUntilNav2Active()
     for ns, (x, y) in goals.items():
         assert navs[ns].goToPose(_ps(x, y))
-    deadline = time.monotonic() + 30.0
+    deadline = time.monotonic() + GOAL_S
     pending = set(goals)
     while pending:
         pending = {ns for ns in pending if not navs[ns].isTaskComplete()}
@@ -73,9 +87,9 @@ def test_lifecycle_and_amcl_pose_facade(navs: dict[str, Commander]) -> None:
 
     for node in ("bt_navigator", "amcl", "planner_server", "controller_server"):
         cli = nav.create_client(GetState, f"{node}/get_state")
-        assert cli.wait_for_service(timeout_sec=5.0)
+        assert cli.wait_for_service(timeout_sec=DISCOVERY_S)
         fut = cli.call_async(GetState.Request())
-        nav._spin_until(fut, 5.0)
+        nav._spin_until(fut, DISCOVERY_S)
         assert fut.result().current_state.label == "active"
     # amcl_pose is transient local: a late subscriber gets the robot's pose at once
     from geometry_msgs.msg import PoseWithCovarianceStamped
@@ -86,24 +100,18 @@ def test_lifecycle_and_amcl_pose_facade(navs: dict[str, Commander]) -> None:
         depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
     )
     nav.create_subscription(PoseWithCovarianceStamped, "amcl_pose", got.append, qos)
-    deadline = time.monotonic() + 5.0
-    while not got and time.monotonic() < deadline:
-        nav._executor.spin_once(timeout_sec=0.1)
-    assert got, "no amcl_pose"
+    nav.spin_until(lambda: bool(got), DISCOVERY_S, "amcl_pose received by a late subscriber")
     assert got[-1].header.frame_id == "map"
     p = pose_stamped_to_pose2d(got[-1].pose)  # type: ignore[arg-type]
     assert p.distance_to(Pose2D(1.0, 3.0)) < 0.05
     # initialpose is accepted (the simulator answers with a fresh amcl_pose)
     nav.initial_pose_received = False
     nav.setInitialPose(_ps(1.0, 3.0))
-    deadline = time.monotonic() + 5.0
-    while not nav.initial_pose_received and time.monotonic() < deadline:
-        nav._executor.spin_once(timeout_sec=0.1)
-    assert nav.initial_pose_received
+    nav.spin_until(lambda: nav.initial_pose_received, DISCOVERY_S, "amcl_pose answering initialpose")
     # costmap services answer
+    assert nav.clear_global.wait_for_service(timeout_sec=DISCOVERY_S)
     fut = nav.clear_global.call_async(nav.clear_global.srv_type.Request())
-    assert nav.clear_global.wait_for_service(timeout_sec=5.0)
-    nav._spin_until(fut, 5.0)
+    nav._spin_until(fut, DISCOVERY_S)
     assert fut.result() is not None
 
 
@@ -154,10 +162,9 @@ def test_bad_goal_aborts_with_nav2_error_code(
 def test_cancel_task(navs: dict[str, Commander]) -> None:
     nav = navs["/robot3"]
     assert nav.goThroughPoses([_ps(3.0, 5.0), _ps(2.5, 14.0)])
-    time.sleep(0.5)
-    assert not nav.isTaskComplete()
+    _wait_executing(nav)
     nav.cancelTask()
-    _run(nav, 10.0)
+    _run(nav)
     assert nav.getResult() is TaskResult.CANCELED
 
 
@@ -166,10 +173,9 @@ def test_new_goal_preempts_running_goal(navs: dict[str, Commander], ros_context:
     second = Commander("/robot4", ros_context)
     try:
         assert first.goToPose(_ps(6.0, 14.0))
-        time.sleep(0.4)
-        assert not first.isTaskComplete()
+        _wait_executing(first)
         assert second.goToPose(_ps(4.0, 4.2))
-        _run(first, 10.0)
+        _run(first)
         assert first.getResult() is TaskResult.FAILED  # Nav2 aborts the preempted goal
         assert "preempted" in first.result_message().error_msg
         _run(second)
@@ -181,7 +187,7 @@ def test_new_goal_preempts_running_goal(navs: dict[str, Commander], ros_context:
 def test_follow_waypoints_reports_missed_waypoint(navs: dict[str, Commander]) -> None:
     nav = navs["/robot6"]
     assert nav.followWaypoints([_ps(6.0, 5.0), _ps(-50.0, -50.0), _ps(6.0, 6.5)])
-    fb = _run(nav, 40.0)
+    fb = _run(nav)
     res = nav.result_message()
     assert [m.index for m in res.missed_waypoints] == [1]
     assert max(f.current_waypoint for f in fb) >= 1

@@ -24,10 +24,10 @@ from lifecycle_msgs.srv import GetState
 rclpy.init()
 node = rclpy.create_node("state_probe", namespace=sys.argv[1])
 client = node.create_client(GetState, "amcl/get_state")
-if not client.wait_for_service(timeout_sec=20.0):
+if not client.wait_for_service(timeout_sec=60.0):
     print("no-service"); sys.exit(1)
 future = client.call_async(GetState.Request())   # one request, like BasicNavigator
-deadline = time.monotonic() + 15.0
+deadline = time.monotonic() + 30.0  # a dropped reply never comes
 while not future.done() and time.monotonic() < deadline:
     rclpy.spin_once(node, timeout_sec=0.1)
 print("reply " + future.result().current_state.label if future.done() else "no-reply")
@@ -42,7 +42,7 @@ def test_simultaneous_clients_all_get_lifecycle_replies(warehouse_server: Any) -
         for ns in robots
     ]
     try:
-        outputs = {ns: p.communicate(timeout=60)[0].strip() for ns, p in zip(robots, procs, strict=True)}
+        outputs = {ns: p.communicate(timeout=180)[0].strip() for ns, p in zip(robots, procs, strict=True)}
     finally:
         for p in procs:
             if p.poll() is None:
