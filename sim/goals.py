@@ -32,6 +32,7 @@ import math
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import get_args
 
 from fleet.errors import BackendError
 from fleet.types import (
@@ -47,12 +48,11 @@ from fleet.types import (
     NavigateToPose,
     Pose2D,
     Spin,
-    Wait,
 )
 from sim.snapshots import make_goal_state
 
-#: The goal types a world executes (one per Nav2 action, :data:`fleet.types.Goal`).
-GOAL_TYPES = (NavigateToPose, NavigateThroughPoses, FollowWaypoints, Spin, BackUp, DriveOnHeading, Wait)
+#: The goal types a world executes (one per Nav2 action): the members of :data:`fleet.types.Goal`.
+GOAL_TYPES: tuple[type, ...] = get_args(Goal)
 #: Finished goals kept per robot for ``goal_state`` (older ones are forgotten).
 KEEP_FINISHED = 4096
 
@@ -93,7 +93,7 @@ BEHAVIOR_CODES: dict[str, BehaviorCodes] = {
 def check_goal(goal: object) -> Goal:
     """``goal`` if it is a goal of :mod:`fleet.types`; else raise
     :class:`~fleet.errors.BackendError` (passing another object is a programming error)."""
-    if not isinstance(goal, GOAL_TYPES):
+    if not isinstance(goal, Goal):
         known = ", ".join(t.__name__ for t in GOAL_TYPES)
         raise BackendError(
             f"send_goal: goal: {type(goal).__name__} is not a navigation goal (one of {known})"
