@@ -25,6 +25,7 @@ import numpy as np
 from fleet.robots import SimParams
 from sim.avoidance import Avoidance, corridor_gaps
 from sim.footprint import FootprintGrid
+from sim.history import EVENTS_KEPT, trim_oldest
 from sim.planner import GridPlanner
 from sim.spatial import NeighborPairs
 from sim.state import FleetState
@@ -209,8 +210,8 @@ class Safety:
 
 class Contacts:
     """Robot-robot contacts: ``total`` collision events and ``events`` ``(t, ns_a, ns_b, x,
-    y)`` (namespaces in order, midpoint in the ``map`` frame), and each robot's count in the
-    state's ``collisions``."""
+    y)`` (namespaces in order, midpoint in the ``map`` frame; the last :data:`sim.history.EVENTS_KEPT` at
+    least), and each robot's count in the state's ``collisions``."""
 
     def __init__(self, state: FleetState, params: SimParams, pairs: NeighborPairs) -> None:
         self.state = state
@@ -248,4 +249,5 @@ class Contacts:
                 s.collisions[j] += 1
                 self.total += 1
                 self.events.append((now, na, nb, 0.5 * float(s.x[i] + s.x[j]), 0.5 * float(s.y[i] + s.y[j])))
+            trim_oldest(self.events, EVENTS_KEPT)
         self._touching = touching

@@ -53,6 +53,7 @@ from sim.backend import NamespacedBackend
 from sim.dispatch import GoalDispatch
 from sim.follower import PathFollower
 from sim.footprint import FootprintGrid
+from sim.history import TRAJECTORY_KEEP_S, trim_oldest
 from sim.planner import GridPlanner
 from sim.robot import Robot
 from sim.safety import STOP_GAP_M, Contacts, Safety
@@ -115,6 +116,7 @@ class Simulator:
         self._next_sample = clock.now() + TRAJECTORY_PERIOD_S
         self._samples_t: list[float] = []
         self._samples_xy: list[np.ndarray] = []
+        self._samples_dropped = 0
         self._traj_start: list[tuple[float, float, float, int]] = []
         self._backends: dict[str, NamespacedBackend] = {}
         self._chargers = np.array([(c.x, c.y) for c in params.chargers], dtype=float).reshape(-1, 2)
@@ -141,7 +143,8 @@ class Simulator:
 
     @property
     def collision_events(self) -> list[tuple[float, str, str, float, float]]:
-        """``(t, namespace_a, namespace_b, x, y)`` of every contact event (the live list)."""
+        """``(t, namespace_a, namespace_b, x, y)`` of the contact events, the last
+        :data:`sim.history.EVENTS_KEPT` at least (the live list)."""
         return self._contacts.events
 
     def add_robot(self, spec: RobotSpec) -> None:
@@ -164,7 +167,7 @@ class Simulator:
         battery = min(1.0, max(0.0, float(spec.battery)))
         i = self.state.add(float(p.x), float(p.y), normalize_angle(float(p.theta)), battery, now)
         self._dispatch.add(Robot(spec.name, ns, i, self.state))
-        self._traj_start.append((now, float(p.x), float(p.y), len(self._samples_t)))
+        self._traj_start.append((now, float(p.x), float(p.y), self._samples_dropped + len(self._samples_t)))
 
     def _robot(self, namespace: str) -> Robot:
         try:
@@ -191,10 +194,13 @@ class Simulator:
 
     def trajectory(self, namespace: str) -> list[tuple[float, float, float]]:
         """``(t, x, y)`` samples of the robot, one at its addition and then every
-        :data:`TRAJECTORY_PERIOD_S` simulated seconds (a copy)."""
+        :data:`TRAJECTORY_PERIOD_S` simulated seconds; those of the last
+        :data:`sim.history.TRAJECTORY_KEEP_S` seconds at least are kept (a copy)."""
         i = self._robot(namespace).index
         t0, x0, y0, first = self._traj_start[i]
-        out = [(t0, x0, y0)]
+        first -= self._samples_dropped
+        out = [(t0, x0, y0)] if first >= 0 else []
+        first = max(first, 0)
         for t, xy in zip(self._samples_t[first:], self._samples_xy[first:], strict=True):
             out.append((t, float(xy[i, 0]), float(xy[i, 1])))
         return out
@@ -384,3 +390,6 @@ class Simulator:
             self._samples_xy.append(np.stack((self.state.x[:n], self.state.y[:n]), axis=1))
             while self._next_sample <= now + 1e-9:
                 self._next_sample += TRAJECTORY_PERIOD_S
+            keep = int(TRAJECTORY_KEEP_S / TRAJECTORY_PERIOD_S)
+            trim_oldest(self._samples_xy, keep)
+            self._samples_dropped += trim_oldest(self._samples_t, keep)

@@ -55,7 +55,8 @@ SIMULATE_AHEAD_S = 2.0
 
 
 class World(Protocol):
-    """What tasks may ask of the simulator."""
+    """What tasks may ask of the simulator (the goal dispatch, :class:`sim.dispatch.GoalDispatch`,
+    provides it)."""
 
     params: SimParams
     planner: GridPlanner

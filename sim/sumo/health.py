@@ -17,6 +17,7 @@ from collections.abc import Callable
 
 from fleet.robots import BatteryModel
 from fleet.types import Pose2D
+from sim.history import EVENTS_KEPT, trim_oldest
 from sim.sumo.lanes import LanePoint
 from sim.sumo.launch import Libsumo
 from sim.sumo.vehicles import Vehicle
@@ -24,7 +25,8 @@ from sim.sumo.vehicles import Vehicle
 
 class Contacts:
     """Robot-robot contacts: ``total`` events and ``events`` ``(t, ns_a, ns_b, x, y)`` (the
-    midpoint of the two poses, NaN when one is unknown)."""
+    midpoint of the two poses, NaN when one is unknown; the last :data:`sim.history.EVENTS_KEPT`
+    at least)."""
 
     def __init__(self, ls: Libsumo) -> None:
         self.ls = ls
@@ -50,6 +52,7 @@ class Contacts:
                 pa, pb = pose(ra), pose(rb)
                 x, y = (0.5 * (pa.x + pb.x), 0.5 * (pa.y + pb.y)) if pa and pb else (math.nan, math.nan)
                 self.events.append((now, ra.namespace, rb.namespace, x, y))
+                trim_oldest(self.events, EVENTS_KEPT)
         self._touching = touching
 
 

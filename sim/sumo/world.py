@@ -84,6 +84,7 @@ from sim.goals import (
     reject_if_invalid,
     start_error,
 )
+from sim.history import TRAJECTORY_KEEP_S, trim_oldest
 from sim.sumo.health import Chargers, Contacts
 from sim.sumo.lanes import LaneIndex, LanePoint
 from sim.sumo.launch import (
@@ -277,7 +278,8 @@ class SumoWorld:
 
     def trajectory(self, namespace: str) -> list[tuple[float, float, float]]:
         """``(t, x, y)`` samples of the robot, one at its addition and then every
-        ``trajectory_period_s`` simulated seconds (a copy)."""
+        ``trajectory_period_s`` simulated seconds, of the last
+        :data:`sim.history.TRAJECTORY_KEEP_S` seconds at least (a copy)."""
         return list(self._robot(namespace).trajectory)
 
     def teleports_of(self, namespace: str) -> int:
@@ -511,6 +513,7 @@ class SumoWorld:
                 p = self._vehicles.pose(v)
                 if p is not None:
                     v.trajectory.append((now, p.x, p.y))
+                    trim_oldest(v.trajectory, int(TRAJECTORY_KEEP_S / self.trajectory_period_s))
             while self._next_sample <= now + 1e-9:
                 self._next_sample += self.trajectory_period_s
 

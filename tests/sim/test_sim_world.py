@@ -243,6 +243,23 @@ def test_trajectory_is_sampled_every_half_second() -> None:
     assert xs == sorted(xs) and xs[-1] > 3.0
 
 
+def test_trajectories_keep_the_recent_samples_of_a_long_run(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sim.simulator
+
+    monkeypatch.setattr(sim.simulator, "TRAJECTORY_KEEP_S", 200.0)  # 400 samples
+    sim_ = make_sim({"/r1": Pose2D(2.0, 2.0)})
+    advance(sim_, 100.0)
+    sim_.add_robot(RobotSpec("r2", "/r2", Pose2D(2.0, 4.0)))
+    advance(sim_, 300.0)
+    for ns, t_added in (("/r1", 0.0), ("/r2", 100.0)):
+        traj = sim_.trajectory(ns)
+        assert 400 <= len(traj) < 400 + 256 and traj[0][0] > t_added  # the oldest were dropped
+        assert traj[-1][0] == pytest.approx(400.0)
+        assert [round(t2 - t1, 6) for (t1, _, _), (t2, _, _) in zip(traj, traj[1:], strict=False)] == [
+            0.5
+        ] * (len(traj) - 1)
+
+
 def test_run_until_reports_timeout_in_sim_time() -> None:
     sim = make_sim({"/r1": Pose2D(2.0, 2.0)})
     assert not sim.run_until(lambda: False, 2.0)
