@@ -19,6 +19,7 @@ Command line::
     python bench/bench_sim.py --robots 30 --steps 2000 --json
     python bench/bench_sim.py --robots 1000 --steps 200 --warmup 200 --profile   # cProfile of step()
     python bench/bench_sim.py --robots 1000 --steps 200 --warmup 200 --stages    # stage timers
+    python bench/bench_sim.py --scenes    # speed of the unit tests' scenes and the planner
 """
 
 from __future__ import annotations
@@ -111,31 +112,7 @@ def run_sim_steps(
         sim.step()
     stage_s: dict[str, float] = {}
     if stages:
-        import sim.simulator as simmod
-
-        def timed(owner: Any, name: str) -> None:
-            inner = getattr(owner, name)
-
-            def wrapper(*a: Any, **kw: Any) -> Any:
-                t = time.perf_counter()
-                try:
-                    return inner(*a, **kw)
-                finally:
-                    stage_s[name] = stage_s.get(name, 0.0) + time.perf_counter() - t
-
-            setattr(owner, name, wrapper)
-
-        timed(simmod, "neighbor_pairs")
-        for name in (
-            "_update_pairs",
-            "_follow",
-            "_corridor_free",
-            "_detour",
-            "_detour_blocks",
-            "_footprint_free",
-            "_count_contacts",
-        ):
-            timed(sim, name)
+        _time_stages(sim, stage_s)
     step_only = 0.0
     poll = 0.0
     t1 = time.perf_counter()
@@ -160,7 +137,8 @@ def run_sim_steps(
     if stages:
         parts = ", ".join(f"{k} {v / steps * 1000:.2f}" for k, v in stage_s.items())
         print(
-            f"  stage ms/step (nested: _follow includes _corridor_free, _detour (which includes _detour_blocks) and _footprint_free; _update_pairs includes neighbor_pairs): {parts}",
+            "  stage ms/step (nested: follow includes corridor_free, detour (which includes blocks) and "
+            f"footprint free; pairs.update includes neighbor_pairs; move includes footprint free): {parts}",
             file=sys.stderr,
         )
     xmin, xmax, ymin, ymax = cfg.grid.extent
@@ -181,6 +159,109 @@ def run_sim_steps(
         collisions=sim.collisions,
         distance_m=sum(sim.robot_state(ns).distance_m for ns in nss),
     )
+
+
+def _time_stages(sim: Any, stage_s: dict[str, float]) -> None:
+    """Wrap the step's stages (``sim.simulator`` internals) with timers adding to ``stage_s``."""
+    import sim.spatial as spatial
+
+    def timed(owner: Any, name: str, label: str) -> None:
+        inner = getattr(owner, name)
+
+        def wrapper(*a: Any, **kw: Any) -> Any:
+            t = time.perf_counter()
+            try:
+                return inner(*a, **kw)
+            finally:
+                stage_s[label] = stage_s.get(label, 0.0) + time.perf_counter() - t
+
+        setattr(owner, name, wrapper)
+
+    follower = sim._follower
+    avoidance = follower.avoidance
+    timed(spatial, "neighbor_pairs", "neighbor_pairs")
+    timed(sim._pairs, "update", "pairs.update")
+    timed(sim._dispatch, "control", "dispatch.control")
+    timed(follower, "follow", "follow")
+    timed(avoidance, "corridor_free", "corridor_free")
+    timed(avoidance, "detour", "detour")
+    timed(avoidance, "_blocks", "blocks")
+    timed(avoidance.footprints, "free", "footprint free")
+    timed(sim._safety, "reactive_stop", "reactive_stop")
+    timed(sim._safety, "move", "move")
+    timed(sim._contacts, "count", "contacts")
+
+
+def _room(width_m: float, height_m: float, res: float = 0.1) -> Any:
+    """A walled empty room with origin (0, 0)."""
+    import numpy as np
+
+    from fleet.maps import OCCUPIED, OccupancyGrid
+
+    cells = np.zeros((int(round(height_m / res)), int(round(width_m / res))), dtype=np.int8)
+    cells[0, :] = cells[-1, :] = OCCUPIED
+    cells[:, 0] = cells[:, -1] = OCCUPIED
+    return OccupancyGrid(cells=cells, resolution=res, origin_x=0.0, origin_y=0.0, source="<bench room>")
+
+
+def _room_rate(n: int, cols: int, warm_s: float, timed_s: float) -> float:
+    """Robot-steps/s of ``n`` robots in a 40 x 30 m room, in rows of ``cols`` 1 m apart, each
+    driving 15 m (columns) or along x (rows of 5) to its goal; ``warm_s`` untimed seconds first."""
+    from fleet.robots import RobotSpec, SimParams
+    from fleet.types import NavigateToPose, Pose2D
+    from sim.simulator import Simulator
+
+    sim = Simulator(_room(40.0, 30.0), SimParams(), SimClock())
+    for i in range(n):
+        sim.add_robot(
+            RobotSpec(f"r{i}", f"/r{i}", Pose2D(1.0 + (i % cols) * 1.0, 1.0 + (i // cols) * 1.0, 0.0))
+        )
+    for i, ns in enumerate(sim.namespaces):
+        if cols == 5:
+            goal = Pose2D(30.0 + (i % 5) * 1.0, 1.0 + (i // 5) * 1.0, 0.0)
+        else:
+            goal = Pose2D(1.0 + (i % cols) * 1.0, 16.0 + (i // cols) * 1.0, 0.0)
+        sim.send_goal(ns, NavigateToPose(goal))
+    step = sim.params.step_s
+    for _ in range(round(warm_s / step)):
+        sim.step()
+    k = round(timed_s / step)
+    t0 = time.perf_counter()
+    for _ in range(k):
+        sim.step()
+    return n * k / (time.perf_counter() - t0)
+
+
+def scenes() -> list[str]:
+    """The speed figures of the simulator's unit-test scenes (the tests assert behaviour only):
+    30 and 400 robots crossing a 40 x 30 m room, and the planner on a 40 x 30 m warehouse."""
+    from fleet.maps import OCCUPIED
+    from sim.planner import GridPlanner
+
+    lines = [
+        f"30 robots crossing a 40 x 30 m room: {_room_rate(30, 5, 0.0, 10.0):,.0f} robot-steps/s",
+        f"400 robots crossing a 40 x 30 m room: {_room_rate(400, 38, 1.0, 5.0):,.0f} robot-steps/s",
+    ]
+    g = _room(40.0, 30.0)
+    for k in range(8):  # shelf rows with aisles between them, a long wall across the middle
+        x0 = 40 + k * 45
+        g.cells[30:270, x0 : x0 + 15] = OCCUPIED
+    g.cells[150:152, 40:360] = OCCUPIED
+    planner = GridPlanner(g, 0.3)
+    pairs = [((2.0, 2.0), (38.0, 28.0)), ((6.0, 10.0), (34.0, 20.0)), ((2.0, 15.0), (38.5, 15.0))]
+    took = []
+    for start, goal in pairs:
+        t0 = time.perf_counter()
+        planner.plan(start, goal)
+        took.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    planner.plan(*pairs[0])
+    cached = time.perf_counter() - t0
+    lines.append(
+        f"planner on a 40 x 30 m warehouse: {', '.join(f'{t * 1000:.1f}' for t in took)} ms for 3 plans, "
+        f"{cached * 1e6:.0f} us for a cached one"
+    )
+    return lines
 
 
 def describe(res: SimBenchResult) -> str:
@@ -214,7 +295,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--stages", action="store_true", help="time the step's stages (stderr)")
     ap.add_argument("--progress", action="store_true", help="print progress to stderr")
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
+    ap.add_argument(
+        "--scenes",
+        action="store_true",
+        help="print the speed of the unit tests' scenes (30 / 400 robots in a room, the planner) instead",
+    )
     args = ap.parse_args(argv)
+    if args.scenes:
+        for line in scenes():
+            print(line)
+        return 0
     cfg = load_world(args.robots, args.out)
     res = run_sim_steps(
         cfg,

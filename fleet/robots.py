@@ -6,6 +6,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+import numpy.typing as npt
+
 from fleet.types import Pose2D
 
 
@@ -31,6 +34,19 @@ class BatteryModel:
     low: float = 0.25
     resume: float = 0.95
     initial: float = 1.0
+
+    def integrate(
+        self, level: npt.ArrayLike, distance_m: npt.ArrayLike, dt: float, charging: npt.ArrayLike
+    ) -> npt.NDArray[np.float64]:
+        """The battery level(s) after ``dt`` seconds from ``level`` (fractions in [0, 1]):
+        where ``charging``, ``charge_per_s * dt`` more, at most 1; elsewhere ``drain_per_m``
+        per meter of ``distance_m`` driven and ``drain_per_s * dt`` less, at least 0.
+        Element-wise over arrays (one entry per robot) or on scalars (a 0-d array). Every
+        backend integrates its batteries with this one step."""
+        level = np.asarray(level, dtype=float)
+        charged = np.minimum(1.0, level + self.charge_per_s * dt)
+        drained = np.maximum(0.0, level - self.drain_per_m * np.asarray(distance_m) - self.drain_per_s * dt)
+        return np.where(charging, charged, drained)
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,9 @@ half-stencil: later points of its own cell and the cell to its right (one range 
 keys), and the three cells of the row above (a second range). The ranges are expanded into
 candidate pairs, pairs closer than ``radius`` are kept and returned in both orders. Cost is
 O(n log n + pairs); no Python loop runs per point. Frame ``map``, units meters.
+
+:class:`NeighborPairs` keeps the pairs of the simulated fleet that can matter to avoidance,
+the safety stop and contacts as a Verlet list over :func:`neighbor_pairs`.
 """
 
 from __future__ import annotations
@@ -51,3 +54,63 @@ def neighbor_pairs(x: np.ndarray, y: np.ndarray, radius: float) -> tuple[np.ndar
     a = ii[keep]
     b = jj[keep]
     return np.concatenate((a, b)), np.concatenate((b, a))
+
+
+#: The neighbor-pair list is rebuilt every this many steps (with a margin for the motion in
+#: between), not every step.
+PAIR_REUSE_STEPS = 4
+
+
+class NeighborPairs:
+    """The directed neighbor pairs of the fleet and their offsets at the start of the step.
+
+    A Verlet list: the pairs closer than ``radius`` plus what ``PAIR_REUSE_STEPS`` steps of
+    motion at ``max_speed`` (m/s) can close, rebuilt every :data:`PAIR_REUSE_STEPS` steps (or
+    when a robot was added). Each step :meth:`update` refreshes the offsets ``dx = x[j] - x[i]``,
+    ``dy``, ``d2 = dx**2 + dy**2`` of every pair ``(i, j)``, and keeps the pairs closer than
+    ``short`` (m) in a second, shorter list (``si``, ``sj``, ``sdx``, ``sdy``, ``sd2``)."""
+
+    def __init__(self, radius: float, short: float, max_speed: float) -> None:
+        self.radius = radius
+        self.short = short
+        self._max_speed = max_speed
+        self.i = self.j = _EMPTY
+        self.dx = self.dy = self.d2 = np.zeros(0)
+        self.si = self.sj = _EMPTY
+        self.sdx = self.sdy = self.sd2 = self.d2
+        self._n = -1
+        self._built = 0
+
+    def update(self, x: np.ndarray, y: np.ndarray, step: int, dt: float) -> None:
+        """Refresh the pairs of the robots at ``(x, y)`` (one entry per robot) for step number
+        ``step`` of ``dt`` seconds."""
+        n = int(x.shape[0])
+        if n != self._n or step - self._built >= PAIR_REUSE_STEPS:
+            skin = 2.0 * self._max_speed * dt * PAIR_REUSE_STEPS
+            self.i, self.j = neighbor_pairs(x, y, self.radius + skin)
+            self._n, self._built = n, step
+        pi, pj = self.i, self.j
+        self.dx = x[pj] - x[pi]
+        self.dy = y[pj] - y[pi]
+        self.d2 = self.dx * self.dx + self.dy * self.dy
+        if self.short < self.radius:
+            near = np.flatnonzero(self.d2 < self.short * self.short)
+            self.si, self.sj = pi[near], pj[near]
+            self.sdx, self.sdy, self.sd2 = self.dx[near], self.dy[near], self.d2[near]
+        else:
+            self.si, self.sj, self.sdx, self.sdy, self.sd2 = pi, pj, self.dx, self.dy, self.d2
+
+    def within(self, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(i, dx, dy, d2)`` of the directed pairs ``(i, j)`` that can matter to a corridor
+        check reaching ``reach`` m: those with ``d2 < reach**2`` (every pair when the reach
+        is beyond the pair radius)."""
+        if reach >= self.radius:
+            return self.i, self.dx, self.dy, self.d2
+        if reach <= self.short:
+            a, dx, dy, d2 = self.si, self.sdx, self.sdy, self.sd2
+        else:
+            a, dx, dy, d2 = self.i, self.dx, self.dy, self.d2
+        near = np.flatnonzero(d2 < reach * reach)
+        if near.size == a.size:
+            return a, dx, dy, d2
+        return a[near], dx[near], dy[near], d2[near]

@@ -13,6 +13,7 @@ from typing import Any
 import zenoh
 
 from fleet.bus.keys import nav_key, robot_key_name
+from fleet.errors import BackendError
 from fleet.messages import (
     BRIDGE_VERSION,
     _dumps,
@@ -131,7 +132,12 @@ class ZenohNavBackend:
 
     def send_goal(self, goal: Goal) -> str:
         """Publish ``goal`` and return its id at once (``PENDING`` until acknowledged). A goal
-        that cannot be encoded (a non-finite pose) is ``REJECTED`` at once."""
+        that cannot be encoded (a non-finite pose) is ``REJECTED`` at once; an object that is
+        not a goal raises :class:`~fleet.errors.BackendError`."""
+        if not isinstance(goal, Goal):
+            raise BackendError(
+                f"{self._namespace}: send_goal: {type(goal).__name__} is not a navigation goal"
+            )
         with self._lock:
             self._seq += 1
             seq = self._seq

@@ -4,12 +4,15 @@ runner's world (``fleet run --backend sumo``)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fleet.clock import SimClock
 from fleet.robots import RobotSpec
 from sim.backend import NamespacedBackend
-from sim.sumo.world import _ACTIVE, SumoWorld
+from sim.sumo.world import SumoWorld, active_world
+
+if TYPE_CHECKING:
+    from fleet.config.model import FleetConfig
 
 
 class SumoRunnerWorld:
@@ -25,7 +28,13 @@ class SumoRunnerWorld:
 
     remote = False
 
-    def __init__(self, config: Any, robots: Sequence[RobotSpec] = (), session: Any = None, **kw: Any) -> None:
+    def __init__(
+        self,
+        config: FleetConfig,
+        robots: Sequence[RobotSpec] = (),
+        session: object = None,
+        **kw: Any,  # SumoWorld's keyword options, passed through
+    ) -> None:
         self.clock = SimClock()
         self.step_s = float(config.sim.step_s)
         self.world = SumoWorld(config.roadmap, list(config.robots), config.sim, self.clock, **kw)
@@ -49,6 +58,4 @@ class SumoRunnerWorld:
         self.world.close()
 
 
-def active_world() -> SumoWorld | None:
-    """The open :class:`SumoWorld` of this process, if any."""
-    return _ACTIVE
+__all__ = ["SumoRunnerWorld", "active_world"]

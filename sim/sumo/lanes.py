@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from fleet.errors import BackendError
+from sim.sumo.launch import Libsumo
 
 #: Heading agreement weight when snapping poses to lanes (m of distance per unit of 1-cos).
 _HEADING_WEIGHT_M = 0.3
@@ -39,7 +39,7 @@ class LaneIndex:
     Other lanes (curved, or with junction internals) use SUMO's drawn shape.
     """
 
-    def __init__(self, ls: Any) -> None:
+    def __init__(self, ls: Libsumo) -> None:
         ax: list[float] = []
         ay: list[float] = []
         bx: list[float] = []
@@ -96,7 +96,7 @@ class LaneIndex:
         self._heading = np.arctan2(self._d[:, 1], self._d[:, 0])
 
     @staticmethod
-    def _junction_line(ls: Any, edge: str, shape: list[tuple[float, ...]]) -> list[tuple[float, ...]]:
+    def _junction_line(ls: Libsumo, edge: str, shape: list[tuple[float, ...]]) -> list[tuple[float, ...]]:
         """The junction-centre-to-junction-centre line of ``edge``, shifted sideways by the
         drawn lane's offset from that line."""
         fx, fy = ls.junction.getPosition(ls.edge.getFromJunction(edge))[:2]

@@ -40,7 +40,6 @@ import tempfile
 from collections.abc import Hashable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 from xml.sax.saxutils import quoteattr
 
 import networkx as nx
@@ -58,7 +57,7 @@ _FORMAT_VERSION = "1"
 def sumo_home() -> Path:
     """Directory of the ``eclipse-sumo`` wheel (SUMO_HOME). Raises :class:`BackendError` if absent."""
     try:
-        import sumo  # type: ignore[import-untyped]
+        import sumo
     except ImportError as exc:  # pragma: no cover - depends on the install
         raise BackendError(
             "the SUMO backend needs the eclipse-sumo wheel: pip install -e '.[sumo]' (or make setup-sumo)"
@@ -146,7 +145,7 @@ class SumoNetwork:
     cached: bool = False
 
 
-def _node_pos(graph: nx.Graph, node: Hashable, source: str) -> tuple[float, float]:
+def _node_pos(graph: nx.Graph[Hashable], node: Hashable, source: str) -> tuple[float, float]:
     pos = graph.nodes[node].get("pos")
     if pos is None or len(pos) < 2:
         raise ConfigError(source, f"roadmap.nodes.{node}", "node has no 'pos' (x, y) attribute")
@@ -156,7 +155,7 @@ def _node_pos(graph: nx.Graph, node: Hashable, source: str) -> tuple[float, floa
     return x, y
 
 
-def junction_ids(graph: nx.Graph) -> dict[Hashable, str]:
+def junction_ids(graph: nx.Graph[Hashable]) -> dict[Hashable, str]:
     """SUMO junction id of each roadmap node: the node's name when every name is a safe SUMO
     id (letters, digits, ``_ . -``), otherwise ``n0, n1, ...`` in the graph's node order."""
     names = [str(n) for n in graph.nodes]
@@ -166,7 +165,7 @@ def junction_ids(graph: nx.Graph) -> dict[Hashable, str]:
 
 
 def write_plain_xml(
-    graph: nx.Graph,
+    graph: nx.Graph[Hashable],
     out_dir: Path,
     prefix: str = "roadmap",
     settings: NetSettings | None = None,
@@ -235,7 +234,7 @@ def run_netconvert(
 
 
 def build_network(
-    graph: nx.Graph,
+    graph: nx.Graph[Hashable],
     settings: NetSettings | None = None,
     cache_dir: Path | str | None = None,
     *,
@@ -291,7 +290,11 @@ def _sumo_version() -> str:
 
 
 def roadmap_mapping(
-    graph: nx.Graph, junctions: Iterable[str], edges: Iterable[tuple[str, str, str]], *, net: str = "<net>"
+    graph: nx.Graph[Hashable],
+    junctions: Iterable[str],
+    edges: Iterable[tuple[str, str, str]],
+    *,
+    net: str = "<net>",
 ) -> tuple[dict[Hashable, str], dict[tuple[Hashable, Hashable], str]]:
     """Map the nodes and edges of a roadmap read from a SUMO network onto that network.
 
@@ -318,7 +321,9 @@ def roadmap_mapping(
     return junction_of, edge_of
 
 
-def write_network(graph: nx.Graph, out_path: Path | str, settings: NetSettings | None = None) -> Path:
+def write_network(
+    graph: nx.Graph[Hashable], out_path: Path | str, settings: NetSettings | None = None
+) -> Path:
     """Write the SUMO network of roadmap ``graph`` to ``out_path`` (a ``.net.xml``), bypassing
     the cache: e.g. to edit it in netedit or ship it with a config (``roadmap: {net: ...}``).
 
@@ -341,10 +346,10 @@ def write_network(graph: nx.Graph, out_path: Path | str, settings: NetSettings |
 
 def grid_roadmap(
     nx_cols: int, ny_rows: int, spacing: float = 20.0, origin: tuple[float, float] = (0.0, 0.0)
-) -> nx.Graph:
+) -> nx.Graph[Hashable]:
     """A rectangular grid roadmap of ``nx_cols x ny_rows`` nodes, ``spacing`` m apart, nodes
     named ``g<col>_<row>``; for benchmarks and tests."""
-    g = nx.Graph()
+    g: nx.Graph[Hashable] = nx.Graph()
     for i in range(nx_cols):
         for j in range(ny_rows):
             g.add_node(f"g{i}_{j}", pos=(origin[0] + i * spacing, origin[1] + j * spacing))
@@ -357,7 +362,7 @@ def grid_roadmap(
     return g
 
 
-def as_graph(roadmap: Any) -> nx.Graph:
+def as_graph(roadmap: object) -> nx.Graph[Hashable]:
     """The ``networkx.Graph`` of a roadmap given either as a graph or as an object wrapping one
     (``fleet.roadmap.Roadmap``: attribute ``graph``)."""
     if isinstance(roadmap, nx.Graph):

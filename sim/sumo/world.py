@@ -1,15 +1,11 @@
 """Eclipse SUMO as a navigation backend: robots are SUMO vehicles on a network of the warehouse.
 
-:class:`SumoWorld` owns one libsumo simulation. It builds (or reuses, see
-:mod:`sim.sumo.net`) the SUMO network of the roadmap, or, when the roadmap was read from a
-``.net.xml`` (``roadmap: {net: ...}`` in a fleet config, :attr:`fleet.roadmap.Roadmap.source_net`),
-drives on that very file, roadmap nodes being its junctions. It adds every robot as a vehicle of one
-``robot`` vehicle type (length and width = robot diameter, ``maxSpeed``/``accel``/``decel``
-from :class:`fleet.robots.RobotModel`, no driver imperfection, so runs are deterministic) and
-advances SUMO by ``SimParams.step_s`` on the :class:`fleet.clock.SimClock` passed in (each
-:meth:`SumoWorld.step` advances the clock, like :class:`sim.simulator.Simulator`).
-:meth:`SumoWorld.backend` returns a :class:`NamespacedBackend` implementing
-:class:`fleet.navigation.NavigationBackend` for one robot.
+:class:`SumoWorld` owns one libsumo simulation (:mod:`sim.sumo.launch`): on the SUMO network
+of the roadmap (built or reused by :mod:`sim.sumo.net`), or on the ``.net.xml`` the roadmap was
+read from (``roadmap: {net: ...}``, :attr:`fleet.roadmap.Roadmap.source_net`). Every robot is a
+vehicle of one ``robot`` type (:mod:`sim.sumo.vehicles`); each :meth:`SumoWorld.step` advances
+SUMO and the :class:`fleet.clock.SimClock` passed in by ``SimParams.step_s``.
+:meth:`SumoWorld.backend` returns the :class:`~fleet.navigation.NavigationBackend` of one robot.
 
 **libsumo is a process-global singleton**: only one :class:`SumoWorld` may be open at a time in
 a process. Opening a second one raises :class:`fleet.errors.BackendError`; close the first
@@ -22,14 +18,10 @@ How Nav2 actions map onto SUMO (poses are in the ``map`` frame; SUMO x/y are the
   ``max_snap_m`` from every lane aborts the goal with ``GOAL_OUTSIDE_MAP``. SUMO only knows
   lanes: a goal inside an obstacle, or between aisles, is reached at its lane projection.
   The robot's reported pose is the centre of the vehicle (SUMO reports the front bumper).
-* **NavigateToPose / NavigateThroughPoses / FollowWaypoints** set one route: the shortest
-  (SUMO ``findRoute``) path from the robot's edge through the edges of every pose in order
-  (looping round when a pose lies behind the robot on its own lane), with a stop at the last
-  pose. Intermediate poses are passed without stopping (FollowWaypoints included; it reports
-  ``current_waypoint``). The goal SUCCEEDS when the vehicle has stopped at the last pose. An
-  unreachable pose (one-way network) aborts with ``NO_VALID_PATH``. Feedback: the current
-  pose, navigation time, remaining route length (junction crossings not counted) and the time
-  it takes at the lane speed.
+* **NavigateToPose / NavigateThroughPoses / FollowWaypoints** set one route through the
+  lane points of every pose with a stop at the last one (:mod:`sim.sumo.routes`);
+  intermediate poses are passed without stopping. The goal SUCCEEDS when the vehicle has
+  stopped at the last pose; an unreachable pose aborts with ``NO_VALID_PATH``.
 * **Wait** holds the vehicle on its lane (a blocking stop at the next position it can brake to)
   for ``duration_s``; other robots queue behind it.
 * **Spin, BackUp, DriveOnHeading**: SUMO vehicles cannot turn on the spot or reverse. They run
@@ -48,30 +40,23 @@ How Nav2 actions map onto SUMO (poses are in the ``map`` frame; SUMO x/y are the
 * **Idle** robots (no executing goal) *park* at their lane position (SUMO parking: the vehicle
   leaves the lane, others can pass) unless ``park_idle=False``, where they hold on the lane.
 
-Health signals:
+Health signals: contacts and the battery (:mod:`sim.sumo.health`), and **deadlocks =
+teleports**: SUMO teleports a vehicle that has waited longer than ``--time-to-teleport``
+(default ``SimParams.stuck_time_s``) behind a blocker. Each starting teleport is counted
+(:attr:`SumoWorld.teleports`, per robot in :meth:`SumoWorld.teleports_of`), the robot is
+reported ``stuck`` until its next goal, and its navigation goal aborts with
+``FAILED_TO_MAKE_PROGRESS``; the vehicle then stops at the next position after its jump.
 
-* **Collisions**: ``simulation.getCollisions()`` every step (``--collision.action warn``,
-  junction checks on, only real overlaps: ``--collision.mingap-factor 0``). A touching pair is
-  counted once per contact episode, for both robots, in :attr:`SumoWorld.collisions` and in each
-  robot's ``RobotState.collisions``.
-* **Deadlocks = teleports**: SUMO teleports a vehicle that has waited longer than
-  ``--time-to-teleport`` (default ``SimParams.stuck_time_s``) behind a blocker. Each starting
-  teleport is counted (:attr:`SumoWorld.teleports`, per robot in :meth:`SumoWorld.teleports_of`),
-  the robot is reported ``stuck`` until its next goal, and its navigation goal aborts with
-  ``FAILED_TO_MAKE_PROGRESS``; the vehicle then stops at the next position after its jump.
-* **Battery** follows :class:`fleet.robots.BatteryModel` (drain per meter of odometry and per
-  second; charging while standing still within ``charger_radius`` of a charger's lane point),
-  integrated whenever the robot's state is read.
-
-Goal ids are ``<namespace>#<n>``, never reused within a world."""
+Goals follow the Nav2 semantics shared with the simulator (:mod:`sim.goals`: ids
+``<namespace>#<n>`` never reused, validation and reject reasons, preemption, idempotent cancel,
+error codes)."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from fleet.clock import SimClock, step_until
 from fleet.errors import BackendError
@@ -82,108 +67,61 @@ from fleet.types import (
     ErrorCode,
     Feedback,
     FollowWaypoints,
-    Goal,
     GoalState,
     GoalStatus,
     NavigateThroughPoses,
-    NavigateToPose,
-    Pose2D,
     RobotState,
     Spin,
     Wait,
-    normalize_angle,
 )
 from sim.backend import NamespacedBackend
+from sim.goals import (
+    BEHAVIOR_CODES,
+    GoalBook,
+    GoalRecord,
+    goal_poses,
+    preempt,
+    reject_if_invalid,
+    start_error,
+)
+from sim.history import TRAJECTORY_KEEP_S, trim_oldest
+from sim.sumo.health import Chargers, Contacts
 from sim.sumo.lanes import LaneIndex, LanePoint
-from sim.sumo.net import SumoNetwork, as_graph, build_network, roadmap_mapping, settings_for_robot
+from sim.sumo.launch import (
+    ROBOT_TYPE,
+    RoadmapLike,
+    choose_network,
+    define_robot_type,
+    load_libsumo,
+    map_roadmap,
+    sumo_command,
+)
+from sim.sumo.net import SumoNetwork
+from sim.sumo.routes import RoutePlan, Router
+from sim.sumo.vehicles import Vehicle, Vehicles
 
 _ACTIVE: SumoWorld | None = None
 
 
-#: Vehicle type id of the robots.
-ROBOT_TYPE = "robot"
-
-
-#: Stop duration used for "stay until told otherwise" (s).
-_FOREVER = 1.0e7
-
-
-_POS_TOL_M = 0.3
-
-
-_TERMINAL = frozenset({GoalStatus.SUCCEEDED, GoalStatus.CANCELED, GoalStatus.ABORTED, GoalStatus.REJECTED})
-
-
-def _libsumo() -> Any:
-    try:
-        import libsumo  # type: ignore[import-untyped]
-    except ImportError as exc:  # pragma: no cover - depends on the install
-        raise BackendError(
-            "the SUMO backend needs libsumo: pip install -e '.[sumo]' (or make setup-sumo)"
-        ) from exc
-    return libsumo
+def active_world() -> SumoWorld | None:
+    """The open :class:`SumoWorld` of this process, if any."""
+    return _ACTIVE
 
 
 @dataclass
-class _GoalRecord:
-    goal_id: str
-    goal: Goal
-    namespace: str
+class _Goal:
+    """An executing goal on SUMO: its shared record, its route (navigation goals) or its hold
+    (timed goals: Wait and the no-op recoveries), and the snapshot cached for this epoch."""
+
+    record: GoalRecord
     start_t: float
-    status: GoalStatus = GoalStatus.EXECUTING
-    error_code: int = 0
-    error_msg: str = ""
-    feedback: Feedback = field(default_factory=Feedback)
-    # navigation plan
-    targets: list[LanePoint] = field(default_factory=list)
-    target_idx: list[int] = field(default_factory=list)  # route index of each target
-    route: list[str] = field(default_factory=list)
-    cum: list[float] = field(default_factory=list)  # route length before each route edge
-    passed: int = 0  # number of targets passed
-    applied: bool = False  # route/stop given to SUMO
-    hold_until: float | None = None  # timed goals (Wait, no-op recoveries)
+    plan: RoutePlan = field(default_factory=RoutePlan)
+    hold_until: float | None = None
     hold_status: GoalStatus = GoalStatus.SUCCEEDED
     hold_code: int = 0
     hold_msg: str = ""
     cached: GoalState | None = None
-    stop_after: int = -1  # route index after which the final stop is set (-1: it is set)
     cached_epoch: int = -1
-
-    def snapshot(self, feedback: Feedback | None = None) -> GoalState:
-        missed: tuple[int, ...] = ()
-        return GoalState(
-            goal_id=self.goal_id,
-            kind=self.goal.kind,
-            status=self.status,
-            feedback=feedback if feedback is not None else self.feedback,
-            error_code=self.error_code,
-            error_msg=self.error_msg,
-            missed_waypoints=missed,
-        )
-
-
-@dataclass
-class _Robot:
-    spec: RobotSpec
-    vid: str
-    battery: float
-    goal: _GoalRecord | None = None
-    stuck: bool = False
-    collisions: int = 0
-    teleports: int = 0
-    mode: str = "parked"  # parked | driving | holding | braking
-    last_batt_t: float = 0.0
-    last_odo: float = 0.0
-    last_pose: Pose2D | None = None
-    last_where: tuple[str, float, int] | None = None
-    present: bool = False
-    trajectory: list[tuple[float, float, float]] = field(default_factory=list)
-    reinserted: int = 0
-    prog: tuple[int, float] = (0, 0.0)
-    prog_epoch: int = -1
-    pose_epoch: int = -1
-    odo_base: float = 0.0  # odometry of earlier incarnations of the vehicle
-    odo_total: float = 0.0
 
 
 class SumoWorld:
@@ -228,7 +166,7 @@ class SumoWorld:
 
     def __init__(
         self,
-        roadmap: Any,
+        roadmap: RoadmapLike,
         robots: Sequence[RobotSpec],
         params: SimParams,
         clock: SimClock,
@@ -253,64 +191,24 @@ class SumoWorld:
             )
         if params.step_s <= 0:
             raise BackendError(f"SimParams.step_s must be positive, got {params.step_s}")
-        ls = _libsumo()
+        ls = load_libsumo()
         if ls.simulation.isLoaded():
             raise BackendError("libsumo already runs a simulation not owned by a SumoWorld; close it first")
         self._ls = ls
+        self._closed = True
         self.params = params
         self.clock = clock
         self.park_idle = park_idle
         self.trajectory_period_s = trajectory_period_s
         self.max_snap_m = max_snap_m
-        model = params.model
         self.network: SumoNetwork
-        source = _source_net(roadmap)
-        if net_file is None:
-            net_file = source
-        # the roadmap's nodes are junctions of net_file when the roadmap was read from it
-        self._mapped_graph = (
-            as_graph(roadmap)
-            if source is not None and net_file is not None and Path(net_file).resolve() == source.resolve()
-            else None
+        self.network, mapped, self.vclass = choose_network(
+            roadmap, params.model, net_file, vclass, cache_dir, internal_links
         )
-        if self._mapped_graph is not None and vclass is None:
-            vclass = as_graph(roadmap).graph.get("sumo_vclass")
-        self.vclass = vclass
-        if net_file is not None:
-            self.network = SumoNetwork(net_path=Path(net_file), cached=True)
-            if not self.network.net_path.is_file():
-                raise BackendError(f"SUMO network {net_file} does not exist")
-        else:
-            settings = settings_for_robot(model.radius, model.max_linear_speed, internal_links=internal_links)
-            self.network = build_network(as_graph(roadmap), settings, cache_dir)
         self.time_to_teleport = params.stuck_time_s if time_to_teleport is None else time_to_teleport
-        args = [
-            "sumo",
-            "--net-file",
-            str(self.network.net_path),
-            "--step-length",
-            f"{params.step_s}",
-            "--begin",
-            f"{clock.now()}",
-            "--seed",
-            str(int(params.seed)),
-            "--no-step-log",
-            "true",
-            *(["--log", str(sumo_log)] if sumo_log is not None else ["--no-warnings", "true"]),
-            "--collision.action",
-            "warn",
-            "--collision.check-junctions",
-            "true",
-            "--collision.mingap-factor",
-            "0",
-            "--time-to-teleport",
-            f"{self.time_to_teleport if self.time_to_teleport > 0 else -1}",
-            "--time-to-teleport.highways",
-            "-1",
-            "--routing-algorithm",
-            "astar",
-            *sumo_args,
-        ]
+        args = sumo_command(
+            self.network.net_path, params, clock.now(), self.time_to_teleport, sumo_log, sumo_args
+        )
         try:
             ls.start(args)
         except Exception as exc:
@@ -318,114 +216,56 @@ class SumoWorld:
         _ACTIVE = self
         self._closed = False
         try:
+            if mapped is not None:
+                self.network = map_roadmap(ls, self.network, mapped)
+            self.length = define_robot_type(ls, params.model, self.vclass)
+            self.lanes = LaneIndex(ls)
             self._setup(robots)
         except Exception:
             self.close()
             raise
 
-    # -- setup ----------------------------------------------------------------------
-
     def _setup(self, robots: Sequence[RobotSpec]) -> None:
-        ls = self._ls
-        m = self.params.model
-        self.length = 2.0 * m.radius
-        if self._mapped_graph is not None:
-            self.network = self._map_roadmap(self._mapped_graph)
-        ls.vehicletype.copy("DEFAULT_VEHTYPE", ROBOT_TYPE)
-        if self.vclass:
-            ls.vehicletype.setVehicleClass(ROBOT_TYPE, self.vclass)
-        ls.vehicletype.setLength(ROBOT_TYPE, self.length)
-        ls.vehicletype.setWidth(ROBOT_TYPE, self.length)
-        ls.vehicletype.setMinGap(ROBOT_TYPE, max(0.1, 0.5 * m.radius))
-        ls.vehicletype.setMaxSpeed(ROBOT_TYPE, m.max_linear_speed)
-        ls.vehicletype.setAccel(ROBOT_TYPE, m.max_linear_accel)
-        ls.vehicletype.setDecel(ROBOT_TYPE, m.max_linear_accel)
-        ls.vehicletype.setEmergencyDecel(ROBOT_TYPE, 2.0 * m.max_linear_accel)
-        ls.vehicletype.setImperfection(ROBOT_TYPE, 0.0)
-        ls.vehicletype.setTau(ROBOT_TYPE, 0.5)
-        # a robot that has waited at a junction accepts smaller gaps to crossing robots rather
-        # than waiting for a perfectly free junction (fewer junction deadlocks)
-        ls.vehicletype.setImpatience(ROBOT_TYPE, 1.0)
-        self.lanes = LaneIndex(ls)
-        self._lane_speed = {e: ls.lane.getMaxSpeed(f"{e}_0") for e in self.lanes.edge_length}
-        self._chargers = [self.lanes.nearest(c.x, c.y, c.theta) for c in self.params.chargers]
-        self._robots: dict[str, _Robot] = {}
-        self._by_vid: dict[str, _Robot] = {}
+        chargers = [self.lanes.nearest(c.x, c.y, c.theta) for c in self.params.chargers]
+        self._vehicles = Vehicles(self._ls, self.lanes, self.length, self.park_idle)
+        self._router = Router(self._ls, self.lanes, self._vehicles, self.params)
+        self._contacts = Contacts(self._ls)
+        self._charging = Chargers(chargers, self.params.charger_radius + self.length, self.params.battery)
+        self._robots: dict[str, Vehicle] = {}
+        self._by_vid: dict[str, Vehicle] = {}
         self._backends: dict[str, NamespacedBackend] = {}
-        self._goals: dict[str, _GoalRecord] = {}
-        self._goal_counter: dict[str, int] = {}
-        self._active: dict[str, _Robot] = {}  # namespace -> robot with an executing goal
-        self._resting: dict[str, bool] = {}  # namespace -> park? for robots being brought to rest
-        self._touching: set[tuple[str, str]] = set()
-        self.collisions = 0
+        self._goals = GoalBook()
+        self._active: dict[str, _Goal] = {}  # namespace -> the robot's executing goal
         self.teleports = 0
         self.steps = 0
-        self._epoch = 0  # bumped whenever SUMO steps or a vehicle is commanded (cache key)
-        #: ``(t, namespace_a, namespace_b, x, y)`` of every new contact between two robots.
-        self.collision_events: list[tuple[float, str, str, float, float]] = []
         self._next_sample = self.clock.now() + (self.trajectory_period_s or 0.0)
         for spec in robots:
             self.add_robot(spec)
-
-    def _map_roadmap(self, graph: Any) -> SumoNetwork:
-        """:attr:`network` with ``junction_of`` / ``edge_of`` of a roadmap read from its file."""
-        ls = self._ls
-        edges = [
-            (e, ls.edge.getFromJunction(e), ls.edge.getToJunction(e))
-            for e in ls.edge.getIDList()
-            if not e.startswith(":")
-        ]
-        junction_of, edge_of = roadmap_mapping(
-            graph, ls.junction.getIDList(), edges, net=str(self.network.net_path)
-        )
-        return replace(self.network, junction_of=junction_of, edge_of=edge_of)
 
     def add_robot(self, spec: RobotSpec) -> None:
         """Add ``spec`` as a vehicle parked at the lane point nearest its start pose (however
         far). Raises :class:`BackendError` for a duplicate namespace."""
         if spec.namespace in self._robots:
             raise BackendError(f"robot namespace {spec.namespace} is already in the SUMO world")
-        lp = self.lanes.nearest(spec.start.x, spec.start.y, spec.start.theta)
-        ls = self._ls
-        vid = spec.name
-        rid = f"__start_{vid}"
-        front = round(self._front_pos(lp.edge, lp.pos), 3)  # the stop must not lie before departPos
-        ls.route.add(rid, [lp.edge])
-        ls.vehicle.add(
-            vid,
-            rid,
-            ROBOT_TYPE,
-            depart="now",
-            departPos=f"{front:.3f}",
-            departSpeed="0",
-            departLane=str(lp.lane),
-        )
-        ls.vehicle.setStop(
-            vid, lp.edge, pos=front, laneIndex=lp.lane, duration=_FOREVER, flags=self._idle_flags()
-        )
-        r = _Robot(
-            spec=spec,
-            vid=vid,
-            battery=spec.battery,
-            last_batt_t=self.clock.now(),
-            last_pose=Pose2D(lp.x, lp.y, spec.start.theta),
-        )
-        r.trajectory.append((self.clock.now(), lp.x, lp.y))
-        self._robots[spec.namespace] = r
-        self._by_vid[vid] = r
-        self._goal_counter[spec.namespace] = 0
-
-    def _idle_flags(self) -> int:
-        return 1 if self.park_idle else 0
-
-    def _front_pos(self, edge: str, center_pos: float) -> float:
-        """Lane position of the front bumper when the vehicle's centre is at ``center_pos``."""
-        return min(max(center_pos + self.length / 2.0, self.length), self.lanes.edge_length[edge])
+        v = self._vehicles.insert(spec, self.clock.now())
+        self._robots[spec.namespace] = v
+        self._by_vid[v.vid] = v
 
     # -- public API -----------------------------------------------------------------
 
     @property
+    def collisions(self) -> int:
+        """Robot-robot contact events so far (a pair that starts touching counts once)."""
+        return self._contacts.total
+
+    @property
+    def collision_events(self) -> list[tuple[float, str, str, float, float]]:
+        """``(t, namespace_a, namespace_b, x, y)`` of every new contact between two robots."""
+        return self._contacts.events
+
+    @property
     def namespaces(self) -> list[str]:
+        """Robot namespaces in the order they were added."""
         return list(self._robots)
 
     def backend(self, namespace: str) -> NamespacedBackend:
@@ -438,14 +278,15 @@ class SumoWorld:
 
     def trajectory(self, namespace: str) -> list[tuple[float, float, float]]:
         """``(t, x, y)`` samples of the robot, one at its addition and then every
-        ``trajectory_period_s`` simulated seconds (a copy)."""
+        ``trajectory_period_s`` simulated seconds, of the last
+        :data:`sim.history.TRAJECTORY_KEEP_S` seconds at least (a copy)."""
         return list(self._robot(namespace).trajectory)
 
     def teleports_of(self, namespace: str) -> int:
         """How many times SUMO teleported robot ``namespace`` (deadlock signals)."""
         return self._robot(namespace).teleports
 
-    def _robot(self, namespace: str) -> _Robot:
+    def _robot(self, namespace: str) -> Vehicle:
         try:
             return self._robots[namespace]
         except KeyError:
@@ -456,14 +297,16 @@ class SumoWorld:
     def close(self) -> None:
         """Stop SUMO (idempotent). Goals still running end ABORTED with SERVER_UNAVAILABLE."""
         global _ACTIVE
-        if getattr(self, "_closed", True):
+        if self._closed:
             return
         self._closed = True
-        for rec in getattr(self, "_goals", {}).values():
-            if rec.status not in _TERMINAL:
-                self._finish(
-                    rec, GoalStatus.ABORTED, int(ErrorCode.SERVER_UNAVAILABLE), "The SUMO world was closed."
-                )
+        vehicles = getattr(self, "_vehicles", None)
+        if vehicles is not None:
+            vehicles.closed = True
+        for goal in list(getattr(self, "_active", {}).values()):
+            self._finish(
+                goal, GoalStatus.ABORTED, int(ErrorCode.SERVER_UNAVAILABLE), "The SUMO world was closed."
+            )
         try:
             self._ls.close()
         finally:
@@ -482,56 +325,60 @@ class SumoWorld:
 
     # -- goals ------------------------------------------------------------------------
 
-    def send_goal(self, namespace: str, goal: Goal) -> str:
+    def send_goal(self, namespace: str, goal: object) -> str:
         """Start ``goal`` on robot ``namespace``; return its id at once (see module docstring).
 
-        The goal is EXECUTING at once, or already terminal (REJECTED: no poses, a non-finite
-        pose, an unknown goal type; ABORTED: a pose off the network, no route). The goal the
-        robot was executing ends ABORTED, naming the new goal.
+        The goal is EXECUTING at once, or already terminal (REJECTED: no poses for
+        NavigateThroughPoses, a non-finite pose; ABORTED: an empty FollowWaypoints, invalid
+        behavior input, a pose off the network, no route). The goal the robot was executing
+        ends ABORTED, naming the new goal. Raises :class:`BackendError` (changing nothing) when
+        the world is closed, for an unknown namespace or an object that is not a goal.
         """
         if self._closed:
             raise BackendError("the SUMO world is closed")
-        robot = self._robot(namespace)
-        self._goal_counter[namespace] += 1
-        gid = f"{namespace}#{self._goal_counter[namespace]}"
+        v = self._robot(namespace)
+        record = self._goals.open(namespace, goal)
         now = self.clock.now()
-        rec = _GoalRecord(gid, goal, namespace, now)
-        self._goals[gid] = rec
-        old = robot.goal
-        if old is not None and not old.status.terminal:
-            old.feedback = self._feedback(robot, old)
-            self._finish(
-                old, GoalStatus.ABORTED, 0, f"Goal {old.goal_id} was preempted by goal {gid}.", settle=False
-            )
-        robot.goal = None
-        robot.stuck = False
-        reason = _reject_reason(goal)
-        if reason is not None:
-            self._finish(rec, GoalStatus.REJECTED, 0, reason)
-            return gid
-        robot.goal = rec
-        self._active[namespace] = robot
-        if isinstance(goal, (NavigateToPose, NavigateThroughPoses, FollowWaypoints)):
-            poses = (goal.pose,) if isinstance(goal, NavigateToPose) else tuple(goal.poses)
-            for i, p in enumerate(poses):
-                lp = self.lanes.nearest(p.x, p.y, p.theta)
-                if lp.dist > self.max_snap_m:
-                    self._finish(
-                        rec,
-                        GoalStatus.ABORTED,
-                        int(ErrorCode.GOAL_OUTSIDE_MAP),
-                        f"Pose {i} ({p.x:.2f}, {p.y:.2f}) is {lp.dist:.1f} m from the nearest SUMO lane "
-                        f"(max {self.max_snap_m} m).",
-                    )
-                    return gid
-                rec.targets.append(lp)
-            self._apply(robot, rec)
+        g = _Goal(record, now)
+        old = self._active.get(namespace)
+        if old is not None:
+            preempt(old.record, record, self._feedback(v, old))
+            self._release(old, settle=False)
+        v.stuck = False
+        if reject_if_invalid(record):
+            return record.goal_id
+        self._active[namespace] = g
+        error = start_error(record.goal)
+        if error is not None:
+            self._finish(g, GoalStatus.ABORTED, int(error[0]), error[1])
+        elif goal_poses(record.goal):
+            self._start_navigation(v, g)
         else:
-            self._start_timed(robot, rec, now)
-        return gid
+            self._start_timed(v, g, now)
+        return record.goal_id
 
-    def _start_timed(self, robot: _Robot, rec: _GoalRecord, now: float) -> None:
-        goal = rec.goal
+    def _start_navigation(self, v: Vehicle, g: _Goal) -> None:
+        """Snap the goal's poses to lanes (ABORTED ``GOAL_OUTSIDE_MAP`` beyond ``max_snap_m``)
+        and route the vehicle."""
+        for i, p in enumerate(goal_poses(g.record.goal)):
+            lp = self.lanes.nearest(p.x, p.y, p.theta)
+            if lp.dist > self.max_snap_m:
+                self._finish(
+                    g,
+                    GoalStatus.ABORTED,
+                    int(ErrorCode.GOAL_OUTSIDE_MAP),
+                    f"Pose {i} ({p.x:.2f}, {p.y:.2f}) is {lp.dist:.1f} m from the nearest SUMO lane "
+                    f"(max {self.max_snap_m} m).",
+                )
+                return
+            g.plan.targets.append(lp)
+        self._apply(v, g)
+
+    def _start_timed(self, v: Vehicle, g: _Goal, now: float) -> None:
+        """Wait, and Spin / BackUp / DriveOnHeading as timed no-ops: hold on the lane for the
+        time the motion would take (ABORTED with the action's TIMEOUT code after
+        ``time_allowance_s`` when it would take longer)."""
+        goal = g.record.goal
         m = self.params.model
         duration = 0.0
         allowance = math.inf
@@ -540,79 +387,64 @@ class SumoWorld:
             duration = max(0.0, goal.duration_s)
         elif isinstance(goal, Spin):
             duration = abs(goal.target_yaw) / m.max_angular_speed
-            allowance, code_timeout = goal.time_allowance_s, int(ErrorCode.SPIN_TIMEOUT)
+            allowance, code_timeout = goal.time_allowance_s, int(BEHAVIOR_CODES[goal.kind].timeout)
         else:
             assert isinstance(goal, (BackUp, DriveOnHeading))
-            backup = isinstance(goal, BackUp)
-            if goal.distance_m <= 0 or goal.speed_mps <= 0:
-                code = ErrorCode.BACKUP_INVALID_INPUT if backup else ErrorCode.DRIVE_INVALID_INPUT
-                self._finish(
-                    rec,
-                    GoalStatus.ABORTED,
-                    int(code),
-                    f"distance_m and speed_mps must be positive (got {goal.distance_m}, {goal.speed_mps}).",
-                )
-                return
             duration = goal.distance_m / goal.speed_mps
             allowance = goal.time_allowance_s
-            code_timeout = int(ErrorCode.BACKUP_TIMEOUT if backup else ErrorCode.DRIVE_TIMEOUT)
+            code_timeout = int(BEHAVIOR_CODES[goal.kind].timeout)
         if duration > allowance:
-            rec.hold_until = now + allowance
-            rec.hold_status, rec.hold_code = GoalStatus.ABORTED, code_timeout
-            rec.hold_msg = (
-                f"{goal.kind} would take {duration:.1f} s, more than time_allowance_s={allowance} s."
-            )
+            g.hold_until = now + allowance
+            g.hold_status, g.hold_code = GoalStatus.ABORTED, code_timeout
+            g.hold_msg = f"{goal.kind} would take {duration:.1f} s, more than time_allowance_s={allowance} s."
         else:
-            rec.hold_until = now + duration
-        if robot.mode != "parked":
-            self._rest(robot, park=False)
+            g.hold_until = now + duration
+        if v.mode != "parked":
+            self._vehicles.rest(v, park=False)
 
     def goal_state(self, goal_id: str) -> GoalState:
         """Snapshot of goal ``goal_id`` (pure read). Raises ``KeyError`` for an id never issued."""
-        rec = self._goals[goal_id]
-        if rec.status in _TERMINAL:
-            return rec.cached if rec.cached is not None and rec.cached_epoch == -2 else self._freeze(rec)
-        if rec.cached is None or rec.cached_epoch != self._epoch:
-            rec.cached = rec.snapshot(self._feedback(self._robots[rec.namespace], rec))
-            rec.cached_epoch = self._epoch
-        return rec.cached
-
-    @staticmethod
-    def _freeze(rec: _GoalRecord) -> GoalState:
-        rec.cached, rec.cached_epoch = rec.snapshot(), -2
-        return rec.cached
+        record = self._goals.get(goal_id)
+        g = None if record.terminal else self._active.get(record.namespace)
+        if g is None or g.record is not record:
+            return record.snapshot()
+        epoch = self._vehicles.epoch
+        if g.cached is None or g.cached_epoch != epoch:
+            g.cached = record.snapshot(self._feedback(self._robots[record.namespace], g))
+            g.cached_epoch = epoch
+        return g.cached
 
     def cancel_goal(self, goal_id: str) -> None:
         """Cancel ``goal_id``: it ends CANCELED at once and the vehicle brakes to a stop at the
         next position it can reach. A no-op for a finished or unknown goal."""
-        rec = self._goals.get(goal_id)
-        if rec is None or rec.status in _TERMINAL:
+        record = self._goals.live(goal_id)
+        if record is None:
             return
-        robot = self._robots[rec.namespace]
-        rec.feedback = self._feedback(robot, rec)
-        self._finish(rec, GoalStatus.CANCELED, 0, "")
+        g = self._active.get(record.namespace)
+        if g is not None and g.record is record:
+            self._finish(g, GoalStatus.CANCELED, 0, "")
 
     def robot_state(self, namespace: str) -> RobotState:
         """Pose (vehicle centre, ``map`` frame), speed, battery, stuck flag, odometry, collisions."""
-        robot = self._robot(namespace)
+        v = self._robot(namespace)
         ls = self._ls
-        pose = self._pose(robot)
+        pose = self._vehicles.pose(v)
         speed = 0.0
-        if robot.present and not self._closed:
-            if not ls.vehicle.isStopped(robot.vid):
-                speed = float(ls.vehicle.getSpeed(robot.vid))
-            robot.odo_total = max(robot.odo_total, robot.odo_base + float(ls.vehicle.getDistance(robot.vid)))
-        odo = robot.odo_total
-        self._update_battery(robot, odo, speed, pose)
+        if v.present and not self._closed:
+            if not ls.vehicle.isStopped(v.vid):
+                speed = float(ls.vehicle.getSpeed(v.vid))
+            v.odo_total = max(v.odo_total, v.odo_base + float(ls.vehicle.getDistance(v.vid)))
+        odo = v.odo_total
+        self._charging.update(v, self.clock.now(), odo, speed, pose)
         return RobotState(
             pose=pose,
             linear_velocity=speed,
             angular_velocity=0.0,
-            battery=robot.battery,
-            charging=robot.battery < 1.0 and self._at_charger(robot, pose, speed),
-            stuck=robot.stuck,
+            battery=v.battery,
+            charging=v.battery < 1.0 and self._charging.at_charger(pose, speed),
+            stuck=v.stuck,
             distance_m=odo,
-            collisions=robot.collisions,
+            collisions=v.collisions,
         )
 
     def run_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
@@ -628,439 +460,134 @@ class SumoWorld:
             raise BackendError("the SUMO world is closed")
         ls = self._ls
         ls.simulationStep()
-        self._epoch += 1
+        self._vehicles.epoch += 1
         now = self.clock.advance(self.params.step_s)
         self.steps += 1
         for vid in ls.simulation.getDepartedIDList():
-            r = self._by_vid.get(vid)
-            if r is not None:
-                r.present = True
-        arrived = [self._by_vid[v] for v in ls.simulation.getArrivedIDList() if v in self._by_vid]
-        for r in arrived:  # only a teleport past the end of a route makes a robot arrive
-            r.present = False
+            v = self._by_vid.get(vid)
+            if v is not None:
+                v.present = True
+        arrived = [self._by_vid[x] for x in ls.simulation.getArrivedIDList() if x in self._by_vid]
+        for v in arrived:  # only a teleport past the end of a route makes a robot arrive
+            v.present = False
         for vid in ls.simulation.getStartingTeleportIDList():
-            r = self._by_vid.get(vid)
-            if r is None:
-                continue
-            self.teleports += 1
-            r.teleports += 1
-            r.stuck = True
-            rec = r.goal
-            if rec is not None and rec.status not in _TERMINAL and rec.hold_until is None:
-                self._finish(
-                    rec,
-                    GoalStatus.ABORTED,
-                    int(ErrorCode.FAILED_TO_MAKE_PROGRESS),
-                    f"SUMO teleported {r.spec.name} after it waited {self.time_to_teleport} s "
-                    "behind a blocker (deadlock).",
-                )
-            elif rec is None and r.present:
-                self._rest(r, park=self.park_idle)
-        for r in arrived:
-            self._reinsert(r)
-        self._count_collisions()
+            v = self._by_vid.get(vid)
+            if v is not None:
+                self._teleported(v)
+        for v in arrived:
+            self._reinsert(v)
+        self._contacts.count(self.clock.now(), self._by_vid, self._vehicles.pose)
+        self._sample(now)
+        for ns in list(self._active):
+            self._update_goal(self._robots[ns], self._active[ns], now)
+        for ns, park in list(self._vehicles.resting.items()):
+            self._vehicles.rest(self._robots[ns], park)
+
+    def _teleported(self, v: Vehicle) -> None:
+        """SUMO started teleporting ``v`` (a deadlock signal): count it, report the robot stuck
+        and abort its navigation goal."""
+        self.teleports += 1
+        v.teleports += 1
+        v.stuck = True
+        g = self._active.get(v.namespace)
+        if g is not None and g.hold_until is None:
+            self._finish(
+                g,
+                GoalStatus.ABORTED,
+                int(ErrorCode.FAILED_TO_MAKE_PROGRESS),
+                f"SUMO teleported {v.spec.name} after it waited {self.time_to_teleport} s "
+                "behind a blocker (deadlock).",
+            )
+        elif g is None and v.present:
+            self._vehicles.rest(v, park=self.park_idle)
+
+    def _reinsert(self, v: Vehicle) -> None:
+        g = self._active.get(v.namespace)
+        self._vehicles.reinsert(v, g.plan.targets[-1] if g is not None and g.plan.targets else None)
+        if g is not None:
+            g.plan.applied = False  # re-route from the new position once inserted
+
+    def _sample(self, now: float) -> None:
         if self.trajectory_period_s and now >= self._next_sample - 1e-9:
-            for r in self._robots.values():
-                p = self._pose(r)
+            for v in self._robots.values():
+                p = self._vehicles.pose(v)
                 if p is not None:
-                    r.trajectory.append((now, p.x, p.y))
+                    v.trajectory.append((now, p.x, p.y))
+                    trim_oldest(v.trajectory, int(TRAJECTORY_KEEP_S / self.trajectory_period_s))
             while self._next_sample <= now + 1e-9:
                 self._next_sample += self.trajectory_period_s
-        for ns in list(self._active):
-            self._update_goal(self._active[ns], now)
-        for ns, park in list(self._resting.items()):
-            self._rest(self._robots[ns], park)
-
-    def _count_collisions(self) -> None:
-        touching: set[tuple[str, str]] = set()
-        for c in self._ls.simulation.getCollisions():
-            a, b = c.collider, c.victim
-            if a not in self._by_vid or b not in self._by_vid:
-                continue
-            pair = (a, b) if a < b else (b, a)
-            touching.add(pair)
-            if pair not in self._touching:
-                ra, rb = self._by_vid[a], self._by_vid[b]
-                self.collisions += 1
-                ra.collisions += 1
-                rb.collisions += 1
-                pa, pb = self._pose(ra), self._pose(rb)
-                x, y = (0.5 * (pa.x + pb.x), 0.5 * (pa.y + pb.y)) if pa and pb else (math.nan, math.nan)
-                self.collision_events.append((self.clock.now(), ra.spec.namespace, rb.spec.namespace, x, y))
-        self._touching = touching
 
     # -- internals ----------------------------------------------------------------------
 
-    def _finish(
-        self, rec: _GoalRecord, status: GoalStatus, code: int, msg: str, *, settle: bool = True
-    ) -> None:
-        robot = self._robots.get(rec.namespace)
-        if robot is not None and robot.goal is rec and not self._closed:
-            rec.feedback = self._feedback(robot, rec)
-        self._epoch += 1
-        rec.cached = None
-        rec.status = status
-        rec.error_code = code
-        rec.error_msg = msg
-        if robot is not None and robot.goal is rec:
-            robot.goal = None
-            self._active.pop(rec.namespace, None)
-            if settle and not self._closed and robot.present:
-                self._rest(robot, park=self.park_idle)
+    def _finish(self, g: _Goal, status: GoalStatus, code: int, msg: str) -> None:
+        """End the executing goal ``g`` with ``status`` (its feedback frozen) and bring the
+        vehicle to rest."""
+        v = self._robots[g.record.namespace]
+        if not self._closed:
+            g.record.feedback = self._feedback(v, g)
+        g.record.finish(status, code, msg)
+        self._release(g, settle=True)
 
-    def _where(self, robot: _Robot) -> tuple[str, float, int] | None:
-        """``(edge, front lane pos, lane index)`` of a vehicle on a normal edge, else ``None``."""
-        ls = self._ls
-        if not robot.present:
-            return None
-        road = ls.vehicle.getRoadID(robot.vid)
-        if not road or road.startswith(":"):
-            return None
-        where = (road, float(ls.vehicle.getLanePosition(robot.vid)), int(ls.vehicle.getLaneIndex(robot.vid)))
-        robot.last_where = where
-        return where
+    def _release(self, g: _Goal, settle: bool) -> None:
+        """``g`` ended: it is no longer the robot's goal; with ``settle`` the vehicle is brought
+        to rest."""
+        self._vehicles.epoch += 1
+        g.cached = None
+        ns = g.record.namespace
+        if self._active.get(ns) is g:
+            del self._active[ns]
+            v = self._robots[ns]
+            if settle and not self._closed and v.present:
+                self._vehicles.rest(v, park=self.park_idle)
 
-    def _reinsert(self, robot: _Robot) -> None:
-        """Put a vehicle that SUMO removed (teleported past its route's end) back, parked (or
-        holding) at the end of the lane it was last seen on, or of its goal's last pose."""
-        ls = self._ls
-        rec = robot.goal
-        if rec is not None and rec.targets:
-            t = rec.targets[-1]
-            edge, front, lane = t.edge, self._front_pos(t.edge, t.pos), t.lane
-        elif robot.last_where is not None:
-            edge, _, lane = robot.last_where
-            front = self.lanes.edge_length[edge]
-        else:
-            lp = self.lanes.nearest(robot.spec.start.x, robot.spec.start.y, robot.spec.start.theta)
-            edge, front, lane = lp.edge, self._front_pos(lp.edge, lp.pos), lp.lane
-        front = round(front, 3)
-        robot.reinserted += 1
-        rid = f"__re{robot.reinserted}_{robot.vid}"
-        ls.route.add(rid, [edge])
-        ls.vehicle.add(
-            robot.vid,
-            rid,
-            ROBOT_TYPE,
-            depart="now",
-            departPos=f"{front:.3f}",
-            departSpeed="0",
-            departLane=str(lane),
-        )
-        ls.vehicle.setStop(
-            robot.vid, edge, pos=front, laneIndex=lane, duration=_FOREVER, flags=self._idle_flags()
-        )
-        robot.mode = "parked" if self.park_idle else "holding"
-        robot.odo_base = robot.odo_total
-        self._resting.pop(robot.spec.namespace, None)
-        if rec is not None and rec.status not in _TERMINAL:
-            rec.applied = False  # re-route from the new position once inserted
+    def _apply(self, v: Vehicle, g: _Goal) -> None:
+        failed = self._router.apply(v, g.plan, g.record)
+        if failed is not None:
+            self._finish(g, GoalStatus.ABORTED, int(ErrorCode.NO_VALID_PATH), failed)
 
-    def _clear_stops(self, robot: _Robot) -> None:
-        self._epoch += 1
-        ls = self._ls
-        if ls.vehicle.isStopped(robot.vid):
-            ls.vehicle.resume(robot.vid)
-        for _ in range(len(ls.vehicle.getStops(robot.vid))):
-            try:
-                ls.vehicle.replaceStop(robot.vid, 0, "")
-            except Exception:
-                break
-
-    def _rest(self, robot: _Robot, park: bool) -> bool:
-        """Bring the vehicle to rest where it is: brake (``setSpeed(0)``, within its decel)
-        while it moves, then replace its stops by one at its lane position, parked off the lane
-        (``park``) or holding on it. Returns True once at rest; until then the robot is kept in
-        ``_resting`` and this is retried every step (also while it crosses a junction or is
-        teleporting: a stop can only be placed on a normal lane)."""
-        ls = self._ls
-        ns = robot.spec.namespace
-        self._resting[ns] = park
-        if not robot.present:
-            return False
-        want = "parked" if park else "holding"
-        stopped = bool(ls.vehicle.isStopped(robot.vid))
-        if robot.mode == want and stopped:
-            self._resting.pop(ns, None)
-            return True
-        where = self._where(robot)
-        if where is None:
-            if robot.mode == "braking" and ls.vehicle.getRoadID(robot.vid):
-                # inside a junction: SUMO would teleport a vehicle held there; cross it first
-                ls.vehicle.setSpeed(robot.vid, -1.0)
-                robot.mode = "crossing"
-            return False
-        speed = float(ls.vehicle.getSpeed(robot.vid))
-        if not stopped and speed > 1e-3:
-            self._epoch += 1
-            ls.vehicle.setSpeed(robot.vid, 0.0)
-            robot.mode = "braking"
-            return False
-        edge, pos, lane = where
-        try:
-            self._clear_stops(robot)
-            ls.vehicle.setRoute(robot.vid, [edge])
-            ls.vehicle.setStop(
-                robot.vid, edge, pos=pos, laneIndex=lane, duration=_FOREVER, flags=1 if park else 0
-            )
-            ls.vehicle.setSpeed(robot.vid, -1.0)
-        except Exception:  # retried next step
-            return False
-        robot.mode = want
-        self._resting.pop(ns, None)
-        return True
-
-    def _route_between(self, a: str, b: str, loop: bool) -> list[str] | None:
-        """Edges from ``a`` to ``b`` (both included); with ``loop`` and ``a == b``, a way round."""
-        ls = self._ls
-        if a == b and not loop:
-            return [a]
-        if a != b:
-            r = ls.simulation.findRoute(a, b, ROBOT_TYPE)
-            return list(r.edges) if r.edges else None
-        best: list[str] | None = None
-        best_len = math.inf
-        for s in self.lanes.successors.get(a, []):
-            r = ls.simulation.findRoute(s, b, ROBOT_TYPE) if s != b else None
-            edges = list(r.edges) if r is not None and r.edges else ([s] if s == b else None)
-            if not edges:
-                continue
-            length = r.length if r is not None else self.lanes.edge_length[s]
-            if length < best_len:
-                best, best_len = [a, *edges], length
-        return best
-
-    def _apply(self, robot: _Robot, rec: _GoalRecord) -> None:
-        """Give SUMO the route and final stop of navigation goal ``rec`` (retried each step
-        while the vehicle is not yet on a normal edge)."""
-        ls = self._ls
-        if not robot.present:
+    def _update_goal(self, v: Vehicle, g: _Goal, now: float) -> None:
+        if g.hold_until is not None:
+            if now >= g.hold_until - 1e-9:
+                self._finish(g, g.hold_status, g.hold_code, g.hold_msg)
             return
-        road = ls.vehicle.getRoadID(robot.vid)
-        if not road:
+        if not g.plan.applied:
+            self._apply(v, g)
             return
-        if road.startswith(":"):
-            route = ls.vehicle.getRoute(robot.vid)
-            ri = ls.vehicle.getRouteIndex(robot.vid)
-            if ri + 1 >= len(route):
-                return
-            prefix, edge, pos = [route[ri]], route[ri + 1], -1.0
-        else:
-            prefix, edge, pos = [], road, float(ls.vehicle.getLanePosition(robot.vid))
-            v = float(ls.vehicle.getSpeed(robot.vid))
-            pos += v * v / (2.0 * self.params.model.max_linear_accel)  # cannot stop before this
-        edges = [*prefix, edge]
-        idx: list[int] = []
-        cur_e, cur_p = edge, pos
-        for t in rec.targets:
-            front = self._front_pos(t.edge, t.pos)
-            if t.edge == cur_e and front >= cur_p - 1e-6:
-                idx.append(len(edges) - 1)
-            else:
-                seg = self._route_between(cur_e, t.edge, loop=True)
-                if seg is None:
-                    self._finish(
-                        rec,
-                        GoalStatus.ABORTED,
-                        int(ErrorCode.NO_VALID_PATH),
-                        f"No SUMO route from edge {cur_e} to edge {t.edge}.",
-                    )
-                    return
-                edges += seg[1:]
-                idx.append(len(edges) - 1)
-            cur_e, cur_p = t.edge, front
-        last = rec.targets[-1]
-        # SUMO puts a stop on the first occurrence of its edge ahead in the route: when the
-        # route passes the last pose's edge earlier (a loop), the stop is set once that is behind
-        earlier = [j for j in range(idx[-1]) if edges[j] == last.edge]
-        rec.stop_after = earlier[-1] if earlier else -1
-        try:
-            self._clear_stops(robot)
-            ls.vehicle.setRoute(robot.vid, edges)
-            if rec.stop_after < 0:
-                self._set_final_stop(robot, rec)
-            ls.vehicle.setSpeed(robot.vid, -1.0)
-            self._resting.pop(robot.spec.namespace, None)
-        except Exception as exc:  # SUMO refused (e.g. cannot brake in time): retry next step
-            rec.error_msg = f"retrying route: {exc}"
-            return
-        rec.error_msg = ""
-        rec.route = edges
-        rec.target_idx = idx
-        cum = [0.0]
-        for e in edges:
-            cum.append(cum[-1] + self.lanes.edge_length.get(e, 0.0))
-        rec.cum = cum
-        rec.passed = 0
-        rec.applied = True
-        self._epoch += 1
-        robot.mode = "driving"
+        if v.present and self._router.advance(v, g.plan):
+            self._finish(g, GoalStatus.SUCCEEDED, 0, "")
 
-    def _set_final_stop(self, robot: _Robot, rec: _GoalRecord) -> None:
-        last = rec.targets[-1]
-        self._ls.vehicle.setStop(
-            robot.vid,
-            last.edge,
-            pos=self._front_pos(last.edge, last.pos),
-            laneIndex=last.lane,
-            duration=_FOREVER,
-            flags=0,
-        )
-        rec.stop_after = -1
-
-    def _progress(self, robot: _Robot, rec: _GoalRecord) -> tuple[int, float]:
-        """``(route index, front lane pos)`` of the vehicle along the goal's route (cached until
-        SUMO steps or is commanded)."""
-        if robot.prog_epoch == self._epoch:
-            return robot.prog
-        ls = self._ls
-        ri = int(ls.vehicle.getRouteIndex(robot.vid))
-        road = ls.vehicle.getRoadID(robot.vid)
-        if road.startswith(":"):
-            prog = (ri, self.lanes.edge_length.get(rec.route[ri], 0.0) if 0 <= ri < len(rec.route) else 0.0)
-        else:
-            prog = (ri, float(ls.vehicle.getLanePosition(robot.vid)))
-        robot.prog, robot.prog_epoch = prog, self._epoch
-        return prog
-
-    def _update_goal(self, robot: _Robot, now: float) -> None:
-        rec = robot.goal
-        if rec is None or rec.status in _TERMINAL:
-            self._active.pop(robot.spec.namespace, None)
-            return
-        if rec.hold_until is not None:
-            if now >= rec.hold_until - 1e-9:
-                self._finish(rec, rec.hold_status, rec.hold_code, rec.hold_msg)
-            return
-        if not rec.applied:
-            self._apply(robot, rec)
-            return
-        if not robot.present:
-            return
-        ri, pos = self._progress(robot, rec)
-        if 0 <= rec.stop_after < ri:
-            try:
-                self._set_final_stop(robot, rec)
-            except Exception:  # retried next step
-                pass
-        while rec.passed < len(rec.targets):
-            ti = rec.target_idx[rec.passed]
-            t = rec.targets[rec.passed]
-            if ri > ti or (ri == ti and pos >= self._front_pos(t.edge, t.pos) - _POS_TOL_M):
-                rec.passed += 1
-            else:
-                break
-        ls = self._ls
-        if rec.passed >= len(rec.targets) and ls.vehicle.isStopped(robot.vid):
-            rec.feedback = self._feedback(robot, rec)
-            self._finish(rec, GoalStatus.SUCCEEDED, 0, "")
-
-    def _feedback(self, robot: _Robot, rec: _GoalRecord) -> Feedback:
+    def _feedback(self, v: Vehicle, g: _Goal) -> Feedback:
         if self._closed:
-            return rec.feedback
+            return g.record.feedback
         now = self.clock.now()
-        goal = rec.goal
-        pose = self._pose(robot)
-        if rec.hold_until is not None or isinstance(goal, (Wait, Spin, BackUp, DriveOnHeading)):
+        goal = g.record.goal
+        pose = self._vehicles.pose(v)
+        if g.hold_until is not None or isinstance(goal, (Wait, Spin, BackUp, DriveOnHeading)):
             if isinstance(goal, Wait):
-                return Feedback(time_left_s=max(0.0, (rec.hold_until or now) - now))
+                return Feedback(time_left_s=max(0.0, (g.hold_until or now) - now))
             if isinstance(goal, Spin):
                 return Feedback(angular_distance_traveled=0.0)
             return Feedback(distance_traveled=0.0)
+        plan = g.plan
         remaining: float | None = None
-        if rec.applied and robot.present and rec.route:
-            ri, pos = self._progress(robot, rec)
-            last = rec.targets[-1]
-            end = rec.cum[rec.target_idx[-1]] + self._front_pos(last.edge, last.pos)
-            here = rec.cum[min(ri, len(rec.route) - 1)] + pos
-            remaining = max(0.0, end - here)
-        elif rec.targets and pose is not None:
-            remaining = math.hypot(rec.targets[-1].x - pose.x, rec.targets[-1].y - pose.y)
+        if plan.applied and v.present and plan.route:
+            remaining = self._router.remaining(v, plan)
+        elif plan.targets and pose is not None:
+            remaining = math.hypot(plan.targets[-1].x - pose.x, plan.targets[-1].y - pose.y)
         speed = self.params.model.max_linear_speed
-        n_left = len(rec.targets) - rec.passed
         return Feedback(
             current_pose=pose,
-            navigation_time_s=now - rec.start_t,
+            navigation_time_s=now - g.start_t,
             estimated_time_remaining_s=None if remaining is None else remaining / speed,
             distance_remaining_m=remaining,
             number_of_recoveries=0,
-            number_of_poses_remaining=n_left if isinstance(goal, NavigateThroughPoses) else None,
-            current_waypoint=min(rec.passed, len(rec.targets) - 1)
+            number_of_poses_remaining=len(plan.targets) - plan.passed
+            if isinstance(goal, NavigateThroughPoses)
+            else None,
+            current_waypoint=max(0, min(plan.passed, len(plan.targets) - 1))
             if isinstance(goal, FollowWaypoints)
             else None,
         )
-
-    def _pose(self, robot: _Robot) -> Pose2D | None:
-        if not robot.present or self._closed or robot.pose_epoch == self._epoch:
-            return robot.last_pose
-        ls = self._ls
-        road = ls.vehicle.getRoadID(robot.vid)
-        if not road:  # teleporting
-            return robot.last_pose
-        theta = normalize_angle(math.radians(90.0 - float(ls.vehicle.getAngle(robot.vid))))
-        if not road.startswith(":"):
-            # centre = half a vehicle behind the front along the lane, in lane units (a lane may be
-            # longer than its drawn shape; parked vehicles are drawn beside the lane)
-            lane = min(max(int(ls.vehicle.getLaneIndex(robot.vid)), 0), self.lanes.lane_count[road] - 1)
-            c = max(0.0, float(ls.vehicle.getLanePosition(robot.vid)) - self.length / 2.0)
-            xy = self.lanes.point(road, lane, c)
-            x, y = xy if xy is not None else ls.simulation.convert2D(road, c, lane)
-        else:
-            fx, fy = ls.vehicle.getPosition(robot.vid)
-            x = fx - math.cos(theta) * self.length / 2.0
-            y = fy - math.sin(theta) * self.length / 2.0
-        pose = Pose2D(float(x), float(y), theta)
-        robot.last_pose, robot.pose_epoch = pose, self._epoch
-        return pose
-
-    def _at_charger(self, robot: _Robot, pose: Pose2D | None, speed: float) -> bool:
-        if pose is None or speed > 1e-3:
-            return False
-        r = self.params.charger_radius + self.length
-        return any(math.hypot(c.x - pose.x, c.y - pose.y) <= r for c in self._chargers)
-
-    def _update_battery(self, robot: _Robot, odo: float, speed: float, pose: Pose2D | None) -> None:
-        b = self.params.battery
-        now = self.clock.now()
-        dt = max(0.0, now - robot.last_batt_t)
-        dd = max(0.0, odo - robot.last_odo)
-        if self._at_charger(robot, pose, speed) and dd < 1e-6:
-            robot.battery = min(1.0, robot.battery + b.charge_per_s * dt)
-        else:
-            robot.battery = max(0.0, robot.battery - b.drain_per_s * dt - b.drain_per_m * dd)
-        robot.last_batt_t = now
-        robot.last_odo = odo
-
-
-def _reject_reason(goal: Goal) -> str | None:
-    if isinstance(goal, NavigateThroughPoses) and not goal.poses:
-        return "NavigateThroughPoses needs at least one pose."
-    if isinstance(goal, FollowWaypoints) and not goal.poses:
-        return "FollowWaypoints needs at least one pose."
-    poses: tuple[Pose2D, ...] = ()
-    if isinstance(goal, NavigateToPose):
-        poses = (goal.pose,)
-    elif isinstance(goal, (NavigateThroughPoses, FollowWaypoints)):
-        poses = tuple(goal.poses)
-    elif not isinstance(goal, (Spin, BackUp, DriveOnHeading, Wait)):
-        return f"Unsupported goal type {type(goal).__name__}."
-    for i, pose in enumerate(poses):
-        if not (math.isfinite(pose.x) and math.isfinite(pose.y) and math.isfinite(pose.theta)):
-            return f"Pose {i} ({pose.x}, {pose.y}, {pose.theta}) is not finite."
-    return None
-
-
-def _source_net(roadmap: Any) -> Path | None:
-    """The ``.net.xml`` a roadmap (``Roadmap`` or graph) was read from, if any."""
-    if roadmap is None:
-        return None
-    src = getattr(roadmap, "source_net", None)
-    if src is None and not hasattr(roadmap, "source_net"):
-        try:
-            src = as_graph(roadmap).graph.get("sumo_net")
-        except TypeError:
-            return None
-    return Path(src) if src else None
 
 
 __all__ = [
@@ -1068,4 +595,5 @@ __all__ = [
     "LanePoint",
     "ROBOT_TYPE",
     "SumoWorld",
+    "active_world",
 ]

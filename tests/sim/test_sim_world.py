@@ -4,7 +4,6 @@ determinism, trajectories, the backend adapter and the planner."""
 from __future__ import annotations
 
 import math
-import time
 
 import pytest
 from sim_testworld import advance, corridor_grid, make_sim, room_grid, run_goal
@@ -244,6 +243,23 @@ def test_trajectory_is_sampled_every_half_second() -> None:
     assert xs == sorted(xs) and xs[-1] > 3.0
 
 
+def test_trajectories_keep_the_recent_samples_of_a_long_run(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sim.simulator
+
+    monkeypatch.setattr(sim.simulator, "TRAJECTORY_KEEP_S", 200.0)  # 400 samples
+    sim_ = make_sim({"/r1": Pose2D(2.0, 2.0)})
+    advance(sim_, 100.0)
+    sim_.add_robot(RobotSpec("r2", "/r2", Pose2D(2.0, 4.0)))
+    advance(sim_, 300.0)
+    for ns, t_added in (("/r1", 0.0), ("/r2", 100.0)):
+        traj = sim_.trajectory(ns)
+        assert 400 <= len(traj) < 400 + 256 and traj[0][0] > t_added  # the oldest were dropped
+        assert traj[-1][0] == pytest.approx(400.0)
+        assert [round(t2 - t1, 6) for (t1, _, _), (t2, _, _) in zip(traj, traj[1:], strict=False)] == [
+            0.5
+        ] * (len(traj) - 1)
+
+
 def test_run_until_reports_timeout_in_sim_time() -> None:
     sim = make_sim({"/r1": Pose2D(2.0, 2.0)})
     assert not sim.run_until(lambda: False, 2.0)
@@ -264,19 +280,17 @@ def test_same_inputs_give_identical_trajectories() -> None:
     assert _scenario() == _scenario()
 
 
-def test_thirty_robots_step_fast() -> None:
-    """A loose floor (the measured figure is far higher); catches accidental O(n^3) code."""
+def test_thirty_robots_crossing_a_room_all_make_progress() -> None:
+    """(Steps per second of this scene: ``python bench/bench_sim.py --scenes``.)"""
     sim = make_sim(
         {f"/r{i}": Pose2D(1.0 + (i % 5) * 1.0, 1.0 + (i // 5) * 1.0, 0.0) for i in range(30)},
         grid=room_grid(40.0, 30.0, furnished=False),
     )
     for i, ns in enumerate(sim.namespaces):
         sim.send_goal(ns, NavigateToPose(Pose2D(30.0 + (i % 5) * 1.0, 1.0 + (i // 5) * 1.0, 0.0)))
-    t0 = time.perf_counter()
     advance(sim, 10.0)
-    rate = 30 * 200 / (time.perf_counter() - t0)
-    assert rate > 5000
     assert all(sim.robot_state(ns).distance_m > 3.0 for ns in sim.namespaces)
+    assert sim.collisions == 0
 
 
 # -- planner -------------------------------------------------------------------------------
@@ -291,22 +305,20 @@ def _warehouse() -> OccupancyGrid:
     return g
 
 
-def test_planner_on_a_40_by_30_m_warehouse_is_fast_and_collision_free() -> None:
+def test_planner_on_a_40_by_30_m_warehouse_plans_collision_free_paths() -> None:
+    """(Planning times on this map: ``python bench/bench_sim.py --scenes``.)"""
     g = _warehouse()
     planner = GridPlanner(g, 0.3)
     pairs = [((2.0, 2.0), (38.0, 28.0)), ((6.0, 10.0), (34.0, 20.0)), ((2.0, 15.0), (38.5, 15.0))]
+    results = []
     for start, goal in pairs:
-        t0 = time.perf_counter()
         res = planner.plan(start, goal)
-        took = time.perf_counter() - t0
+        results.append(res)
         assert res.ok, res.error_msg
-        assert took < 0.05, f"planning took {took * 1000:.1f} ms"
         assert res.path[0] == start and res.path[-1] == goal
         for a, b in zip(res.path, res.path[1:], strict=False):
             assert planner.segment_free(a, b, planner.footprint)
-    t0 = time.perf_counter()
-    planner.plan(*pairs[0])
-    assert time.perf_counter() - t0 < 0.01  # cached
+    assert planner.plan(*pairs[0]) is results[0]  # cached
 
 
 def test_planner_uses_a_straight_line_when_it_is_free() -> None:
@@ -362,17 +374,14 @@ def test_robot_whose_goal_is_covered_by_an_obstacle_aborts_105_instead_of_waitin
     assert _pose(sim, "/r1").distance_to(Pose2D(8.0, 4.0)) >= 1.3 - 1e-6
 
 
-def test_patrol_stepping_is_vectorized_and_fast_for_a_big_fleet() -> None:
-    """A loose floor for 400 robots (measured far higher); catches per-robot Python loops."""
+def test_a_fleet_of_400_robots_drives_to_its_goals_without_contacts() -> None:
+    """(Steps per second of this scene: ``python bench/bench_sim.py --scenes``.)"""
     sim = make_sim(
         {f"/r{i}": Pose2D(1.0 + (i % 38) * 1.0, 1.0 + (i // 38) * 1.0, 0.0) for i in range(400)},
         grid=room_grid(40.0, 30.0, furnished=False),
     )
     for i, ns in enumerate(sim.namespaces):
         sim.send_goal(ns, NavigateToPose(Pose2D(1.0 + (i % 38) * 1.0, 16.0 + (i // 38) * 1.0, 0.0)))
-    advance(sim, 1.0)
-    t0 = time.perf_counter()
-    advance(sim, 5.0)
-    rate = 400 * 100 / (time.perf_counter() - t0)
-    assert rate > 40_000
+    advance(sim, 6.0)
     assert sum(sim.robot_state(ns).distance_m for ns in sim.namespaces) > 400 * 1.5
+    assert sim.collisions == 0

@@ -1,23 +1,22 @@
-"""Loads the conformance harness plugins and parametrizes the ``harness`` fixture over
-:data:`conformance_harness.BACKEND_FACTORIES`.
+"""Loads the conformance harness plugins and parametrizes ``backend_name`` x ``case`` over
+:data:`conformance_harness.BACKEND_FACTORIES` and :data:`fleet.testing.conformance.CASES`.
 
-How to register another backend (ROS 2 adapter, Zenoh bridge, SUMO): add a file
-``tests/conformance/harness_<name>.py`` that decorates a context-manager factory with
-``conformance_harness.register_backend("<name>")``; see the docstring of
-``conformance_harness.py`` for the harness contract and an example. Every ``harness_*.py``
-file here is imported (sorted by name) before the fixture is built; no edit of this file or
-of the tests is needed.
+How to register another backend: add a file ``harness_<name>.py`` here that decorates a
+context-manager factory with ``conformance_harness.register_backend("<name>")``; see the
+docstring of ``conformance_harness.py``. Every ``harness_*.py`` file here is imported (sorted by
+name) before the tests are parametrized; no edit of this file or of the tests is needed.
 """
 
 from __future__ import annotations
 
 import importlib.util
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conformance_harness import _MARKS, BACKEND_FACTORIES, LACKS, ConformanceHarness
+from conformance_harness import BACKEND_FACTORIES, LACKS, MARKS
+
+from fleet.testing.conformance import CASES
 
 
 def _load_plugins() -> None:
@@ -36,21 +35,15 @@ def _load_plugins() -> None:
 _load_plugins()
 
 
-def pytest_configure(config: pytest.Config) -> None:
-    config.addinivalue_line("markers", "requires(capability): the test needs a backend capability")
-
-
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
-    """Parametrize ``harness`` over every backend that has the capabilities the test requires."""
-    if "harness" not in metafunc.fixturenames:
+    """One test per (backend, case); a case needing a capability the backend lacks is not
+    generated for it (the reason is declared once, in its harness file)."""
+    if not {"backend_name", "case"} <= set(metafunc.fixturenames):
         return
-    needs = {m.args[0] for m in metafunc.definition.iter_markers("requires")}
-    names = [n for n in sorted(BACKEND_FACTORIES) if not needs & set(LACKS[n])]
-    metafunc.parametrize("harness", [pytest.param(n, marks=_MARKS[n]) for n in names], indirect=True)
-
-
-@pytest.fixture
-def harness(request: pytest.FixtureRequest) -> Iterator[ConformanceHarness]:
-    """A fresh harness of each registered backend."""
-    with BACKEND_FACTORIES[request.param]() as h:
-        yield h
+    params = [
+        pytest.param(name, case, marks=MARKS[name], id=f"{name}-{case.name}")
+        for name in sorted(BACKEND_FACTORIES)
+        for case in CASES
+        if not case.requires & set(LACKS[name])
+    ]
+    metafunc.parametrize(("backend_name", "case"), params)

@@ -1,6 +1,6 @@
 """Conformance harness of the ROS 2 backend (:mod:`fleet.ros.backend`), registered as ``"ros"``.
 
-The world is the simulator's conformance world (:data:`conformance_harness.SIM_WORLD`), served
+The world is the simulator's conformance room (:data:`fleet.testing.room.SIM_WORLD`), served
 as namespaced Nav2 by :mod:`fleet.ros.nav2_server` in a child process (this file, run as a
 script with ``--serve``) at :data:`SPEED` times real time; the backend under test talks to it
 through real rclpy action clients on a private ROS domain. ``advance(s)`` sleeps ``s / SPEED``
@@ -22,17 +22,12 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from conformance_harness import (  # noqa: E402
-    SIM_PARAMS,
-    SIM_WORLD,
-    ConformanceHarness,
-    ConformanceWorld,
-    conformance_grid,
-    register_backend,
-)
+from conformance_harness import register_backend  # noqa: E402
 
 from fleet.navigation import NavigationBackend  # noqa: E402
 from fleet.ros.env import apply_ros_env_defaults, ros_available  # noqa: E402
+from fleet.testing.conformance import ConformanceHarness, ConformanceWorld  # noqa: E402
+from fleet.testing.room import SIM_PARAMS, SIM_WORLD, conformance_grid  # noqa: E402
 
 #: Simulated seconds per wall second in the server process. Real time: the harness lets time
 #: pass by sleeping, so a scheduling hiccup on a loaded machine must not turn into several
@@ -66,7 +61,7 @@ def ros_harness() -> Iterator[ConformanceHarness]:
     try:
         rb = make_ros_backends(["/robot1"], wait_s=20.0)
         backend = rb["/robot1"]
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + 30.0
         while backend.robot_state().pose is None:
             assert time.monotonic() < deadline, "no amcl_pose / odom from the server"
             time.sleep(0.02)

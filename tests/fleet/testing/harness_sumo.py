@@ -20,19 +20,24 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import networkx as nx
 import pytest
-from conformance_harness import ConformanceHarness, ConformanceWorld, register_backend
+from conformance_harness import register_backend
 
 from fleet.clock import SimClock
 from fleet.navigation import NavigationBackend
 from fleet.robots import RobotSpec, SimParams
+from fleet.testing.conformance import ConformanceHarness, ConformanceWorld
 from fleet.types import Pose2D
+
+if TYPE_CHECKING:
+    from sim.sumo.world import SumoWorld
 
 #: Capabilities of the shared suite that SUMO lacks, with the reason (see ``docs/sumo.md``);
 #: the suite does not generate those tests for SUMO. What SUMO does instead (snap to a lane,
-#: Spin/BackUp as timed no-ops) is tested in ``tests/sim/test_sumo_backend.py``.
+#: Spin/BackUp as timed no-ops) is tested in ``tests/sim/sumo/test_sumo_world.py``.
 SUMO_LACKS: dict[str, str] = {
     "occupancy_map": "SUMO has no occupancy map: a pose inside an obstacle is snapped onto the nearest lane",
     "spin_in_place": "SUMO vehicles cannot turn on the spot: Spin is a timed no-op",
@@ -74,19 +79,20 @@ def conformance_roadmap() -> nx.Graph:
 class SumoHarness:
     """``advance`` steps the SUMO world."""
 
-    world_obj: object
+    world_obj: SumoWorld
     backend: NavigationBackend
     world: ConformanceWorld
 
     def advance(self, seconds: float) -> None:
         steps = max(1, int(round(seconds / SUMO_PARAMS.step_s)))
         for _ in range(steps):
-            self.world_obj.step()  # type: ignore[attr-defined]
+            self.world_obj.step()
 
 
 @register_backend("sumo", marks=(pytest.mark.sumo,), lacks=SUMO_LACKS)
 @contextmanager
 def sumo_harness() -> Iterator[ConformanceHarness]:
+    pytest.importorskip("libsumo")
     from sim.sumo.world import SumoWorld
 
     world = SumoWorld(

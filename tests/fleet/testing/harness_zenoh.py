@@ -1,8 +1,8 @@
 """Conformance harness of the Zenoh bridge (:mod:`fleet.bus.nav_server`), registered as
 ``"zenoh-bridge"``.
 
-The conformance world (:data:`conformance_harness.SIM_WORLD`, the grid of
-:func:`conformance_harness.conformance_grid`) is simulated in a *separate process*
+The conformance room (:data:`fleet.testing.room.SIM_WORLD`, the grid of
+:func:`fleet.testing.room.conformance_grid`) is simulated in a *separate process*
 (``tests/helpers/bus_peer.py navserver``, a Zenoh router serving the simulator at
 :data:`SPEED` x real time); the backend under test is a :class:`ZenohNavBackend` in this
 process, connected as a client on a free loopback port. ``advance(s)`` waits (wall time)
@@ -13,6 +13,7 @@ state messages, so a request sent before the call has been applied and reported.
 from __future__ import annotations
 
 import os
+import selectors
 import signal
 import socket
 import subprocess
@@ -24,12 +25,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from conformance_harness import SIM_WORLD, ConformanceHarness, ConformanceWorld, register_backend
+from conformance_harness import register_backend
 
 from fleet.navigation import NavigationBackend
+from fleet.testing.conformance import ConformanceHarness, ConformanceWorld
+from fleet.testing.room import SIM_WORLD
 
 SPEED = 10.0
 REPO = Path(__file__).resolve().parents[3]
+#: Wall seconds the simulator process and the first state message may take on a loaded machine.
+START_TIMEOUT_S = 30.0
 
 
 @dataclass
@@ -42,12 +47,22 @@ class ZenohHarness:
         assert hasattr(b, "sim_time") and hasattr(b, "states_received")
         t0 = b.sim_time or 0.0
         n0 = b.states_received
-        deadline = time.monotonic() + seconds / SPEED * 3.0 + 2.0
+        deadline = time.monotonic() + seconds / SPEED * 3.0 + 5.0
         while time.monotonic() < deadline:
             if (b.sim_time or 0.0) >= t0 + seconds - 1e-6 and b.states_received >= n0 + 2:
                 return
             time.sleep(0.002)
         raise AssertionError(f"the served simulator did not advance {seconds} s in time")
+
+
+def _read_line(proc: subprocess.Popen[str], timeout_s: float) -> str:
+    """The child's next stdout line, or "" if none came within ``timeout_s`` wall seconds."""
+    assert proc.stdout is not None
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        if not sel.select(timeout_s):
+            return ""
+    return proc.stdout.readline()
 
 
 def _free_port() -> int:
@@ -76,13 +91,13 @@ def zenoh_bridge_harness() -> Iterator[ConformanceHarness]:
         text=True,
     )
     try:
-        assert proc.stdout is not None
-        assert proc.stdout.readline().strip() == "ready", "the simulator process did not start"
+        ready = _read_line(proc, START_TIMEOUT_S).strip()
+        assert ready == "ready", f"the simulator process did not start within {START_TIMEOUT_S} s"
         session = open_session(endpoint, "client")
         try:
             backend = ZenohNavBackend(session, "/robot1", timeout_s=2.0)
             try:
-                assert backend.wait_for_server(5.0), "no state message from the served simulator"
+                assert backend.wait_for_server(START_TIMEOUT_S), "no state message from the served simulator"
                 yield ZenohHarness(backend, SIM_WORLD)
             finally:
                 backend.close()

@@ -277,6 +277,24 @@ def test_recoveries_are_timed_no_ops_and_bad_inputs_abort(cache: Path) -> None:
         assert b.goal_state(b.send_goal(NavigateThroughPoses(()))).status is GoalStatus.REJECTED
 
 
+def test_goals_that_cannot_start_end_as_on_the_simulator(cache: Path) -> None:
+    """The goal semantics shared with the simulator (sim/goals.py)."""
+    with make_world(cache, {"/r1": east(2.0)}) as world:
+        b = world.backend("/r1")
+        empty = b.goal_state(b.send_goal(FollowWaypoints(())))
+        assert empty.status is GoalStatus.ABORTED and empty.error_code == ErrorCode.WAYPOINT_UNKNOWN
+        spin = b.goal_state(b.send_goal(Spin(float("nan"))))
+        assert spin.status is GoalStatus.ABORTED and spin.error_code == ErrorCode.SPIN_UNKNOWN
+        drive = b.goal_state(b.send_goal(DriveOnHeading(1.0, speed_mps=float("nan"))))
+        assert drive.status is GoalStatus.ABORTED and drive.error_code == ErrorCode.DRIVE_INVALID_INPUT
+        wait = b.send_goal(Wait(5.0))
+        with pytest.raises(BackendError, match="not a navigation goal"):
+            b.send_goal(object())  # type: ignore[arg-type]
+        world.run_until(lambda: False, 1.0)
+        assert b.goal_state(wait).status is GoalStatus.EXECUTING
+        assert wait == "/r1#4" and b.send_goal(Wait(1.0)) == "/r1#5"
+
+
 def test_wait_while_driving_holds_on_the_lane(cache: Path) -> None:
     with make_world(cache, {"/r1": east(2.0)}) as world:
         b = world.backend("/r1")
