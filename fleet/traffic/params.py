@@ -3,11 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    pass
-
 
 #: How far ahead (path nodes) the manager looks for a robot coming the other way into a
 #: corridor (see ``TrafficParams.hold_far_end``).

@@ -1,0 +1,109 @@
+"""Following the robots along their paths, once per manager cycle: arrival at the next
+path nodes (``arrive_m``), release behind (``clearance_m``), laps, and the stall and stale
+checks that declare a robot dead. This runs over every robot every cycle, so it does a few
+float operations per robot and real work only for robots that moved on."""
+
+from __future__ import annotations
+
+from fleet.traffic.failures import avoid_dead, kill
+from fleet.traffic.paths import TRIM_AFTER, append, trim
+from fleet.traffic.reservations import Resource, edge_key
+from fleet.traffic.state import TrackedRobot, TrafficState
+
+
+def track(st: TrafficState, now: float) -> None:
+    """Advance every live robot along its path, release what is behind it, check its
+    progress; robots that stalled (a grant ahead, no progress for ``stall_timeout_s``) or
+    went stale (no position for ``stale_timeout_s``) are killed. A robot standing at its
+    grant end with path left is queued (``st.dirty``) to try its grant again every
+    ``detect_period_s``."""
+    p = st.params
+    tol2 = p.arrive_m * p.arrive_m
+    clear2 = p.clearance * p.clearance
+    prog2 = p.progress_m * p.progress_m
+    pos = st.roads.pos
+    dirty = st.dirty
+    stale = p.stale_timeout_s
+    dead: list[TrackedRobot] = []
+    for r in st.robots.values():
+        if not r.alive:
+            continue
+        x, y = r.x, r.y
+        if stale is not None and now - r.last_update > stale:
+            dead.append(r)
+            continue
+        c = r.course
+        path = c.path
+        cur0 = c.cur
+        while c.cur < c.g:
+            nx_, ny_ = pos[path[c.cur + 1]]
+            if (x - nx_) * (x - nx_) + (y - ny_) * (y - ny_) > tol2:
+                break
+            c.cur += 1
+        if c.cur != cur0:
+            advanced(st, r, cur0, now)
+        if c.back:
+            rel = None
+            for n in c.back:
+                bx, by = pos[n]
+                if (x - bx) * (x - bx) + (y - by) * (y - by) > clear2:
+                    rel = [n] if rel is None else rel + [n]
+            if rel is not None:
+                fwd = path[c.cur + 1 : c.g + 1]
+                for n in rel:
+                    if n not in fwd and (c.cur < c.g or n != path[c.cur]):
+                        c.back.discard(n)
+                        st.release(r, [n])
+        if c.g > c.cur:
+            if (x - r.prog_x) * (x - r.prog_x) + (y - r.prog_y) * (y - r.prog_y) > prog2:
+                r.prog_x, r.prog_y, r.prog_t = x, y, now
+            elif now - r.prog_t > p.stall_timeout_s:
+                dead.append(r)
+        else:
+            r.prog_x, r.prog_y, r.prog_t = x, y, now
+            if c.g < len(path) - 1 and r.name not in dirty and now - r.wait.tried_t > p.detect_period_s:
+                dirty.add(r.name)
+    for r in dead:
+        c = r.course
+        kill(st, r, now, "stalled" if c.g > c.cur else "no position updates")
+
+
+def advanced(st: TrafficState, r: TrackedRobot, cur0: int, now: float) -> None:
+    """``r`` reached path nodes ``cur0 + 1 .. cur``: count them, release the edges behind
+    it (unless ahead on its grant), top up a loop, and try its grant again."""
+    c = r.course
+    path = c.path
+    rel: list[Resource] = []
+    for j in range(cur0, c.cur):
+        a, b = path[j], path[j + 1]
+        c.back.add(a)
+        if a != b:
+            rel.append(edge_key(a, b))
+    c.back.add(path[c.cur])
+    c.passed += c.cur - cur0
+    for j in range(cur0 + 1, c.cur + 1):
+        if c.must[j]:
+            c.must_passed += 1
+    fwd_edges = {edge_key(path[j], path[j + 1]) for j in range(c.cur, c.g)}
+    st.release(r, [e for e in rel if e not in fwd_edges])
+    if c.loop is not None:
+        extend_loop(st, r)
+    if c.cur > TRIM_AFTER:
+        trim(c)
+    st.dirty.add(r.name)
+    st.changed.add(r.name)  # ``current`` and ``nodes`` of its grant moved on
+    st.update_waiting(r, now)
+
+
+def extend_loop(st: TrafficState, r: TrackedRobot) -> None:
+    """Append whole laps to a looped path until ``loop_min_nodes`` lie beyond the grant
+    (rerouted around dead robots' nodes)."""
+    c = r.course
+    assert c.loop is not None
+    seq, must = c.loop
+    # invariant: the path of a looped robot ends at seq[-1], so a whole lap follows it
+    while len(c.path) - c.g < st.params.loop_min_nodes:
+        base = len(c.path)
+        append(st.roads, c, list(seq), list(must))
+        if st.dead_nodes:
+            avoid_dead(st, r, start=base - 1)
