@@ -14,8 +14,11 @@ from __future__ import annotations
 import py_trees
 from py_trees.common import Status
 
+from fleet.messages import Grant
 from fleet.navigation import Clock, NavigationBackend
 from fleet.traffic.follower import FollowerStatus, TrafficFollower
+from fleet.traffic.purpose import Purpose
+from fleet.types import Mode
 from nodes.blackboard import robot_blackboard
 
 
@@ -28,7 +31,8 @@ class FollowGrant(py_trees.behaviour.Behaviour):
     canceling ``NavigateThroughPoses`` goals through the granted poses only) and returns:
 
     * SUCCESS when ``purpose`` is given, the grant has that purpose and the robot has
-      reached its end (e.g. ``purpose="charge"``: standing on the charger it was sent to);
+      reached its end (e.g. ``purpose=Purpose.CHARGE``: standing on the charger it was
+      sent to);
     * RUNNING otherwise: while driving, while waiting for the manager to grant more, while
       no grant has arrived yet, and while the manager treats the robot as stopped (its goal
       is canceled, it stands still). A leaf without ``purpose`` never finishes.
@@ -43,8 +47,8 @@ class FollowGrant(py_trees.behaviour.Behaviour):
         backend: NavigationBackend,
         clock: Clock,
         *,
-        mode: str,
-        purpose: str | None = None,
+        mode: Mode,
+        purpose: Purpose | None = None,
         count_laps: bool = False,
         name: str = "FollowGrant",
     ) -> None:
@@ -74,7 +78,7 @@ class FollowGrant(py_trees.behaviour.Behaviour):
 
     def update(self) -> Status:
         bb = self.bb
-        g = bb.grant
+        g: Grant | None = bb.grant
         st = self.follower.apply(g, self.clock.now())
         bb.active_goal = self.follower.goal_id if st is FollowerStatus.DRIVING else None
         if self.count_laps and g is not None and g.task_id is not None and g.task_id == bb.task_id:

@@ -23,7 +23,8 @@ from py_trees.common import Status
 from fleet.errors import FleetError
 from fleet.navigation import Clock, NavigationBackend
 from fleet.robots import BatteryModel
-from fleet.types import Goal, GoalState, NavigateThroughPoses, NavigateToPose, Pose2D
+from fleet.traffic.purpose import Purpose
+from fleet.types import Goal, GoalState, Mode, NavigateThroughPoses, NavigateToPose, Pose2D
 from nodes.blackboard import normalize_namespace, read_key, robot_blackboard
 from nodes.conditions import BatteryLow, HasAssignment
 from nodes.leaves import (
@@ -330,17 +331,19 @@ def traffic_patrol_tree(
     """
     ns = normalize_namespace(namespace)
     robot_blackboard(ns, name=f"{ns}-tree")
-    to_charger = FollowGrant(backend, clock, mode="charging", purpose="charge", name="GrantToCharger")
+    to_charger = FollowGrant(
+        backend, clock, mode=Mode.CHARGING, purpose=Purpose.CHARGE, name="GrantToCharger"
+    )
     guard = battery_guard(ns, backend, clock, battery, go_to_charger=to_charger)
     patrol = py_trees.composites.Sequence(
         "Patrol",
         memory=False,
         children=[
             HasAssignment(ns, "route", name="HasRoute"),
-            FollowGrant(backend, clock, mode="patrol", count_laps=True, name="GrantPatrol"),
+            FollowGrant(backend, clock, mode=Mode.PATROL, count_laps=True, name="GrantPatrol"),
         ],
     )
-    idle = FollowGrant(backend, clock, mode="idle", name="GrantIdle")
+    idle = FollowGrant(backend, clock, mode=Mode.IDLE, name="GrantIdle")
     return py_trees.composites.Selector(
         f"TrafficPatrolRobot {ns}", memory=False, children=[guard, patrol, idle]
     )
