@@ -24,6 +24,8 @@ def track(st: TrafficState, now: float) -> None:
     pos = st.roads.pos
     dirty = st.dirty
     stale = p.stale_timeout_s
+    stall_s = p.stall_timeout_s
+    period = p.detect_period_s
     dead: list[TrackedRobot] = []
     for r in st.robots.values():
         if not r.alive:
@@ -34,34 +36,39 @@ def track(st: TrafficState, now: float) -> None:
             continue
         c = r.course
         path = c.path
-        cur0 = c.cur
-        while c.cur < c.g:
-            nx_, ny_ = pos[path[c.cur + 1]]
+        cur = cur0 = c.cur
+        g = c.g
+        while cur < g:
+            nx_, ny_ = pos[path[cur + 1]]
             if (x - nx_) * (x - nx_) + (y - ny_) * (y - ny_) > tol2:
                 break
-            c.cur += 1
-        if c.cur != cur0:
-            advanced(st, r, cur0, now)
-        if c.back:
+            cur += 1
+        if cur != cur0:
+            c.cur = cur
+            advanced(st, r, cur0, now)  # may replace the path (a loop topped up around the dead)
+            path, cur, g = c.path, c.cur, c.g
+        back = c.back
+        if back:
             rel = None
-            for n in c.back:
+            for n in back:
                 bx, by = pos[n]
                 if (x - bx) * (x - bx) + (y - by) * (y - by) > clear2:
                     rel = [n] if rel is None else rel + [n]
             if rel is not None:
-                fwd = path[c.cur + 1 : c.g + 1]
+                fwd = path[cur + 1 : g + 1]
                 for n in rel:
-                    if n not in fwd and (c.cur < c.g or n != path[c.cur]):
-                        c.back.discard(n)
+                    if n not in fwd and (cur < g or n != path[cur]):
+                        back.discard(n)
                         st.release(r, [n])
-        if c.g > c.cur:
-            if (x - r.prog_x) * (x - r.prog_x) + (y - r.prog_y) * (y - r.prog_y) > prog2:
+        if g > cur:
+            px, py = r.prog_x, r.prog_y
+            if (x - px) * (x - px) + (y - py) * (y - py) > prog2:
                 r.prog_x, r.prog_y, r.prog_t = x, y, now
-            elif now - r.prog_t > p.stall_timeout_s:
+            elif now - r.prog_t > stall_s:
                 dead.append(r)
         else:
             r.prog_x, r.prog_y, r.prog_t = x, y, now
-            if c.g < len(path) - 1 and r.name not in dirty and now - r.wait.tried_t > p.detect_period_s:
+            if g < len(path) - 1 and r.name not in dirty and now - r.wait.tried_t > period:
                 dirty.add(r.name)
     for r in dead:
         c = r.course

@@ -216,6 +216,54 @@ def test_random_paths_no_double_booking_and_grants_are_held() -> None:
     assert tm.deadlocked(now, 30.0) == []
 
 
+def _loops_with_deaths(seed: int) -> str | None:
+    """Six robots on short patrol loops of a 5 x 5 grid, teleported along their grants; now
+    and then one is declared dead (the others' loops are then topped up around it). The
+    first broken reservation invariant, or ``None``."""
+    rng = random.Random(seed)
+    rm = grid_roadmap(5, 5, 2.0)
+    tm = TrafficManager(rm, TrafficParams(stall_timeout_s=1e9, loop_min_nodes=rng.choice([3, 5, 8, 40])))
+    names = [f"r{i}" for i in range(6)]
+    pos: dict[str, Pose2D] = {}
+    for n, s in zip(names, rng.sample(rm.nodes, len(names)), strict=True):
+        x, y = rm.pos(s)
+        pos[n] = Pose2D(x, y)
+        tm.add_robot(n, pos[n], 0.0)
+        i0, j0 = (min(int(v), 3) for v in s[1:].split("_"))
+        corners = [f"n{i0}_{j0}", f"n{i0 + 1}_{j0}", f"n{i0 + 1}_{j0 + 1}", f"n{i0}_{j0 + 1}"]
+        tm.set_path(n, rm.expand_route(corners, closed=True), 0.0, loop=True)
+    now = 0.0
+    for _ in range(600):
+        now += 0.1
+        for n in names:
+            if not tm.is_alive(n):
+                continue
+            gr = tm.grant(n)
+            if gr.nodes and rng.random() < 0.7:
+                tx, ty = rm.pos(gr.nodes[0])
+                p = pos[n]
+                f = 1.0 if math.hypot(tx - p.x, ty - p.y) < 0.6 else 0.5
+                pos[n] = Pose2D(p.x + f * (tx - p.x), p.y + f * (ty - p.y))
+            tm.update(n, pos[n], now)
+        if rng.random() < 0.01:
+            victim = rng.choice(names)
+            if tm.is_alive(victim):
+                tm.declare_dead(victim, now)
+        tm.cycle(now)
+        try:
+            tm.check()
+        except AssertionError as e:
+            return f"seed {seed}, t={now:.1f} s: {e}"
+    return None
+
+
+def test_looped_robots_hold_their_whole_grant_while_others_die() -> None:
+    """Property: a robot whose loop is topped up around a dead robot's node (its path is
+    replaced while it advances) never releases a node that lies ahead on its grant."""
+    broken = [b for b in (_loops_with_deaths(seed) for seed in range(50)) if b is not None]
+    assert broken == []
+
+
 def _two_way_standoff() -> tuple[TrafficManager, Roadmap]:
     # a - b - c - d with a side bay s at b; A goes a->d, B goes d->a
     rm = roadmap_of(
