@@ -11,7 +11,8 @@ so two code versions can be compared on the same machine in one session.
     python bench/bench_traffic.py --json                 # one JSON line
 
 Prints the median, p95 and max cycle (ms) of each repeat and the best median; spikes of
-tens of ms are usually Python's cyclic garbage collector (``--no-gc`` shows it).
+tens of ms are usually Python's cyclic garbage collector (``--no-gc`` shows it). On a
+shared machine ``--cpu`` (this process's CPU time) is steadier than the wall clock.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import random
 import statistics
 import sys
 import time
+from collections.abc import Callable
 
 import networkx as nx
 
@@ -46,8 +48,10 @@ def grid_roadmap(side: int, spacing: float) -> Roadmap:
     return Roadmap.from_graph(g)
 
 
-def run(robots: int, side: int, cycles: int, seed: int) -> list[float]:
-    """Seconds of every timed ``cycle`` of one seeded run."""
+def run(
+    robots: int, side: int, cycles: int, seed: int, clock: Callable[[], float] = time.perf_counter
+) -> list[float]:
+    """Seconds of every timed ``cycle`` of one seeded run, read on ``clock``."""
     rm = grid_roadmap(side, 2.0)
     rng = random.Random(seed)
     tm = TrafficManager(rm)
@@ -68,9 +72,9 @@ def run(robots: int, side: int, cycles: int, seed: int) -> list[float]:
                 tx, ty = rm.pos(gr.nodes[0])
                 pos[name] = Pose2D(p.x + 0.5 * (tx - p.x), p.y + 0.5 * (ty - p.y))
             tm.update(name, pos[name], now)
-        t0 = time.perf_counter()
+        t0 = clock()
         tm.cycle(now)
-        times.append(time.perf_counter() - t0)
+        times.append(clock() - t0)
     return times
 
 
@@ -82,6 +86,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=3, help="repeats of the seeded run (default 3)")
     ap.add_argument("--seed", type=int, default=5, help="workload seed (default 5)")
     ap.add_argument("--no-gc", action="store_true", help="disable Python's cyclic garbage collector")
+    ap.add_argument(
+        "--cpu",
+        action="store_true",
+        help="time on this process's CPU clock instead of the wall clock (steadier on a shared machine)",
+    )
     ap.add_argument("--json", action="store_true", help="print one JSON line instead of the table")
     ap.add_argument("--quick", action="store_true", help="small run for make bench (300 robots)")
     args = ap.parse_args(argv)
@@ -94,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
     medians: list[float] = []
     rows = []
     for k in range(args.repeat):
-        ts = sorted(run(args.robots, args.side, args.cycles, args.seed))
+        clock = time.process_time if args.cpu else time.perf_counter
+        ts = sorted(run(args.robots, args.side, args.cycles, args.seed, clock))
         med = statistics.median(ts)
         medians.append(med)
         row = {
