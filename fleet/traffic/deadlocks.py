@@ -28,10 +28,10 @@ def cycles(st: TrafficState, now: float = math.inf, min_wait: float = -math.inf)
     robots = st.robots
     long = set()
     for n in st.waiting:
-        w = robots[n].wait
-        if w.since is not None and now - max(w.since, w.blocked_since) >= min_wait:
+        r = robots[n]
+        if r.wait_since is not None and now - max(r.wait_since, r.blocked_since) >= min_wait:
             long.add(n)
-    edges = [(n, b) for n in long for b in robots[n].wait.blockers if b in long]
+    edges = [(n, b) for n in long for b in robots[n].blockers if b in long]
     if not edges:
         return []
     g: nx.DiGraph[str] = nx.DiGraph()
@@ -65,15 +65,15 @@ def unblock(st: TrafficState, now: float, budget: int) -> None:
         if budget <= 0:
             break
         r = st.robots.get(name)
-        if r is None or r.wait.since is None or now - r.wait.since < p.reroute_after_s:
+        if r is None or r.wait_since is None or now - r.wait_since < p.reroute_after_s:
             continue
-        if now < r.wait.next_reroute:
+        if now < r.next_reroute:
             continue
-        stuck_on = [st.robots[b] for b in r.wait.blockers if b in st.robots]
+        stuck_on = [st.robots[b] for b in r.blockers if b in st.robots]
         if not stuck_on or not all(not b.alive or b.parked for b in stuck_on):
             continue
         budget -= 1
-        r.wait.next_reroute = now + p.reroute_after_s
+        r.next_reroute = now + p.reroute_after_s
         avoid = {x for b in stuck_on for x in st.table.held(b.name) if isinstance(x, str)}
         if reroute(st, r, avoid, now, bounded=False):
             st.metrics.dead_reroutes += 1
@@ -102,7 +102,7 @@ def resolve(st: TrafficState, comp: set[str], now: float) -> bool:
             return True
         if sidestep(st, v, {m.name for m in others}, now, back=True):
             st.metrics.sidesteps += 1
-            st.log(now, f"{v.name} stepped aside to {v.course.path[v.course.g]} to break a deadlock")
+            st.log(now, f"{v.name} stepped aside to {v.path[v.g]} to break a deadlock")
             return True
     make_room(st, comp, members, now)
     return False
@@ -112,14 +112,12 @@ def make_room(st: TrafficState, comp: set[str], members: list[TrackedRobot], now
     """No member of ``comp`` can move: move a robot that waits on the set and stands next to
     it (it frees a node a member can step aside to at the next detection)."""
     robots = st.robots
-    near = {u for m in members for u in st.roads.adj[m.course.path[m.course.cur]]}
+    near = {u for m in members for u in st.roads.adj[m.path[m.cur]]}
     outside = sorted(
         (
             robots[n]
             for n in st.waiting
-            if n not in comp
-            and robots[n].wait.blockers & comp
-            and robots[n].course.path[robots[n].course.cur] in near
+            if n not in comp and robots[n].blockers & comp and robots[n].path[robots[n].cur] in near
         ),
         key=lambda r: (st.priority(r, now), -r.rank),
     )
@@ -133,11 +131,11 @@ def make_room(st: TrafficState, comp: set[str], members: list[TrackedRobot], now
 
 def after_yield(st: TrafficState, v: TrackedRobot, others: list[TrackedRobot], now: float) -> None:
     """``v`` gave way to ``others``: for ``yield_timeout_s`` it leaves them what they wait for."""
-    v.wait.yields += 1
+    v.yields += 1
     mine = st.table.held(v.name)
     for m in others:
-        if v.name in m.wait.blockers:
-            v.wait.yield_to[m.name] = (frozenset(mine | m.wait.blocked_on), now + st.params.yield_timeout_s)
+        if v.name in m.blockers:
+            v.yield_to[m.name] = (frozenset(mine | m.blocked_on), now + st.params.yield_timeout_s)
             st.dirty.add(m.name)
 
 
@@ -145,19 +143,18 @@ def reroute(st: TrafficState, r: TrackedRobot, avoid: set[str], now: float, boun
     """Replace the path between the robot's grant end and its next must-visit node by one
     that avoids ``avoid`` (and dead robots' nodes). False if impossible or too long: at most
     ``reroute_factor * old + reroute_slack_m`` (twice that when not ``bounded``)."""
-    c = r.course
-    if not r.alive or c.g >= len(c.path) - 1:
+    if not r.alive or r.g >= len(r.path) - 1:
         return False
-    a = c.g
-    b = next_must(c, a)
+    a = r.g
+    b = next_must(r, a)
     bad = set(avoid) | set(st.dead_nodes)
-    bad.discard(c.path[a])
-    if c.path[b] in bad:
+    bad.discard(r.path[a])
+    if r.path[b] in bad:
         return False
-    old = c.cum[b] - c.cum[a]
+    old = r.cum[b] - r.cum[a]
     limit = st.params.reroute_factor * old + st.params.reroute_slack_m
-    seg = st.roads.shortest(c.path[a], c.path[b], bad, limit if bounded else 2.0 * limit)
-    if seg is None or seg == c.path[a : b + 1]:
+    seg = st.roads.shortest(r.path[a], r.path[b], bad, limit if bounded else 2.0 * limit)
+    if seg is None or seg == r.path[a : b + 1]:
         return False
     splice(st, r, a, b, seg)
     return True
@@ -166,12 +163,12 @@ def reroute(st: TrafficState, r: TrackedRobot, avoid: set[str], now: float, boun
 def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | None:
     """Nodes from ``r``'s grant end to the nearest node within ``sidestep_depth`` edges that
     is reachable over free nodes and edges and not on the next part of ``others``' paths."""
-    start = r.course.path[r.course.g]
+    start = r.path[r.g]
     avoid: set[str] = set()
     for o in others:
         orr = st.robots.get(o)
         if orr is not None:
-            avoid.update(orr.course.path[orr.course.cur : orr.course.cur + SIDESTEP_CLEAR_NODES])
+            avoid.update(orr.path[orr.cur : orr.cur + SIDESTEP_CLEAR_NODES])
     holder, adj, claims = st.table.holder, st.roads.adj, st.claims
     parent: dict[str, str] = {start: start}
     frontier = [start]
@@ -206,8 +203,7 @@ def sidestep(st: TrafficState, r: TrackedRobot, others: set[str], now: float, ba
     """Move ``r`` to a free node a few edges away that is not on the next part of the
     paths of ``others`` (granted at once), then (``back``) continue its path from there to
     its next must-visit node; without ``back`` it ends there. ``r`` then yields to ``others``."""
-    c = r.course
-    if not r.alive or not c.path:
+    if not r.alive or not r.path:
         return False
     seg = _aside(st, r, others)
     if seg is None:
@@ -217,14 +213,14 @@ def sidestep(st: TrafficState, r: TrackedRobot, others: set[str], now: float, ba
     for u, v in zip(seg, seg[1:], strict=False):
         res += [v, edge_key(u, v)]
     old_members = [st.robots[o] for o in others if o in st.robots]
-    g_new = c.g - c.cur + len(seg) - 1
-    nodes = c.path[c.cur : c.g] + seg
-    must = c.must[c.cur : c.g] + [c.must[c.g]] + [False] * (len(seg) - 1)
+    g_new = r.g - r.cur + len(seg) - 1
+    nodes = r.path[r.cur : r.g] + seg
+    must = r.must[r.cur : r.g] + [r.must[r.g]] + [False] * (len(seg) - 1)
     ret: list[str] | None = None
     b = 0
-    if back and c.g < len(c.path) - 1:
-        b = next_must(c, c.g)
-        ret = st.roads.shortest(target, c.path[b], set(st.dead_nodes))
+    if back and r.g < len(r.path) - 1:
+        b = next_must(r, r.g)
+        ret = st.roads.shortest(target, r.path[b], set(st.dead_nodes))
         if ret is None:
             return False
     if st.table.try_acquire(r.name, res):
@@ -232,14 +228,14 @@ def sidestep(st: TrafficState, r: TrackedRobot, others: set[str], now: float, ba
     if ret is not None:
         if len(ret) > 1:
             nodes += ret[1:]
-            must += [False] * (len(ret) - 2) + [c.must[b]]
+            must += [False] * (len(ret) - 2) + [r.must[b]]
         else:
-            must[-1] = c.must[b]
-        nodes += c.path[b + 1 :]
-        must += c.must[b + 1 :]
+            must[-1] = r.must[b]
+        nodes += r.path[b + 1 :]
+        must += r.must[b + 1 :]
     else:
         must[-1] = True
-        c.loop = None
+        r.loop = None
     install(st, r, nodes, must, granted=g_new)
     st.update_waiting(r, now)
     after_yield(st, r, old_members, now)

@@ -20,7 +20,6 @@ def occupied(st: TrafficState, r: TrackedRobot) -> set[Resource]:
     the held edge it stands on (mid-edge), else the held node it last reached."""
     c2 = st.params.clearance**2
     pos = st.roads.pos
-    c = r.course
     out: set[Resource] = set()
     held = st.table.held(r.name)
     for x in held:
@@ -28,8 +27,8 @@ def occupied(st: TrafficState, r: TrackedRobot) -> set[Resource]:
             px, py = pos[x]
             if (px - r.x) ** 2 + (py - r.y) ** 2 <= c2:
                 out.add(x)
-    if not out and c.cur < c.g:  # mid-edge, far from both ends: the edge is what it blocks
-        a, b = c.path[c.cur], c.path[c.cur + 1]
+    if not out and r.cur < r.g:  # mid-edge, far from both ends: the edge is what it blocks
+        a, b = r.path[r.cur], r.path[r.cur + 1]
         e = edge_key(a, b)
         if e in held:
             ax, ay = pos[a]
@@ -39,8 +38,8 @@ def occupied(st: TrafficState, r: TrackedRobot) -> set[Resource]:
             t = ((r.x - ax) * dx + (r.y - ay) * dy) / L2 if L2 > 0 else 0.0
             if 0.0 < t < 1.0:
                 out.add(e)
-    if not out and c.path:
-        n = c.path[c.cur]
+    if not out and r.path:
+        n = r.path[r.cur]
         if n in held:
             out.add(n)
     return out
@@ -60,23 +59,22 @@ def kill(st: TrafficState, r: TrackedRobot, now: float, reason: str, keep_all: b
     for x in occ:
         if isinstance(x, str):
             st.dead_nodes[x] = r.name
-    c, w = r.course, r.wait
-    if w.since is not None:
-        w.total += now - w.since
-        w.events += 1
-        w.since = None
+    if r.wait_since is not None:
+        r.wait_total += now - r.wait_since
+        r.wait_events += 1
+        r.wait_since = None
     st.waiting.discard(r.name)
-    c.back = {x for x in occ if isinstance(x, str)}
-    c.loop = None
-    c.path = [c.path[c.cur]] if c.path else []
-    c.must = [True] * len(c.path)
-    c.cum = [0.0] * len(c.path)
-    c.offset += c.cur
-    c.cur = c.g = 0
-    c.path_id += 1
-    w.yield_to = {}
-    w.blockers = set()
-    w.blocked_on = set()
+    r.back = {x for x in occ if isinstance(x, str)}
+    r.loop = None
+    r.path = [r.path[r.cur]] if r.path else []
+    r.must = [True] * len(r.path)
+    r.cum = [0.0] * len(r.path)
+    r.offset += r.cur
+    r.cur = r.g = 0
+    r.path_id += 1
+    r.yield_to = {}
+    r.blockers = set()
+    r.blocked_on = set()
     r.prog_x, r.prog_y = r.x, r.y
     st.changed.add(r.name)
     for o in st.robots.values():
@@ -94,12 +92,11 @@ def revive(st: TrafficState, r: TrackedRobot, now: float) -> None:
     r.occupied = frozenset()
     node = st.roads.nearest_node(r.x, r.y)
     if not st.table.try_acquire(r.name, [node]):
-        c = r.course
-        c.back.add(node)
-        c.offset += 1
-        c.path, c.must, c.cum = [node], [True], [0.0]
-        c.cur = c.g = 0
-        c.path_id += 1
+        r.back.add(node)
+        r.offset += 1
+        r.path, r.must, r.cum = [node], [True], [0.0]
+        r.cur = r.g = 0
+        r.path_id += 1
     r.prog_x, r.prog_y, r.prog_t = r.x, r.y, now
     st.log(now, f"{r.name} alive again")
     st.changed.add(r.name)
@@ -112,21 +109,20 @@ def avoid_dead(st: TrafficState, r: TrackedRobot, start: int | None = None) -> N
     if not st.dead_nodes or not r.alive:
         return
     dead = st.dead_nodes
-    c = r.course
-    i = max(c.g, start if start is not None else c.g) + 1
+    i = max(r.g, start if start is not None else r.g) + 1
     guard = 0
-    while i < len(c.path) and guard < MAX_DEAD_DETOURS:
+    while i < len(r.path) and guard < MAX_DEAD_DETOURS:
         guard += 1
-        if c.path[i] not in dead:
+        if r.path[i] not in dead:
             i += 1
             continue
         a = i - 1
         b = i
-        while b < len(c.path) and (c.path[b] in dead or not c.must[b]) and b < len(c.path) - 1:
+        while b < len(r.path) and (r.path[b] in dead or not r.must[b]) and b < len(r.path) - 1:
             b += 1
-        if c.path[b] in dead:
+        if r.path[b] in dead:
             return  # the path ends on a dead robot: nothing to do but wait
-        seg = st.roads.shortest(c.path[a], c.path[b], set(dead))
+        seg = st.roads.shortest(r.path[a], r.path[b], set(dead))
         if seg is None:
             return
         splice(st, r, a, b, seg)

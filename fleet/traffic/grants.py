@@ -15,10 +15,9 @@ from fleet.traffic.state import TrackedRobot, TrafficState
 
 def block(st: TrafficState, r: TrackedRobot) -> list[int]:
     """Path indices of ``r``'s next block (after its grant end ``g``)."""
-    c = r.course
-    path, deg = c.path, st.roads.deg
+    path, deg = r.path, st.roads.deg
     n = len(path)
-    j = c.g + 1
+    j = r.g + 1
     out = []
     while j < n:
         out.append(j)
@@ -46,8 +45,7 @@ def oncoming(st: TrafficState, r: TrackedRobot, far: str, last: str) -> bool:
         for o in st.robots.values():
             if not o.alive:
                 continue
-            oc = o.course
-            seg = oc.path[oc.cur : oc.cur + ONCOMING_NODES]
+            seg = o.path[o.cur : o.cur + ONCOMING_NODES]
             for a, b in zip(seg, seg[1:], strict=False):
                 idx.setdefault((a, b), set()).add(o.name)
         st.dir_index = idx
@@ -55,75 +53,64 @@ def oncoming(st: TrafficState, r: TrackedRobot, far: str, last: str) -> bool:
     return who is not None and (len(who) > 1 or r.name not in who)
 
 
-def _resources(path: list[str], idx: list[int]) -> list[Resource]:
-    """The nodes of ``idx`` and the edges leading to them."""
-    res: list[Resource] = []
-    for j in idx:
-        a, b = path[j - 1], path[j]
-        res.append(b)
-        if a != b:
-            res.append(edge_key(a, b))
-    return res
-
-
-def _refusals(st: TrafficState, r: TrackedRobot, res: list[Resource]) -> tuple[list[Resource], set[str]]:
-    """The resources of ``res`` that ``r`` may not take now and the robots it waits for:
-    holders, live claimants other than ``r``, and robots it yields to that wait for them."""
-    table, claims, robots = st.table, st.claims, st.robots
-    bad = table.conflicts(r.name, res)
-    blockers: set[str] = set()
-    for x in bad:
-        h = table.holder(x)
-        if h is not None:
-            blockers.add(h)
-    for x in res:
-        c = claims.get(x)
-        if c is not None and c != r.name and c in robots and robots[c].alive:
-            bad.append(x)
-            blockers.add(c)
-    for w, (conf, _) in r.wait.yield_to.items():
-        wr = robots.get(w)
-        if wr is None:
-            continue
-        for x in res:
-            if x in conf and x in wr.wait.blocked_on:
-                bad.append(x)
-                blockers.add(w)
-    return bad, blockers
-
-
 def extend(st: TrafficState, r: TrackedRobot, now: float) -> None:
     """Grant ``r`` blocks while less than ``horizon_m`` is granted ahead (at least one block
     is asked for); on the first block it cannot take, record its blockers, register it as a
     waiter of the refused resources and (starving) claim the block."""
-    c, w = r.course, r.wait
-    if not r.alive or not c.path:
+    if not r.alive or not r.path:
         return
     p = st.params
+    table, claims, robots, name = st.table, st.claims, st.robots, r.name
     changed = False
-    if w.yield_to:
+    if r.yield_to:
         expire_yields(st, r, now)
-    while c.g < len(c.path) - 1:
-        if c.g > c.cur and c.cum[c.g] - c.cum[c.cur] >= p.horizon_m:
+    while r.g < len(r.path) - 1:
+        if r.g > r.cur and r.cum[r.g] - r.cum[r.cur] >= p.horizon_m:
             break
         idx = block(st, r)
-        res = _resources(c.path, idx)
-        bad, blockers = _refusals(st, r, res)
+        path = r.path
+        res: list[Resource] = []
+        for j in idx:
+            a, b = path[j - 1], path[j]
+            res.append(b)
+            if a != b:
+                res.append(edge_key(a, b))
+        # refused: what others hold, what live starving robots claimed, and what the robots
+        # it yields to wait for
+        bad = table.conflicts(name, res)
+        blockers: set[str] = set()
+        for x in bad:
+            h = table.holder(x)
+            if h is not None:
+                blockers.add(h)
+        for x in res:
+            cl = claims.get(x)
+            if cl is not None and cl != name and cl in robots and robots[cl].alive:
+                bad.append(x)
+                blockers.add(cl)
+        for y, (conf, _) in r.yield_to.items():
+            yr = robots.get(y)
+            if yr is None:
+                continue
+            for x in res:
+                if x in conf and x in yr.blocked_on:
+                    bad.append(x)
+                    blockers.add(y)
         if bad:
-            if blockers != w.blockers:
-                w.blocked_since = now
-            w.blockers = blockers
-            w.blocked_on = set(res)
+            if blockers != r.blockers:
+                r.blocked_since = now
+            r.blockers = blockers
+            r.blocked_on = set(res)
             for x in bad:
                 st.waiters.setdefault(x, set()).add(r.name)
-            if w.since is not None and now - w.since > p.starve_s:
+            if r.wait_since is not None and now - r.wait_since > p.starve_s:
                 claim(st, r, res)
             break
-        st.table.try_acquire(r.name, res)
-        c.g = idx[-1]
+        table.try_acquire(name, res)
+        r.g = idx[-1]
         changed = True
-        w.blockers = set()
-        w.blocked_on = set()
+        r.blockers = set()
+        r.blocked_on = set()
         st.drop_claims(r)
     if changed:
         st.changed.add(r.name)
@@ -134,7 +121,7 @@ def extend(st: TrafficState, r: TrackedRobot, now: float) -> None:
 def expire_yields(st: TrafficState, r: TrackedRobot, now: float) -> None:
     """Forget the yields of ``r`` that timed out, or whose robot died, got what it waited
     for and holds none of it any more."""
-    yt = r.wait.yield_to
+    yt = r.yield_to
     for w in list(yt):
         conf, until = yt[w]
         wr = st.robots.get(w)
@@ -142,7 +129,7 @@ def expire_yields(st: TrafficState, r: TrackedRobot, now: float) -> None:
             wr is None
             or not wr.alive
             or now > until
-            or (not (conf & wr.wait.blocked_on) and not any(st.table.holder(x) == w for x in conf))
+            or (not (conf & wr.blocked_on) and not any(st.table.holder(x) == w for x in conf))
         ):
             del yt[w]
 
@@ -153,4 +140,4 @@ def claim(st: TrafficState, r: TrackedRobot, res: list[Resource]) -> None:
         c = st.claims.get(x)
         if c is None or c not in st.robots or not st.robots[c].alive:
             st.claims[x] = r.name
-            r.wait.claims.add(x)
+            r.claims.add(x)

@@ -122,14 +122,13 @@ class TrafficManager:
         if other is not None:
             raise TrafficError(f"robot {robot!r} starts at node {node!r}, which {other!r} holds")
         r = TrackedRobot(robot, len(st.robots), now)
-        r.wait.base_priority = float(priority)
+        r.base_priority = float(priority)
         r.x, r.y, r.has_pose = pose.x, pose.y, True
         r.prog_x, r.prog_y = pose.x, pose.y
-        c = r.course
-        c.path, c.must, c.cum = [node], [True], [0.0]
+        r.path, r.must, r.cum = [node], [True], [0.0]
         st.robots[robot] = r
         st.table.try_acquire(robot, [node])
-        c.back.add(node)
+        r.back.add(node)
         return node
 
     def update(self, robot: str, pose: Pose2D, now: float) -> None:
@@ -147,7 +146,7 @@ class TrafficManager:
 
     def set_priority(self, robot: str, priority: float) -> None:
         """Base priority of ``robot`` (higher goes first and yields last; default 0)."""
-        self._st.get(robot).wait.base_priority = float(priority)
+        self._st.get(robot).base_priority = float(priority)
 
     def declare_dead(
         self, robot: str, now: float, reason: str = "declared dead", keep_grant: bool = False
@@ -194,19 +193,18 @@ class TrafficManager:
         r = st.get(robot)
         seq, must = checked_path(st.roads, robot, nodes, must_visit, loop)
         st.now = now
-        c = r.course
         if not r.alive:
-            return c.path_id
-        prefix = c.path[c.cur : c.g + 1]
-        pm = [False] * len(prefix) if loop else c.must[c.cur : c.g + 1]
+            return r.path_id
+        prefix = r.path[r.cur : r.g + 1]
+        pm = [False] * len(prefix) if loop else r.must[r.cur : r.g + 1]
         new_nodes, new_must = join(st.roads, prefix, seq, must)
-        c.loop = (list(seq), list(must)) if loop else None
-        c.must_passed = 0
+        r.loop = (list(seq), list(must)) if loop else None
+        r.must_passed = 0
         install(st, r, prefix + new_nodes, pm + new_must)
         if loop:
             extend_loop(st, r)
         avoid_dead(st, r)
-        return c.path_id
+        return r.path_id
 
     def clear_path(self, robot: str, now: float) -> None:
         """Drop ``robot``'s path: it stops at the end of its current grant and keeps holding
@@ -215,31 +213,30 @@ class TrafficManager:
         if not r.alive:
             return
         self._st.now = now
-        c = r.course
-        c.loop = None
-        install(self._st, r, c.path[c.cur : c.g + 1], c.must[c.cur : c.g + 1])
+        r.loop = None
+        install(self._st, r, r.path[r.cur : r.g + 1], r.must[r.cur : r.g + 1])
 
     def path(self, robot: str) -> list[str]:
         """The robot's remaining path, starting at the node it last reached."""
-        c = self._st.get(robot).course
-        return c.path[c.cur :]
+        r = self._st.get(robot)
+        return r.path[r.cur :]
 
     def laps(self, robot: str) -> int:
         """Completed loops of a looped path since the last :meth:`set_path`: must-visit nodes
         reached divided by the must-visit nodes of one loop (0 for other paths)."""
-        c = self._st.get(robot).course
-        if c.loop is None:
+        r = self._st.get(robot)
+        if r.loop is None:
             return 0
-        return c.must_passed // max(1, sum(c.loop[1]))
+        return r.must_passed // max(1, sum(r.loop[1]))
 
     def nodes_passed(self, robot: str) -> int:
         """Path nodes the robot reached since it was added."""
-        return self._st.get(robot).course.passed
+        return self._st.get(robot).passed
 
     def done(self, robot: str) -> bool:
         """True when the robot has reached the end of its (non-looped) path."""
         r = self._st.get(robot)
-        return r.alive and r.course.cur >= len(r.course.path) - 1
+        return r.alive and r.cur >= len(r.path) - 1
 
     # ------------------------------------------------------------------ the cycle
 
@@ -261,7 +258,7 @@ class TrafficManager:
             )
             dirty.clear()
             for r in order:
-                r.wait.tried_t = now
+                r.tried_t = now
                 extend(st, r, now)
         if st.waiting and now >= st.next_detect:
             st.next_detect = now + self.params.detect_period_s
@@ -275,20 +272,19 @@ class TrafficManager:
         ``purpose``, ``laps`` and ``seq`` keep their defaults (the policy stamps them)."""
         st = self._st
         r = st.get(robot)
-        c = r.course
-        path = c.path
-        nodes = tuple(path[c.cur + 1 : c.g + 1]) if r.alive else ()
-        poses = tuple(pose_at(st.roads, c, j) for j in range(c.cur + 1, c.cur + 1 + len(nodes)))
+        path = r.path
+        nodes = tuple(path[r.cur + 1 : r.g + 1]) if r.alive else ()
+        poses = tuple(pose_at(st.roads, r, j) for j in range(r.cur + 1, r.cur + 1 + len(nodes)))
         return Grant(
             robot=robot,
-            path_id=c.path_id,
-            horizon=c.offset + (c.g if r.alive else c.cur),
-            current=path[c.cur] if path else None,
+            path_id=r.path_id,
+            horizon=r.offset + (r.g if r.alive else r.cur),
+            current=path[r.cur] if path else None,
             nodes=nodes,
             poses=poses,
-            final=c.g >= len(path) - 1,
+            final=r.g >= len(path) - 1,
             waiting=r.name in st.waiting,
-            done=r.alive and c.cur >= len(path) - 1,
+            done=r.alive and r.cur >= len(path) - 1,
             alive=r.alive,
         )
 
@@ -320,7 +316,7 @@ class TrafficManager:
 
     def blockers(self, robot: str) -> set[str]:
         """Robots ``robot`` waits for (holders or claimants of what it needs next)."""
-        return set(self._st.get(robot).wait.blockers)
+        return set(self._st.get(robot).blockers)
 
     def priority(self, robot: str, now: float) -> float:
         """``base + yields * yield_bonus + aging_per_s * seconds waiting`` (higher goes first)."""
@@ -328,9 +324,9 @@ class TrafficManager:
 
     def wait_stats(self, robot: str, now: float) -> tuple[float, int]:
         """``(total seconds waited, wait events)`` of ``robot`` (the current wait included)."""
-        w = self._st.get(robot).wait
-        t = w.total + (now - w.since if w.since is not None else 0.0)
-        return (t, w.events + (1 if w.since is not None else 0))
+        r = self._st.get(robot)
+        t = r.wait_total + (now - r.wait_since if r.wait_since is not None else 0.0)
+        return (t, r.wait_events + (1 if r.wait_since is not None else 0))
 
     def mean_wait_s(self, now: float) -> float:
         """Mean over robots of their total wait time (s)."""
@@ -344,7 +340,7 @@ class TrafficManager:
         g: nx.DiGraph[str] = nx.DiGraph()
         for name in self._st.waiting:
             g.add_node(name)
-            for b in self._st.robots[name].wait.blockers:
+            for b in self._st.robots[name].blockers:
                 g.add_edge(name, b)
         return g
 
@@ -359,7 +355,7 @@ class TrafficManager:
         robots that never deadlock for long but never get through either."""
         best: tuple[str | None, float] = (None, 0.0)
         for n in self._st.waiting:
-            w = self._st.robots[n].wait.since
+            w = self._st.robots[n].wait_since
             if w is not None and now - w > best[1]:
                 best = (n, now - w)
         return best
@@ -368,12 +364,11 @@ class TrafficManager:
         """Raise ``AssertionError`` if a reservation invariant is broken (for tests)."""
         self.table.check()
         for r in self._st.robots.values():
-            c = r.course
-            if not r.alive or not c.path:
+            if not r.alive or not r.path:
                 continue
             held = self.table.held(r.name)
-            for j in range(c.cur + 1, c.g + 1):
-                assert c.path[j] in held, f"{r.name} granted {c.path[j]} without holding it"
-                a, b = c.path[j - 1], c.path[j]
+            for j in range(r.cur + 1, r.g + 1):
+                assert r.path[j] in held, f"{r.name} granted {r.path[j]} without holding it"
+                a, b = r.path[j - 1], r.path[j]
                 if a != b:
                     assert edge_key(a, b) in held, f"{r.name} granted edge {a}-{b} without holding it"

@@ -63,4 +63,5 @@ class TrafficParams:
 
     @property
     def clearance(self) -> float:
+        """``clearance_m``, or its default ``2 * robot_radius + 0.3`` (m)."""
         return self.clearance_m if self.clearance_m is not None else 2.0 * self.robot_radius + 0.3

@@ -10,7 +10,7 @@ from collections.abc import Iterable, Sequence
 from fleet.errors import TrafficError
 from fleet.traffic.reservations import edge_key
 from fleet.traffic.roads import RoadIndex
-from fleet.traffic.state import Course, TrackedRobot, TrafficState
+from fleet.traffic.state import TrackedRobot, TrafficState
 from fleet.types import Pose2D
 
 #: A course is trimmed (the nodes behind the robot dropped) once it reached this index.
@@ -73,28 +73,29 @@ def install(
     grant (kept, so nothing granted is taken back); ``granted`` overrides the index of the
     last granted node (the caller holds those resources). A new ``path_id``; the robot's
     claims and blockers are dropped and its grant is tried again this cycle."""
-    c, w = r.course, r.wait
-    keep = c.g - c.cur if granted is None else granted
+    keep = r.g - r.cur if granted is None else granted
     assert len(nodes) == len(must)
     st.drop_claims(r)
-    c.offset += c.cur
-    c.path = []
-    c.must = []
-    c.cum = [0.0]
-    append(st.roads, c, nodes, must, first=True)
-    c.cur = 0
-    c.g = keep
-    c.path_id += 1
-    w.blockers = set()
-    w.blocked_on = set()
+    r.offset += r.cur
+    r.path = []
+    r.must = []
+    r.cum = [0.0]
+    append(st.roads, r, nodes, must, first=True)
+    r.cur = 0
+    r.g = keep
+    r.path_id += 1
+    r.blockers = set()
+    r.blocked_on = set()
     st.changed.add(r.name)
     st.dirty.add(r.name)
     st.update_waiting(r, st.now)
 
 
-def append(roads: RoadIndex, c: Course, nodes: list[str], must: list[bool], first: bool = False) -> None:
+def append(
+    roads: RoadIndex, r: TrackedRobot, nodes: list[str], must: list[bool], first: bool = False
+) -> None:
     """Append ``nodes`` (with their must flags) to the course, extending ``cum``."""
-    path, cum = c.path, c.cum
+    path, cum = r.path, r.cum
     lens = roads.length
     for n, m in zip(nodes, must, strict=True):
         if path:
@@ -103,45 +104,44 @@ def append(roads: RoadIndex, c: Course, nodes: list[str], must: list[bool], firs
         elif not first:
             cum.append(0.0)
         path.append(n)
-        c.must.append(m)
+        r.must.append(m)
     if len(cum) > len(path):
         del cum[len(path) :]
 
 
 def splice(st: TrafficState, r: TrackedRobot, a: int, b: int, seg: list[str]) -> None:
     """Replace ``path[a..b]`` by ``seg`` (``seg[0] == path[a]``, ``seg[-1] == path[b]``)."""
-    c = r.course
-    nodes = c.path[c.cur : a] + seg + c.path[b + 1 :]
+    nodes = r.path[r.cur : a] + seg + r.path[b + 1 :]
     if len(seg) == 1:
-        mid = [c.must[a] or c.must[b]]
+        mid = [r.must[a] or r.must[b]]
     else:
-        mid = [c.must[a]] + [False] * (len(seg) - 2) + [c.must[b]]
-    install(st, r, nodes, c.must[c.cur : a] + mid + c.must[b + 1 :])
+        mid = [r.must[a]] + [False] * (len(seg) - 2) + [r.must[b]]
+    install(st, r, nodes, r.must[r.cur : a] + mid + r.must[b + 1 :])
 
 
-def next_must(c: Course, after: int) -> int:
+def next_must(r: TrackedRobot, after: int) -> int:
     """Index of the first must-visit node after index ``after`` (else the path's last)."""
-    for k in range(after + 1, len(c.path)):
-        if c.must[k]:
+    for k in range(after + 1, len(r.path)):
+        if r.must[k]:
             return k
-    return len(c.path) - 1
+    return len(r.path) - 1
 
 
-def trim(c: Course) -> None:
+def trim(r: TrackedRobot) -> None:
     """Drop the nodes before the one behind the robot (``offset`` keeps absolute indices)."""
-    k = c.cur - 1
-    del c.path[:k]
-    del c.must[:k]
-    del c.cum[:k]
-    c.offset += k
-    c.cur -= k
-    c.g -= k
+    k = r.cur - 1
+    del r.path[:k]
+    del r.must[:k]
+    del r.cum[:k]
+    r.offset += k
+    r.cur -= k
+    r.g -= k
 
 
-def pose_at(roads: RoadIndex, c: Course, j: int) -> Pose2D:
+def pose_at(roads: RoadIndex, r: TrackedRobot, j: int) -> Pose2D:
     """The pose at path node ``j``, facing the next different node (or, at the end, facing
     away from the previous one)."""
-    path, pos = c.path, roads.pos
+    path, pos = r.path, roads.pos
     x, y = pos[path[j]]
     k = j + 1
     while k < len(path) and path[k] == path[j]:

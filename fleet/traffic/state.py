@@ -1,5 +1,5 @@
-"""What the traffic manager knows: one record per robot (its pose and liveness, its
-:class:`Course` along its path, its :class:`Wait` for right of way) and the fleet-wide
+"""What the traffic manager knows: one :class:`TrackedRobot` per robot (its pose and
+liveness, its course along its path, its wait for right of way) and the fleet-wide
 bookkeeping every part of the manager shares (:class:`TrafficState`), with the few
 operations they all use: release and wake, drop claims, wait accounting, priority.
 
@@ -44,96 +44,38 @@ class TrafficMetrics:
     events: list[tuple[float, str]] = field(default_factory=list)
 
 
-class Course:
-    """A robot's path and how far it is driven and granted.
-
-    ``path``: node names from the node it last reached onwards (older nodes are trimmed),
-    ``must``: per node, whether detours must keep it, ``cum``: cumulative length (m) along
-    ``path``. ``cur``: index of the node last reached; ``g``: index of the last granted node
-    (``g >= cur``). ``offset``: absolute index of ``path[0]`` within path ``path_id``.
-    ``loop``: ``(nodes, must)`` of a looped path (appended lap by lap), else ``None``.
-    ``must_passed`` / ``passed``: must-visit nodes reached (laps) and nodes reached.
-    ``back``: held nodes that may be behind the robot (released by distance).
-    """
-
-    __slots__ = (
-        "path",
-        "must",
-        "cum",
-        "offset",
-        "cur",
-        "g",
-        "path_id",
-        "loop",
-        "must_passed",
-        "passed",
-        "back",
-    )
-
-    def __init__(self) -> None:
-        self.path: list[str] = []
-        self.must: list[bool] = []
-        self.cum: list[float] = []
-        self.offset = 0
-        self.cur = 0
-        self.g = 0
-        self.path_id = 0
-        self.loop: tuple[list[str], list[bool]] | None = None
-        self.must_passed = 0
-        self.passed = 0
-        self.back: set[str] = set()
-
-
-class Wait:
-    """A robot's wait for right of way and its priority.
-
-    ``since``: when the current wait began (``None``: not waiting); ``total`` / ``events``:
-    finished waits (s, count). ``blockers``: robots it waits for; ``blocked_on``: the
-    resources of the block it asked for; ``blocked_since``: since when ``blockers`` are the
-    same. ``claims``: resources it claimed after starving. ``yields``: times it gave way;
-    ``yield_to``: robot -> (resources it leaves to that robot, until when). ``base_priority``:
-    set by the caller (higher goes first). ``tried_t``: when its grant was last tried.
-    ``next_reroute``: not before this time is it rerouted around a dead or parked robot again.
-    """
-
-    __slots__ = (
-        "since",
-        "total",
-        "events",
-        "blockers",
-        "blocked_on",
-        "blocked_since",
-        "claims",
-        "yields",
-        "yield_to",
-        "base_priority",
-        "tried_t",
-        "next_reroute",
-    )
-
-    def __init__(self, now: float) -> None:
-        self.since: float | None = None
-        self.total = 0.0
-        self.events = 0
-        self.blockers: set[str] = set()
-        self.blocked_on: set[Resource] = set()
-        self.blocked_since = now
-        self.claims: set[Resource] = set()
-        self.yields = 0
-        self.yield_to: dict[str, tuple[frozenset[Resource], float]] = {}
-        self.base_priority = 0.0
-        self.tried_t = -math.inf
-        self.next_reroute = -math.inf
-
-
 class TrackedRobot:
-    """One robot as the manager sees it: its latest position ``x, y`` (m, ``map`` frame)
-    and when it came (``last_update``), its liveness (``alive``; ``prog_x, prog_y, prog_t``:
-    where and when it last made progress; ``occupied``: what a dead robot keeps), its
-    registration ``rank`` (breaks priority ties), its :class:`Course` and its :class:`Wait`.
+    """One robot as the manager sees it. One flat record on purpose: the manager reads
+    several of its parts for every robot every cycle, and one object per robot keeps that
+    loop measurably cheaper than three (``bench/bench_traffic.py``). Its slots, by part:
+
+    *Pose and liveness.* ``x, y``: latest position (m, ``map`` frame), ``has_pose``,
+    ``last_update``: when it came (s); ``alive``; ``prog_x, prog_y, prog_t``: where and
+    when it last made progress; ``occupied``: what it keeps while dead. ``name``; ``rank``:
+    registration order (breaks priority ties).
+
+    *Course: its path and how far it is driven and granted.* ``path``: node names from the
+    node it last reached onwards (older nodes are trimmed); ``must``: per node, whether
+    detours must keep it; ``cum``: cumulative length (m) along ``path``. ``cur``: index of
+    the node last reached; ``g``: index of the last granted node (``g >= cur``).
+    ``offset``: absolute index of ``path[0]`` within path ``path_id``. ``loop``: ``(nodes,
+    must)`` of a looped path (appended lap by lap), else ``None``. ``must_passed`` /
+    ``passed``: must-visit nodes reached (laps) and nodes reached. ``back``: held nodes that
+    may be behind the robot (released by distance). ``tried_t``: when the manager last tried
+    to extend its grant.
+
+    *Wait: for right of way, and priority.* ``wait_since``: when the current wait began
+    (``None``: not waiting); ``wait_total`` / ``wait_events``: finished waits (s, count).
+    ``blockers``: robots it waits for; ``blocked_on``: the resources of the block it asked
+    for; ``blocked_since``: since when ``blockers`` are the same. ``claims``: resources it
+    claimed after starving. ``yields``: times it gave way; ``yield_to``: robot -> (resources
+    it leaves to that robot, until when). ``base_priority``: set by the caller (higher goes
+    first). ``next_reroute``: not before this time is it rerouted around a dead or parked
+    robot again.
     """
 
     __slots__ = (
+        # pose and liveness
         "name",
         "rank",
         "alive",
@@ -145,8 +87,31 @@ class TrackedRobot:
         "prog_y",
         "prog_t",
         "occupied",
-        "course",
-        "wait",
+        # course
+        "path",
+        "must",
+        "cum",
+        "offset",
+        "cur",
+        "g",
+        "path_id",
+        "loop",
+        "must_passed",
+        "passed",
+        "back",
+        "tried_t",
+        # wait
+        "wait_since",
+        "wait_total",
+        "wait_events",
+        "blockers",
+        "blocked_on",
+        "blocked_since",
+        "claims",
+        "yields",
+        "yield_to",
+        "base_priority",
+        "next_reroute",
     )
 
     def __init__(self, name: str, rank: int, now: float) -> None:
@@ -161,20 +126,39 @@ class TrackedRobot:
         self.prog_y = 0.0
         self.prog_t = now
         self.occupied: frozenset[Resource] = frozenset()
-        self.course = Course()
-        self.wait = Wait(now)
+        self.path: list[str] = []
+        self.must: list[bool] = []
+        self.cum: list[float] = []
+        self.offset = 0
+        self.cur = 0
+        self.g = 0
+        self.path_id = 0
+        self.loop: tuple[list[str], list[bool]] | None = None
+        self.must_passed = 0
+        self.passed = 0
+        self.back: set[str] = set()
+        self.tried_t = -math.inf
+        self.wait_since: float | None = None
+        self.wait_total = 0.0
+        self.wait_events = 0
+        self.blockers: set[str] = set()
+        self.blocked_on: set[Resource] = set()
+        self.blocked_since = now
+        self.claims: set[Resource] = set()
+        self.yields = 0
+        self.yield_to: dict[str, tuple[frozenset[Resource], float]] = {}
+        self.base_priority = 0.0
+        self.next_reroute = -math.inf
 
     @property
     def parked(self) -> bool:
         """Alive, standing at the end of its path (no grant ahead, nothing left to drive)."""
-        c = self.course
-        return self.alive and c.cur == c.g and c.cur >= len(c.path) - 1
+        return self.alive and self.cur == self.g and self.cur >= len(self.path) - 1
 
     @property
     def waiting(self) -> bool:
         """Alive, with path left but no grant beyond the node it last reached."""
-        c = self.course
-        return self.alive and c.g == c.cur and c.cur < len(c.path) - 1
+        return self.alive and self.g == self.cur and self.cur < len(self.path) - 1
 
 
 class TrafficState:
@@ -226,39 +210,36 @@ class TrafficState:
 
     def drop_claims(self, r: TrackedRobot) -> None:
         """Withdraw every claim of ``r`` (waking the robots that waited for the resources)."""
-        w = r.wait
-        if not w.claims:
+        if not r.claims:
             return
-        for x in w.claims:
+        for x in r.claims:
             if self.claims.get(x) == r.name:
                 del self.claims[x]
                 self.wake(x)
-        w.claims = set()
+        r.claims = set()
 
     def update_waiting(self, r: TrackedRobot, now: float) -> None:
         """Start or end ``r``'s wait when its :attr:`TrackedRobot.waiting` changed (an ended
         wait is added to the robot's and the fleet's totals)."""
-        w = r.wait
-        waiting = r.waiting
-        if waiting and w.since is None:
-            w.since = now
+        waiting = r.alive and r.g == r.cur and r.cur < len(r.path) - 1  # r.waiting, inlined
+        if waiting and r.wait_since is None:
+            r.wait_since = now
             self.waiting.add(r.name)
             self.changed.add(r.name)
-        elif not waiting and w.since is not None:
+        elif not waiting and r.wait_since is not None:
             self.changed.add(r.name)
-            w.total += now - w.since
-            w.events += 1
+            r.wait_total += now - r.wait_since
+            r.wait_events += 1
             self.metrics.wait_events += 1
-            self.metrics.wait_time_s += now - w.since
-            w.since = None
+            self.metrics.wait_time_s += now - r.wait_since
+            r.wait_since = None
             self.waiting.discard(r.name)
 
     def priority(self, r: TrackedRobot, now: float) -> float:
         """``base + yields * yield_bonus + aging_per_s * seconds waiting`` (higher goes first)."""
         p = self.params
-        w = r.wait
-        age = now - w.since if w.since is not None else 0.0
-        return w.base_priority + w.yields * p.yield_bonus + p.aging_per_s * age
+        age = now - r.wait_since if r.wait_since is not None else 0.0
+        return r.base_priority + r.yields * p.yield_bonus + p.aging_per_s * age
 
     def log(self, now: float, msg: str) -> None:
         """Append ``(now, msg)`` to the bounded event log."""

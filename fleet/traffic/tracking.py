@@ -34,20 +34,19 @@ def track(st: TrafficState, now: float) -> None:
         if stale is not None and now - r.last_update > stale:
             dead.append(r)
             continue
-        c = r.course
-        path = c.path
-        cur = cur0 = c.cur
-        g = c.g
+        path = r.path
+        cur = cur0 = r.cur
+        g = r.g
         while cur < g:
             nx_, ny_ = pos[path[cur + 1]]
             if (x - nx_) * (x - nx_) + (y - ny_) * (y - ny_) > tol2:
                 break
             cur += 1
         if cur != cur0:
-            c.cur = cur
+            r.cur = cur
             advanced(st, r, cur0, now)  # may replace the path (a loop topped up around the dead)
-            path, cur, g = c.path, c.cur, c.g
-        back = c.back
+            path, cur, g = r.path, r.cur, r.g
+        back = r.back
         if back:
             rel = None
             for n in back:
@@ -68,35 +67,33 @@ def track(st: TrafficState, now: float) -> None:
                 dead.append(r)
         else:
             r.prog_x, r.prog_y, r.prog_t = x, y, now
-            if g < len(path) - 1 and r.name not in dirty and now - r.wait.tried_t > period:
+            if g < len(path) - 1 and r.name not in dirty and now - r.tried_t > period:
                 dirty.add(r.name)
     for r in dead:
-        c = r.course
-        kill(st, r, now, "stalled" if c.g > c.cur else "no position updates")
+        kill(st, r, now, "stalled" if r.g > r.cur else "no position updates")
 
 
 def advanced(st: TrafficState, r: TrackedRobot, cur0: int, now: float) -> None:
     """``r`` reached path nodes ``cur0 + 1 .. cur``: count them, release the edges behind
     it (unless ahead on its grant), top up a loop, and try its grant again."""
-    c = r.course
-    path = c.path
+    path = r.path
     rel: list[Resource] = []
-    for j in range(cur0, c.cur):
+    for j in range(cur0, r.cur):
         a, b = path[j], path[j + 1]
-        c.back.add(a)
+        r.back.add(a)
         if a != b:
             rel.append(edge_key(a, b))
-    c.back.add(path[c.cur])
-    c.passed += c.cur - cur0
-    for j in range(cur0 + 1, c.cur + 1):
-        if c.must[j]:
-            c.must_passed += 1
-    fwd_edges = {edge_key(path[j], path[j + 1]) for j in range(c.cur, c.g)}
+    r.back.add(path[r.cur])
+    r.passed += r.cur - cur0
+    for j in range(cur0 + 1, r.cur + 1):
+        if r.must[j]:
+            r.must_passed += 1
+    fwd_edges = {edge_key(path[j], path[j + 1]) for j in range(r.cur, r.g)}
     st.release(r, [e for e in rel if e not in fwd_edges])
-    if c.loop is not None:
+    if r.loop is not None:
         extend_loop(st, r)
-    if c.cur > TRIM_AFTER:
-        trim(c)
+    if r.cur > TRIM_AFTER:
+        trim(r)
     st.dirty.add(r.name)
     st.changed.add(r.name)  # ``current`` and ``nodes`` of its grant moved on
     st.update_waiting(r, now)
@@ -105,12 +102,11 @@ def advanced(st: TrafficState, r: TrackedRobot, cur0: int, now: float) -> None:
 def extend_loop(st: TrafficState, r: TrackedRobot) -> None:
     """Append whole laps to a looped path until ``loop_min_nodes`` lie beyond the grant
     (rerouted around dead robots' nodes)."""
-    c = r.course
-    assert c.loop is not None
-    seq, must = c.loop
+    assert r.loop is not None
+    seq, must = r.loop
     # invariant: the path of a looped robot ends at seq[-1], so a whole lap follows it
-    while len(c.path) - c.g < st.params.loop_min_nodes:
-        base = len(c.path)
-        append(st.roads, c, list(seq), list(must))
+    while len(r.path) - r.g < st.params.loop_min_nodes:
+        base = len(r.path)
+        append(st.roads, r, list(seq), list(must))
         if st.dead_nodes:
             avoid_dead(st, r, start=base - 1)
