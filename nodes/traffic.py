@@ -1,12 +1,12 @@
 """The traffic-managed robot's leaf: drive where the fleet's traffic manager allows.
 
 With traffic management (``docs/traffic.md``) a robot never plans its own way along the
-roadmap. The coordinator's :class:`~fleet.traffic.ReservationTraffic` decides where it
+roadmap. The coordinator's :class:`~fleet.traffic.policy.ReservationTraffic` decides where it
 goes (its patrol loop, a charger, a parking spot) and its
-:class:`~fleet.traffic.TrafficManager` hands out, as a :class:`~fleet.traffic.Grant` on the
+:class:`~fleet.traffic.manager.TrafficManager` hands out, as a :class:`~fleet.messages.Grant` on the
 robot's blackboard key ``grant``, the part of that way the robot may drive now.
 :class:`FollowGrant` turns grants into navigation goals with a
-:class:`~fleet.traffic.TrafficFollower`.
+:class:`~fleet.traffic.follower.TrafficFollower`.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ class FollowGrant(py_trees.behaviour.Behaviour):
     """Follow the robot's traffic grant (blackboard ``grant``) on its backend.
 
     ``initialise`` cancels a goal another leaf of the robot left outstanding (blackboard
-    ``active_goal``), starts a fresh :class:`~fleet.traffic.TrafficFollower` and writes
+    ``active_goal``), starts a fresh :class:`~fleet.traffic.follower.TrafficFollower` and writes
     ``mode`` and ``active_leaf``. ``update`` applies the latest grant (sending, extending or
     canceling ``NavigateThroughPoses`` goals through the granted poses only) and returns:
 

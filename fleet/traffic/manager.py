@@ -123,7 +123,7 @@ class TrafficManager:
             raise TrafficError(f"robot {robot!r} starts at node {node!r}, which {other!r} holds")
         r = TrackedRobot(robot, len(st.robots), now)
         r.base_priority = float(priority)
-        r.x, r.y, r.has_pose = pose.x, pose.y, True
+        r.x, r.y = pose.x, pose.y
         r.prog_x, r.prog_y = pose.x, pose.y
         r.path, r.must, r.cum = [node], [True], [0.0]
         st.robots[robot] = r
@@ -139,7 +139,6 @@ class TrafficManager:
             raise TrafficError(f"unknown robot {robot!r}")
         r.x = pose.x
         r.y = pose.y
-        r.has_pose = True
         r.last_update = now
         if not r.alive and math.hypot(r.x - r.prog_x, r.y - r.prog_y) > 2.0 * self.params.clearance:
             revive(self._st, r, now)

@@ -49,8 +49,8 @@ class TrackedRobot:
     several of its parts for every robot every cycle, and one object per robot keeps that
     loop measurably cheaper than three (``bench/bench_traffic.py``). Its slots, by part:
 
-    *Pose and liveness.* ``x, y``: latest position (m, ``map`` frame), ``has_pose``,
-    ``last_update``: when it came (s); ``alive``; ``prog_x, prog_y, prog_t``: where and
+    *Pose and liveness.* ``x, y``: latest position (m, ``map`` frame), ``last_update``:
+    when it came (s); ``alive``; ``prog_x, prog_y, prog_t``: where and
     when it last made progress; ``occupied``: what it keeps while dead. ``name``; ``rank``:
     registration order (breaks priority ties).
 
@@ -81,7 +81,6 @@ class TrackedRobot:
         "alive",
         "x",
         "y",
-        "has_pose",
         "last_update",
         "prog_x",
         "prog_y",
@@ -120,7 +119,6 @@ class TrackedRobot:
         self.alive = True
         self.x = 0.0
         self.y = 0.0
-        self.has_pose = False
         self.last_update = now
         self.prog_x = 0.0
         self.prog_y = 0.0
@@ -154,11 +152,6 @@ class TrackedRobot:
     def parked(self) -> bool:
         """Alive, standing at the end of its path (no grant ahead, nothing left to drive)."""
         return self.alive and self.cur == self.g and self.cur >= len(self.path) - 1
-
-    @property
-    def waiting(self) -> bool:
-        """Alive, with path left but no grant beyond the node it last reached."""
-        return self.alive and self.g == self.cur and self.cur < len(self.path) - 1
 
 
 class TrafficState:
@@ -219,9 +212,10 @@ class TrafficState:
         r.claims = set()
 
     def update_waiting(self, r: TrackedRobot, now: float) -> None:
-        """Start or end ``r``'s wait when its :attr:`TrackedRobot.waiting` changed (an ended
-        wait is added to the robot's and the fleet's totals)."""
-        waiting = r.alive and r.g == r.cur and r.cur < len(r.path) - 1  # r.waiting, inlined
+        """Start or end ``r``'s wait: a robot waits while it is alive, has path left and no
+        grant beyond the node it last reached. An ended wait is added to the robot's and the
+        fleet's totals."""
+        waiting = r.alive and r.g == r.cur and r.cur < len(r.path) - 1
         if waiting and r.wait_since is None:
             r.wait_since = now
             self.waiting.add(r.name)
