@@ -1,12 +1,12 @@
 """The traffic-managed robot's leaf: drive where the fleet's traffic manager allows.
 
 With traffic management (``docs/traffic.md``) a robot never plans its own way along the
-roadmap. The coordinator's :class:`~fleet.traffic.ReservationTraffic` decides where it
+roadmap. The coordinator's :class:`~fleet.traffic.policy.ReservationTraffic` decides where it
 goes (its patrol loop, a charger, a parking spot) and its
-:class:`~fleet.traffic.TrafficManager` hands out, as a :class:`~fleet.traffic.Grant` on the
+:class:`~fleet.traffic.manager.TrafficManager` hands out, as a :class:`~fleet.messages.Grant` on the
 robot's blackboard key ``grant``, the part of that way the robot may drive now.
 :class:`FollowGrant` turns grants into navigation goals with a
-:class:`~fleet.traffic.TrafficFollower`.
+:class:`~fleet.traffic.follower.TrafficFollower`.
 """
 
 from __future__ import annotations
@@ -14,8 +14,11 @@ from __future__ import annotations
 import py_trees
 from py_trees.common import Status
 
+from fleet.messages import Grant
 from fleet.navigation import Clock, NavigationBackend
 from fleet.traffic.follower import FollowerStatus, TrafficFollower
+from fleet.traffic.purpose import Purpose
+from fleet.types import Mode
 from nodes.blackboard import robot_blackboard
 
 
@@ -23,12 +26,13 @@ class FollowGrant(py_trees.behaviour.Behaviour):
     """Follow the robot's traffic grant (blackboard ``grant``) on its backend.
 
     ``initialise`` cancels a goal another leaf of the robot left outstanding (blackboard
-    ``active_goal``), starts a fresh :class:`~fleet.traffic.TrafficFollower` and writes
+    ``active_goal``), starts a fresh :class:`~fleet.traffic.follower.TrafficFollower` and writes
     ``mode`` and ``active_leaf``. ``update`` applies the latest grant (sending, extending or
     canceling ``NavigateThroughPoses`` goals through the granted poses only) and returns:
 
     * SUCCESS when ``purpose`` is given, the grant has that purpose and the robot has
-      reached its end (e.g. ``purpose="charge"``: standing on the charger it was sent to);
+      reached its end (e.g. ``purpose=Purpose.CHARGE``: standing on the charger it was
+      sent to);
     * RUNNING otherwise: while driving, while waiting for the manager to grant more, while
       no grant has arrived yet, and while the manager treats the robot as stopped (its goal
       is canceled, it stands still). A leaf without ``purpose`` never finishes.
@@ -43,8 +47,8 @@ class FollowGrant(py_trees.behaviour.Behaviour):
         backend: NavigationBackend,
         clock: Clock,
         *,
-        mode: str,
-        purpose: str | None = None,
+        mode: Mode,
+        purpose: Purpose | None = None,
         count_laps: bool = False,
         name: str = "FollowGrant",
     ) -> None:
@@ -74,7 +78,7 @@ class FollowGrant(py_trees.behaviour.Behaviour):
 
     def update(self) -> Status:
         bb = self.bb
-        g = bb.grant
+        g: Grant | None = bb.grant
         st = self.follower.apply(g, self.clock.now())
         bb.active_goal = self.follower.goal_id if st is FollowerStatus.DRIVING else None
         if self.count_laps and g is not None and g.task_id is not None and g.task_id == bb.task_id:

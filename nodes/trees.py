@@ -23,6 +23,7 @@ from py_trees.common import Status
 from fleet.errors import FleetError
 from fleet.navigation import Clock, NavigationBackend
 from fleet.robots import BatteryModel
+from fleet.traffic.purpose import Purpose
 from fleet.types import Goal, GoalState, Mode, NavigateThroughPoses, NavigateToPose, Pose2D, TreeKind
 from nodes.blackboard import normalize_namespace, read_key, robot_blackboard
 from nodes.conditions import BatteryLow, HasAssignment
@@ -329,7 +330,9 @@ def traffic_patrol_tree(
     """
     ns = normalize_namespace(namespace)
     robot_blackboard(ns, name=f"{ns}-tree")
-    to_charger = FollowGrant(backend, clock, mode=Mode.CHARGING, purpose="charge", name="GrantToCharger")
+    to_charger = FollowGrant(
+        backend, clock, mode=Mode.CHARGING, purpose=Purpose.CHARGE, name="GrantToCharger"
+    )
     guard = battery_guard(ns, backend, clock, battery, go_to_charger=to_charger)
     patrol = py_trees.composites.Sequence(
         "Patrol",

@@ -44,12 +44,12 @@ FALLBACK_NODES = 6
 
 
 def add_docks(
-    graph: nx.Graph,
+    graph: nx.Graph[str],
     docks: Sequence[tuple[str, Pose2D]],
     clearance: float,
     grid: OccupancyGrid | None = None,
     radius: float = 0.0,
-) -> tuple[nx.Graph, dict[str, str]]:
+) -> tuple[nx.Graph[str], dict[str, str]]:
     """The roadmap ``graph`` with every ``(label, pose)`` of ``docks`` joined to it (see the
     module docstring). Returns ``(graph, node_of)`` where ``node_of[label]`` is the node of
     each dock (``dock:<label>``, or the existing node it coincides with). Labels must be
@@ -73,7 +73,7 @@ def add_docks(
 
 
 def _join(
-    g: nx.Graph,
+    g: nx.Graph[str],
     roads: _EdgeIndex,
     xy: np.ndarray,
     i: int,
@@ -149,13 +149,13 @@ def _first_dock_on(
     return int(hits[np.argmin(t[hits])])
 
 
-def _spur(g: nx.Graph, name: str, xy: tuple[float, float], to: str) -> str:
+def _spur(g: nx.Graph[str], name: str, xy: tuple[float, float], to: str) -> str:
     g.add_node(name, pos=(float(xy[0]), float(xy[1])), dock=True)
     g.add_edge(name, to, length=math.dist(xy, g.nodes[to]["pos"]), spur=True)
     return name
 
 
-def _split(g: nx.Graph, index: _EdgeIndex, a: str, b: str, t: float, fx: float, fy: float) -> str:
+def _split(g: nx.Graph[str], index: _EdgeIndex, a: str, b: str, t: float, fx: float, fy: float) -> str:
     via = f"via:{fx:.2f},{fy:.2f}"
     data = dict(g.edges[a, b])
     length = float(data.pop("length", math.dist(g.nodes[a]["pos"], g.nodes[b]["pos"])))
@@ -181,7 +181,7 @@ def _free(grid: OccupancyGrid | None, p: tuple[float, float], q: tuple[float, fl
 class _EdgeIndex:
     """Node positions and edge segments as growable NumPy arrays, for nearest queries."""
 
-    def __init__(self, g: nx.Graph) -> None:
+    def __init__(self, g: nx.Graph[str]) -> None:
         self.names: list[str] = [str(n) for n in g.nodes]
         self.xy = np.array([g.nodes[n]["pos"] for n in g.nodes], dtype=float).reshape(-1, 2)
         self.edges: list[tuple[str, str] | None] = [(str(a), str(b)) for a, b in g.edges]

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import enum
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-from fleet.types import GoalStatus, NavigateThroughPoses, Pose2D
+from fleet.messages import Grant
+from fleet.types import GoalState, GoalStatus, NavigateThroughPoses, Pose2D
 
 if TYPE_CHECKING:
     from fleet.navigation import NavigationBackend
-from fleet.messages import Grant
 
 
 class FollowerStatus(enum.Enum):
@@ -114,10 +114,10 @@ class TrafficFollower:
                 return k + 1 - off if k + 1 - off > 0 else 1
         return len(grant.nodes)
 
-    def _ahead_ok(self, state: Any) -> bool:
-        # keep driving the old goal only while the robot still has some way to go in it
-        fb = getattr(state, "feedback", None)
-        rem = getattr(fb, "distance_remaining_m", None)
+    def _ahead_ok(self, state: GoalState | None) -> bool:
+        """Keep driving the old goal only while the robot still has some way to go in it
+        (more than ``refresh_m`` remaining, or no feedback on it)."""
+        rem = state.feedback.distance_remaining_m if state is not None else None
         return rem is None or rem > self.refresh_m
 
     def _send(self, grant: Grant, n: int, key: tuple[int, int], now: float) -> None:

@@ -3,11 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    pass
-
 
 #: How far ahead (path nodes) the manager looks for a robot coming the other way into a
 #: corridor (see ``TrafficParams.hold_far_end``).
@@ -68,4 +63,5 @@ class TrafficParams:
 
     @property
     def clearance(self) -> float:
+        """``clearance_m``, or its default ``2 * robot_radius + 0.3`` (m)."""
         return self.clearance_m if self.clearance_m is not None else 2.0 * self.robot_radius + 0.3

@@ -4,11 +4,6 @@ lets two robots hold the same one."""
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    pass
-
 
 #: A reservable resource: a node name, or an undirected edge as a sorted ``(a, b)`` pair.
 Resource = str | tuple[str, str]

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import math
 import random
-import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -81,7 +80,6 @@ class World:
     sim: Simulator
     tm: TrafficManager
     followers: dict[str, TrafficFollower]
-    max_cycle_s: float = 0.0
     deadlock_seen: int = 0
     max_wait_s: float = 0.0
     #: deliver grants like the bus would: only those ``cycle`` reports changed, as JSON
@@ -94,9 +92,7 @@ class World:
             pose = self.sim.robot_state(ns).pose
             assert pose is not None
             self.tm.update(ns, pose, now)
-        t0 = time.perf_counter()
         changed = self.tm.cycle(now)
-        self.max_cycle_s = max(self.max_cycle_s, time.perf_counter() - t0)
         if self.over_bus:
             for ns in changed:
                 self.latest[ns] = Grant.from_dict(json.loads(json.dumps(self.tm.grant(ns).to_dict())))
@@ -218,6 +214,54 @@ def test_random_paths_no_double_booking_and_grants_are_held() -> None:
                     assert not (tm.held(n) & tm.held(m))
     assert moved > 5000
     assert tm.deadlocked(now, 30.0) == []
+
+
+def _loops_with_deaths(seed: int) -> str | None:
+    """Six robots on short patrol loops of a 5 x 5 grid, teleported along their grants; now
+    and then one is declared dead (the others' loops are then topped up around it). The
+    first broken reservation invariant, or ``None``."""
+    rng = random.Random(seed)
+    rm = grid_roadmap(5, 5, 2.0)
+    tm = TrafficManager(rm, TrafficParams(stall_timeout_s=1e9, loop_min_nodes=rng.choice([3, 5, 8, 40])))
+    names = [f"r{i}" for i in range(6)]
+    pos: dict[str, Pose2D] = {}
+    for n, s in zip(names, rng.sample(rm.nodes, len(names)), strict=True):
+        x, y = rm.pos(s)
+        pos[n] = Pose2D(x, y)
+        tm.add_robot(n, pos[n], 0.0)
+        i0, j0 = (min(int(v), 3) for v in s[1:].split("_"))
+        corners = [f"n{i0}_{j0}", f"n{i0 + 1}_{j0}", f"n{i0 + 1}_{j0 + 1}", f"n{i0}_{j0 + 1}"]
+        tm.set_path(n, rm.expand_route(corners, closed=True), 0.0, loop=True)
+    now = 0.0
+    for _ in range(600):
+        now += 0.1
+        for n in names:
+            if not tm.is_alive(n):
+                continue
+            gr = tm.grant(n)
+            if gr.nodes and rng.random() < 0.7:
+                tx, ty = rm.pos(gr.nodes[0])
+                p = pos[n]
+                f = 1.0 if math.hypot(tx - p.x, ty - p.y) < 0.6 else 0.5
+                pos[n] = Pose2D(p.x + f * (tx - p.x), p.y + f * (ty - p.y))
+            tm.update(n, pos[n], now)
+        if rng.random() < 0.01:
+            victim = rng.choice(names)
+            if tm.is_alive(victim):
+                tm.declare_dead(victim, now)
+        tm.cycle(now)
+        try:
+            tm.check()
+        except AssertionError as e:
+            return f"seed {seed}, t={now:.1f} s: {e}"
+    return None
+
+
+def test_looped_robots_hold_their_whole_grant_while_others_die() -> None:
+    """Property: a robot whose loop is topped up around a dead robot's node (its path is
+    replaced while it advances) never releases a node that lies ahead on its grant."""
+    broken = [b for b in (_loops_with_deaths(seed) for seed in range(50)) if b is not None]
+    assert broken == []
 
 
 def _two_way_standoff() -> tuple[TrafficManager, Roadmap]:
@@ -590,9 +634,7 @@ def patrol_fleet(
         w.tm.set_path(
             f"/r{i}", loop, 0.0, must_visit=[k for k, n in enumerate(loop) if n in corners], loop=True
         )
-    t0 = time.perf_counter()
     w.run(sim_seconds, check=False)
-    wall = time.perf_counter() - t0
     now = w.sim.clock.now()
     laps = sum(w.tm.laps(ns) for ns in w.followers)
     nodes = sum(w.tm.nodes_passed(ns) for ns in w.followers)
@@ -609,16 +651,18 @@ def patrol_fleet(
         "mean_wait_s": w.tm.mean_wait_s(now),
         "max_wait_s": w.max_wait_s,
         "deaths": float(w.tm.metrics.deaths),
-        "wall_s": wall,
-        "max_cycle_ms": 1000.0 * w.max_cycle_s,
     }
     return w, out
 
 
 #: ``(robots, simulated seconds)`` of the fleet runs: 50 robots for 10 simulated minutes (about
-#: 15 s of wall time) and the issue's size, 200 robots for one simulated hour (about 3.5 minutes
-#: of wall time on the vectorized simulator, 2 cores).
-FLEET_SIZES = [(50, 600.0), pytest.param(200, 3600.0, marks=pytest.mark.slow)]
+#: 25 s of wall time on a loaded 2-core machine) and the issue's size, 200 robots for one
+#: simulated hour (2-8 minutes of wall time, 2 cores): a scale run (``make test-scale``) with
+#: a hang guard of 30 minutes.
+FLEET_SIZES = [
+    (50, 600.0),
+    pytest.param(200, 3600.0, marks=[pytest.mark.scale, pytest.mark.timeout(1800)]),
+]
 
 
 @pytest.mark.parametrize(("n_robots", "sim_seconds"), FLEET_SIZES, ids=lambda v: str(int(v)))
@@ -637,9 +681,10 @@ def test_fleet_patrol_no_collisions_no_deadlocks(n_robots: int, sim_seconds: flo
     assert out["max_wait_s"] < 180.0  # nobody starves
 
 
-def test_manager_cycle_cost_1000_robots() -> None:
-    """A manager cycle with 1000 robots on a 1600-node roadmap, robots teleported along
-    their grants (no simulator): the common-case cycle stays cheap."""
+def test_manager_with_1000_robots_keeps_reservations_exclusive_and_robots_moving() -> None:
+    """1000 robots on a 1600-node roadmap, teleported along their grants (no simulator; the
+    cost per cycle is measured by ``bench/bench_traffic.py``): the reservation invariants
+    hold, grants let the robots move on, and no wait-for cycle stands for long."""
     rm = grid_roadmap(40, 40, 2.0)
     rng = random.Random(5)
     tm = TrafficManager(rm)
@@ -650,9 +695,8 @@ def test_manager_cycle_cost_1000_robots() -> None:
         pos[f"r{i}"] = Pose2D(x, y)
         tm.add_robot(f"r{i}", pos[f"r{i}"], 0.0)
         tm.set_path(f"r{i}", rm.shortest_path(s, rng.choice(rm.nodes)) or [s], 0.0)
-    times = []
     now = 0.0
-    for _ in range(200):
+    for k in range(200):
         now += 0.1
         for n, p in pos.items():
             gr = tm.grant(n) if rng.random() < 0.1 else None
@@ -660,12 +704,9 @@ def test_manager_cycle_cost_1000_robots() -> None:
                 tx, ty = rm.pos(gr.nodes[0])
                 pos[n] = Pose2D(p.x + 0.5 * (tx - p.x), p.y + 0.5 * (ty - p.y))
             tm.update(n, pos[n], now)
-        t0 = time.perf_counter()
         tm.cycle(now)
-        times.append(time.perf_counter() - t0)
-    times.sort()
-    median = times[len(times) // 2]
-    print(
-        f"1000 robots: median cycle {1000 * median:.2f} ms, p95 {1000 * times[int(0.95 * len(times))]:.2f} ms, max {1000 * times[-1]:.2f} ms"
-    )
-    assert median < 0.020  # about 1 ms on an idle machine; generous for loaded CI runners
+        if k % 20 == 19:
+            tm.check()
+    passed = sum(tm.nodes_passed(n) for n in pos)
+    assert passed > 1000, passed  # about 1700: robots keep getting grants and move on
+    assert tm.deadlocked(now, 10.0) == []  # wait-for cycles are broken within seconds

@@ -1,0 +1,169 @@
+"""Charging and parking trips of the traffic policy (``docs/traffic.md``, "Who decides what").
+
+* A robot whose status mode is ``charging`` is sent to the nearest charger dock that nobody
+  holds or heads for, lowest battery first; if every charger is taken it waits at a free
+  parking dock nearest the chargers (:attr:`Purpose.CHARGE_WAIT`) and is sent on when a
+  charger frees. On its way it has base priority ``CHARGE_PRIORITY * (2 - battery)``.
+* A robot idle (no route, mode ``idle``) for ``park_idle_s`` that does not stand on a
+  parking or charger dock is sent to the nearest free parking dock, so idle robots do not
+  stand in aisles. A robot on a charger dock that has finished charging is moved to
+  parking only when another robot waits for a charger.
+* A robot whose target dock another robot stepped onto picks another dock."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING
+
+import networkx as nx
+
+from fleet.traffic.manager import TrafficManager
+from fleet.traffic.purpose import CHARGE_PRIORITY, Purpose
+from fleet.traffic.views import RobotViewLike
+from fleet.types import Mode
+
+if TYPE_CHECKING:
+    from fleet.roadmap.graph import Roadmap
+
+#: Sends a robot along a node path for a purpose: ``drive(robot, nodes, purpose)``.
+Drive = Callable[[str, list[str], Purpose], None]
+
+
+class Errands:
+    """The charger queue and the parking docks (see the module docstring).
+
+    ``manager``: the policy's traffic manager; ``roadmap``: its roadmap (with docks, edge
+    attribute ``length`` in m); ``purposes``: the policy's purpose per robot (shared:
+    errands set and drop ``CHARGE``, ``CHARGE_WAIT`` and ``PARK``); ``drive``: the policy's
+    way to give a robot a path; ``chargers`` / ``parking``: dock node names.
+    """
+
+    def __init__(
+        self,
+        manager: TrafficManager,
+        roadmap: Roadmap,
+        purposes: dict[str, Purpose],
+        drive: Drive,
+        chargers: Sequence[str],
+        parking: Sequence[str],
+        park_idle_s: float,
+    ) -> None:
+        self.manager = manager
+        self.roadmap = roadmap
+        self.purposes = purposes
+        self.drive = drive
+        self.chargers = list(chargers)
+        self.parking = list(parking)
+        self.park_idle_s = float(park_idle_s)
+        self._parking_set = set(self.parking)
+        self._charger_set = set(self.chargers)
+        self._target: dict[str, str] = {}
+        self._idle_since: dict[str, float] = {}
+        self._charge_wait: set[str] = set()
+        self._charger_dist: dict[str, float] | None = None
+
+    def forget(self, robot: str) -> None:
+        """``robot`` got a patrol: drop its dock target and its place in the charger queue."""
+        self._target.pop(robot, None)
+        self._charge_wait.discard(robot)
+
+    def step(self, name: str, view: RobotViewLike, now: float, requests: list[tuple[float, str]]) -> None:
+        """Charging and parking trips of the live robot ``name`` at ``now``. A robot that needs
+        a charger is added to ``requests`` as ``(battery, robot)``: :meth:`serve_chargers`."""
+        obs = view.obs
+        mode = obs.mode if obs is not None else None
+        purpose = self.purposes.get(name)
+        target = self._target.get(name)
+        if target is not None and self.manager.holder(target) not in (None, name):
+            # another robot stepped onto the dock this robot heads for (e.g. to let a third
+            # pass): choose another dock rather than wait for it, head-on on a dead-end spur
+            self._target.pop(name, None)
+            if purpose in (Purpose.CHARGE, Purpose.CHARGE_WAIT):
+                self.purposes.pop(name, None)
+                self._charge_wait.discard(name)
+                purpose = None
+            elif purpose is Purpose.PARK:
+                self._go(name, self._free_dock(name, self.parking), Purpose.PARK)
+                return
+        if mode == Mode.CHARGING:
+            self._idle_since.pop(name, None)
+            if purpose is not Purpose.CHARGE:
+                assert obs is not None
+                requests.append((float(obs.battery), name))
+            return
+        if mode != Mode.IDLE or view.assignment is not None:
+            self._idle_since.pop(name, None)
+            return
+        if purpose in (Purpose.CHARGE, Purpose.CHARGE_WAIT):
+            self.manager.set_priority(name, 0.0)
+            self.purposes.pop(name, None)  # charged: now simply idle where it stands
+            self._target.pop(name, None)
+            self._charge_wait.discard(name)
+            purpose = None
+        since = self._idle_since.setdefault(name, now)
+        if purpose is Purpose.PARK or now - since < self.park_idle_s:
+            return
+        path = self.manager.path(name)
+        here = path[0] if path else None
+        if here in self._parking_set:
+            return
+        if here in self._charger_set and not self._charge_wait:
+            return
+        self._go(name, self._free_dock(name, self.parking), Purpose.PARK)
+
+    def serve_chargers(self, requests: list[tuple[float, str]]) -> None:
+        """Free chargers go to the robots with the lowest battery first; the others wait on a
+        free parking dock near the chargers (once; they stay there until a charger frees)."""
+        if not requests:
+            return
+        for battery, name in sorted(requests):
+            # a robot short of energy goes first at intersections and is never the one to yield
+            self.manager.set_priority(name, CHARGE_PRIORITY * (2.0 - battery))
+            node = self._free_dock(name, self.chargers)
+            if node is not None:
+                self._go(name, node, Purpose.CHARGE)
+            elif self.purposes.get(name) is not Purpose.CHARGE_WAIT:
+                dock = self._free_dock(name, self.parking, self._to_charger())
+                self._go(name, dock, Purpose.CHARGE_WAIT)
+
+    def _to_charger(self) -> dict[str, float]:
+        """Roadmap distance (m) from every node to its nearest charger dock (cached)."""
+        if self._charger_dist is None:
+            self._charger_dist = (
+                dict(
+                    nx.multi_source_dijkstra_path_length(
+                        self.roadmap.graph, set(self.chargers), weight="length"
+                    )
+                )
+                if self.chargers
+                else {}
+            )
+        return self._charger_dist
+
+    def _go(self, name: str, node: str | None, purpose: Purpose) -> None:
+        if node is None:
+            return
+        self._target[name] = node
+        if purpose is Purpose.CHARGE_WAIT:
+            self._charge_wait.add(name)
+        else:
+            self._charge_wait.discard(name)
+        self.drive(name, [node], purpose)
+
+    def _free_dock(
+        self, robot: str, docks: Sequence[str], first: Mapping[str, float] | None = None
+    ) -> str | None:
+        """The dock nearest ``robot`` (roadmap distance; with ``first``, the dock of least
+        ``first[dock]``, then nearest) that nobody else holds or heads for."""
+        m = self.manager
+        taken = {n for r, n in self._target.items() if r != robot}
+        free = [d for d in docks if m.holder(d) in (None, robot) and d not in taken]
+        if not free:
+            return None
+        path = m.path(robot)
+        here = path[0] if path else self.roadmap.nearest_node(*m.node_pos(free[0]))
+        dist = nx.single_source_dijkstra_path_length(self.roadmap.graph, here, weight="length")
+        if first is None:
+            return min(free, key=lambda d: (dist.get(d, math.inf), d))
+        return min(free, key=lambda d: (round(first.get(d, math.inf), 1), dist.get(d, math.inf), d))

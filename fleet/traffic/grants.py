@@ -1,0 +1,143 @@
+"""Growing a robot's grant by blocks, all or nothing (``docs/traffic.md``, rules 3 and 4).
+
+A block is the next path node and, inside a single-lane corridor (roadmap degree 2), every
+node to the corridor's far end; the far junction joins the block when it is a dead end or
+the path's end, when ``hold_far_end`` is set, or when another robot is about to come from it
+into the corridor. A robot that cannot take its next block records who it waits for; one
+that waited longer than ``starve_s`` claims the block so younger robots cannot take it."""
+
+from __future__ import annotations
+
+from fleet.traffic.params import ONCOMING_NODES
+from fleet.traffic.reservations import Resource, edge_key
+from fleet.traffic.state import TrackedRobot, TrafficState
+
+
+def block(st: TrafficState, r: TrackedRobot) -> list[int]:
+    """Path indices of ``r``'s next block (after its grant end ``g``)."""
+    path, deg = r.path, st.roads.deg
+    n = len(path)
+    j = r.g + 1
+    out = []
+    while j < n:
+        out.append(j)
+        node = path[j]
+        if deg[node] != 2 or j == n - 1 or path[j + 1] == path[j - 1] or path[j + 1] == node:
+            break
+        j += 1
+    if (
+        not st.params.hold_far_end
+        and len(out) > 1
+        and deg[path[out[-1]]] > 2
+        and out[-1] < n - 1
+        and not oncoming(st, r, path[out[-1]], path[out[-2]])
+    ):
+        out.pop()  # nobody comes the other way: the far junction is taken when reached
+    return out
+
+
+def oncoming(st: TrafficState, r: TrackedRobot, far: str, last: str) -> bool:
+    """Whether another live robot's next :data:`ONCOMING_NODES` path nodes go from the
+    junction ``far`` into the corridor node ``last`` (the opposite way to ``r``)."""
+    idx = st.dir_index
+    if idx is None:
+        idx = {}
+        for o in st.robots.values():
+            if not o.alive:
+                continue
+            seg = o.path[o.cur : o.cur + ONCOMING_NODES]
+            for a, b in zip(seg, seg[1:], strict=False):
+                idx.setdefault((a, b), set()).add(o.name)
+        st.dir_index = idx
+    who = idx.get((far, last))
+    return who is not None and (len(who) > 1 or r.name not in who)
+
+
+def extend(st: TrafficState, r: TrackedRobot, now: float) -> None:
+    """Grant ``r`` blocks while less than ``horizon_m`` is granted ahead (at least one block
+    is asked for); on the first block it cannot take, record its blockers, register it as a
+    waiter of the refused resources and (starving) claim the block."""
+    if not r.alive or not r.path:
+        return
+    p = st.params
+    table, claims, robots, name = st.table, st.claims, st.robots, r.name
+    changed = False
+    if r.yield_to:
+        expire_yields(st, r, now)
+    while r.g < len(r.path) - 1:
+        if r.g > r.cur and r.cum[r.g] - r.cum[r.cur] >= p.horizon_m:
+            break
+        idx = block(st, r)
+        path = r.path
+        res: list[Resource] = []
+        for j in idx:
+            a, b = path[j - 1], path[j]
+            res.append(b)
+            if a != b:
+                res.append(edge_key(a, b))
+        # refused: what others hold, what live starving robots claimed, and what the robots
+        # it yields to wait for
+        bad = table.conflicts(name, res)
+        blockers: set[str] = set()
+        for x in bad:
+            h = table.holder(x)
+            if h is not None:
+                blockers.add(h)
+        for x in res:
+            cl = claims.get(x)
+            if cl is not None and cl != name and cl in robots and robots[cl].alive:
+                bad.append(x)
+                blockers.add(cl)
+        for y, (conf, _) in r.yield_to.items():
+            yr = robots.get(y)
+            if yr is None:
+                continue
+            for x in res:
+                if x in conf and x in yr.blocked_on:
+                    bad.append(x)
+                    blockers.add(y)
+        if bad:
+            if blockers != r.blockers:
+                r.blocked_since = now
+            r.blockers = blockers
+            r.blocked_on = set(res)
+            for x in bad:
+                st.waiters.setdefault(x, set()).add(r.name)
+            if r.wait_since is not None and now - r.wait_since > p.starve_s:
+                claim(st, r, res)
+            break
+        table.try_acquire(name, res)
+        r.g = idx[-1]
+        changed = True
+        r.blockers = set()
+        r.blocked_on = set()
+        st.drop_claims(r)
+    if changed:
+        st.changed.add(r.name)
+        r.prog_t = now
+    st.update_waiting(r, now)
+
+
+def expire_yields(st: TrafficState, r: TrackedRobot, now: float) -> None:
+    """Forget the yields of ``r`` that timed out, or whose robot died, got what it waited
+    for and holds none of it any more."""
+    yt = r.yield_to
+    for w in list(yt):
+        conf, until = yt[w]
+        wr = st.robots.get(w)
+        if (
+            wr is None
+            or not wr.alive
+            or now > until
+            or (not (conf & wr.blocked_on) and not any(st.table.holder(x) == w for x in conf))
+        ):
+            del yt[w]
+
+
+def claim(st: TrafficState, r: TrackedRobot, res: list[Resource]) -> None:
+    """``r`` (starving) claims every resource of ``res`` no live robot has claimed."""
+    for x in res:
+        c = st.claims.get(x)
+        if c is None or c not in st.robots or not st.robots[c].alive:
+            st.claims[x] = r.name
+            r.claims.add(x)

@@ -1,0 +1,23 @@
+"""Why a robot drives, as the traffic policy stamps it on :attr:`fleet.messages.Grant.purpose`."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+
+class Purpose(StrEnum):
+    """The errand a grant serves (a robot without one gets ``""`` on its grant).
+
+    ``PATROL``: its patrol loop; ``CHARGE``: to a free charger dock; ``CHARGE_WAIT``: to a
+    parking dock near the chargers, to wait for a charger; ``PARK``: idle, to a parking dock.
+    """
+
+    PATROL = "patrol"
+    CHARGE = "charge"
+    CHARGE_WAIT = "charge-wait"
+    PARK = "park"
+
+
+#: Base priority of a robot that needs a charger (times ``2 - battery``): it outranks any
+#: waiting robot, so it is not the one asked to yield on the way to the charger.
+CHARGE_PRIORITY = 1000.0

@@ -1,0 +1,83 @@
+"""The roadmap as the traffic manager reads it: node positions, adjacency, degrees and edge
+lengths in flat dictionaries, the nearest node to a point and an A* shortest path that can
+avoid nodes. Read-only once built. Units: meters, ``map`` frame."""
+
+from __future__ import annotations
+
+import heapq
+import math
+
+import networkx as nx
+import numpy as np
+
+from fleet.errors import TrafficError
+from fleet.traffic.reservations import edge_key
+
+
+class RoadIndex:
+    """Flat lookups over a roadmap graph (node attribute ``pos``, optional edge attribute
+    ``length``, else the straight-line distance).
+
+    ``pos[node]``: ``(x, y)``; ``adj[node]``: neighbour nodes; ``deg[node]``: their number;
+    ``length[edge_key(a, b)]``: the edge's length (m). Node names are strings.
+    """
+
+    def __init__(self, graph: nx.Graph[str]) -> None:
+        self.graph = graph
+        self.pos: dict[str, tuple[float, float]] = {
+            str(n): (float(d["pos"][0]), float(d["pos"][1])) for n, d in graph.nodes(data=True)
+        }
+        self._names = list(self.pos)
+        self._xy = np.array([self.pos[n] for n in self._names], dtype=float).reshape(-1, 2)
+        self.adj: dict[str, list[str]] = {str(n): [str(m) for m in graph.neighbors(n)] for n in graph.nodes}
+        self.deg: dict[str, int] = {n: len(a) for n, a in self.adj.items()}
+        self.length: dict[tuple[str, str], float] = {}
+        for a, b, d in graph.edges(data=True):
+            pa, pb = self.pos[str(a)], self.pos[str(b)]
+            self.length[edge_key(str(a), str(b))] = float(d.get("length", math.dist(pa, pb)))
+
+    def nearest_node(self, x: float, y: float) -> str:
+        """The node nearest ``(x, y)``; raises :class:`TrafficError` on an empty roadmap."""
+        if not self._names:
+            raise TrafficError("the roadmap has no nodes")
+        d = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
+        return self._names[int(np.argmin(d))]
+
+    def shortest(
+        self, a: str, b: str, avoid: frozenset[str] | set[str], limit: float = math.inf
+    ) -> list[str] | None:
+        """A* from ``a`` to ``b`` by edge length (straight-line heuristic), not entering nodes
+        in ``avoid``; ``None`` if there is no such path of length at most ``limit`` (m)."""
+        if a == b:
+            return [a]
+        if b in avoid:
+            return None
+        pos = self.pos
+        bx, by = pos[b]
+        dist = {a: 0.0}
+        prev: dict[str, str] = {}
+        heap = [(math.dist(pos[a], (bx, by)), 0.0, a)]
+        adj, lens = self.adj, self.length
+        closed: set[str] = set()
+        while heap:
+            f, d, u = heapq.heappop(heap)
+            if f > limit:
+                return None
+            if u == b:
+                out = [b]
+                while out[-1] != a:
+                    out.append(prev[out[-1]])
+                return out[::-1]
+            if u in closed:
+                continue
+            closed.add(u)
+            for v in adj[u]:
+                if v in avoid or v in closed:
+                    continue
+                nd = d + lens[edge_key(u, v)]
+                if nd < dist.get(v, math.inf):
+                    dist[v] = nd
+                    prev[v] = u
+                    vx, vy = pos[v]
+                    heapq.heappush(heap, (nd + math.hypot(vx - bx, vy - by), nd, v))
+        return None
