@@ -3,12 +3,12 @@ into a path on the docked roadmap and hand out grants (``docs/traffic.md``)."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
+import msgspec
 import networkx as nx
 
 from fleet.types import Pose2D
@@ -176,7 +176,7 @@ class ReservationTraffic:
         purpose = self._purpose.get(robot, "")
         task = self._task.get(robot) if purpose == PURPOSE_PATROL else None
         laps = self.manager.laps(robot) if purpose == PURPOSE_PATROL else 0
-        return dataclasses.replace(g, task_id=task, purpose=purpose, laps=laps, seq=seq)
+        return msgspec.structs.replace(g, task_id=task, purpose=purpose, laps=laps, seq=seq)
 
     def purpose(self, robot: str) -> str:
         return self._purpose.get(robot, "")

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import dataclasses
 import io
 import json
 import subprocess
 
+import msgspec
 from bus_peer import record
 
 from fleet.viz.table import COMPACT_FROM, LiveTable, render_table
@@ -61,7 +61,7 @@ def test_status_live_mode_stops_on_sigterm(spawn, zenoh_endpoint: str) -> None:
 
 def test_table_fits_100_columns_and_compacts() -> None:
     six = {f"robot{i}": record(f"robot{i}", i) for i in range(1, 7)}
-    six["robot3"] = dataclasses.replace(six["robot3"], stuck=True)
+    six["robot3"] = msgspec.structs.replace(six["robot3"], stuck=True)
     text = render_table(six, alive=set(six) - {"robot6"})
     lines = text.splitlines()
     assert len(lines) == 2 + 6 and max(map(len, lines)) <= 100
