@@ -82,6 +82,9 @@ class SimNavServer:
     Call :meth:`process` before each simulator step and :meth:`publish` after a batch of
     steps, both from the thread that steps the simulator. ``wall`` is a monotonic clock in
     seconds (for how long terminal goals stay listed).
+
+    Counters: ``received`` valid requests queued, ``requests`` requests applied,
+    ``malformed`` requests dropped (``last_malformed`` says why: ``<key>: <field>: <reason>``).
     """
 
     def __init__(
@@ -99,6 +102,7 @@ class SimNavServer:
         self.malformed = 0
         self.last_malformed: str | None = None
         self.requests = 0
+        self.received = 0
         self._lock = threading.Lock()
         self._inbox: deque[_Request] = deque()
         self._ns: dict[str, str] = {robot_key_name(ns): ns for ns in simulator.namespaces}
@@ -132,6 +136,7 @@ class SimNavServer:
                 req = _Request(robot, msg.goal_id)
             with self._lock:
                 self._inbox.append(req)
+                self.received += 1
         except Exception as e:  # noqa: BLE001 - count and drop
             with self._lock:
                 self.malformed += 1

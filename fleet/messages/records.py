@@ -40,11 +40,11 @@ def check_robot_name(robot: str) -> str:
 
 
 def pose_tuple(p: Pose2D | tuple[float, float, float]) -> tuple[float, float, float]:
-    """``(x, y, theta)`` of a :class:`Pose2D` (or of any 3-sequence)."""
+    """``(x, y, theta)`` as floats, of a :class:`Pose2D` (or of any 3-sequence)."""
     if isinstance(p, Pose2D):
-        return (p.x, p.y, p.theta)
+        return (float(p.x), float(p.y), float(p.theta))
     x, y, th = p
-    return (x, y, th)
+    return (float(x), float(y), float(th))
 
 
 class StatusRecord(Struct, frozen=True, tag_field="v", tag=1):
@@ -282,7 +282,7 @@ class Grant(Struct, frozen=True):
             self.horizon,
             self.current,
             self.nodes,
-            tuple(pose_tuple(p) for p in self.poses),
+            tuple((p.x, p.y, p.theta) for p in self.poses),
             self.final,
             self.waiting,
             self.done,
