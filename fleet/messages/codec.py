@@ -88,13 +88,19 @@ _ENCODER = msgspec.json.Encoder(enc_hook=_enc_hook)
 def encode(msg: Struct, what: str) -> bytes:
     """JSON of ``msg``. ValueError ``<what>.<field>: expected a finite number, got nan`` if a
     float is NaN or infinite, or if a field holds a value JSON cannot carry."""
-    try:
-        data = _ENCODER.encode(msg)
-    except TypeError as e:
-        raise ValueError(f"{what}: {e}") from None
+    data = encode_unchecked(msg, what)
     if b"null" in data:  # msgspec writes NaN and infinity as null
         check_finite(msg, what)
     return data
+
+
+def encode_unchecked(msg: Struct, what: str) -> bytes:
+    """JSON of ``msg``, NaN and infinity written as ``null``: for a caller that checks its
+    numbers itself. ValueError if a field holds a value JSON cannot carry."""
+    try:
+        return _ENCODER.encode(msg)
+    except TypeError as e:
+        raise ValueError(f"{what}: {e}") from None
 
 
 def to_builtins(msg: Struct) -> dict[str, object]:

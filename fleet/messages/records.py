@@ -22,6 +22,7 @@ from fleet.messages.codec import (
     Text,
     check_finite,
     encode,
+    encode_unchecked,
     to_builtins,
 )
 from fleet.types import Pose2D
@@ -79,7 +80,7 @@ class StatusRecord(Struct, frozen=True, tag_field="v", tag=1):
         """UTF-8 JSON. The record is not validated field by field (its types are the caller's
         contract; receivers validate), but a NaN or infinite number raises ValueError naming
         the field, since JSON cannot carry it."""
-        data = encode(self, "status")
+        data = encode_unchecked(self, "status")
         p = self.pose
         try:  # one cheap sum instead of a check per field: NaN and inf propagate
             total = self.t + self.battery + self.progress + self.distance_m
