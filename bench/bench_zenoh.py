@@ -2,16 +2,16 @@
 
 Topology (all on loopback, scouting off, endpoint ``tcp/127.0.0.1:<free port>``):
 
-* this process opens the **router** session (``fleet.bus.status_bus.open_session(endpoint,
+* this process opens the **router** session (``fleet.bus.session.open_session(endpoint,
   "router")``) and the coordinator-style subscriber: a :class:`~fleet.bus.status_bus.StatusBus`
   with ``subscribe_statuses(callback)`` on ``fleet/*/status`` (every payload is parsed and
-  validated as a :class:`~fleet.bus.status_bus.StatusRecord`, as the coordinator's is);
+  validated as a :class:`~fleet.messages.StatusRecord`, as the coordinator's is);
 * ``--publishers`` child processes (default 2) connect in **client** mode and each publishes
   the status of its share of the ``--robots`` robots every ``1/hz`` s with
   ``StatusBus.publish_status`` (the same JSON the agents send). The record's ``t`` field
   carries the send time (``time.time()``; both ends are on one machine), so the subscriber
-  measures latency as receive time minus ``t``. The first publisher also sends
-  ``--malformed`` bad payloads on status keys, which the subscriber must count and drop.
+  measures latency as receive time minus ``t``. The first publisher also sends (before
+  publishing) ``--malformed`` bad payloads on status keys, which the subscriber must count and drop.
 
 Prints delivered/sent, messages/s received, p50 / p99 / max latency, the malformed count
 (expected: exactly ``--malformed``), how far behind schedule the publishers fell, the CPU
@@ -40,6 +40,8 @@ import threading
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+
+import zenoh
 
 import fleet
 from fleet.bus.keys import status_key
@@ -120,6 +122,9 @@ def publisher(
     try:
         for n in names:  # declare the publishers up front, outside the paced loop
             bus._publisher(status_key(n), False)
+        for i in range(bad):  # early and reliably: puts still queued at close() can be lost
+            payload = b"{not json" if i % 2 == 0 else b'{"v":1,"robot":"robot1"}'
+            session.put(status_key(names[0]), payload, congestion_control=zenoh.CongestionControl.BLOCK)
         while time.time() < start:
             time.sleep(min(0.01, max(0.0, start - time.time())))
         cpu0 = time.process_time()
@@ -139,9 +144,6 @@ def publisher(
                 bus.publish_status(record(n, k, time.time()))
                 sent += 1
         cpu = time.process_time() - cpu0
-        for i in range(bad):
-            payload = b"{not json" if i % 2 == 0 else b'{"v":1,"robot":"robot1"}'
-            session.put(status_key(names[0]), payload)
     finally:
         bus.close()
         session.close()
