@@ -8,6 +8,7 @@ import re
 from collections.abc import Mapping
 from typing import Final, Protocol
 
+import msgspec
 from msgspec import Struct
 
 from fleet.messages.codec import (
@@ -277,22 +278,9 @@ class Grant(Struct, frozen=True):
     seq: int = 0
 
     def _wire(self) -> _GrantWire:
-        return _GrantWire(
-            self.robot,
-            self.path_id,
-            self.horizon,
-            self.current,
-            self.nodes,
-            tuple((p.x, p.y, p.theta) for p in self.poses),
-            self.final,
-            self.waiting,
-            self.done,
-            self.alive,
-            self.task_id,
-            self.purpose,
-            self.laps,
-            self.seq,
-        )
+        fields = msgspec.structs.asdict(self)
+        fields["poses"] = tuple((p.x, p.y, p.theta) for p in self.poses)
+        return _GrantWire(**fields)
 
     def to_dict(self) -> dict[str, object]:
         """The JSON object as Python values (``"v": 1``, poses as ``[x, y, theta]``)."""
@@ -332,22 +320,9 @@ class _GrantWire(Struct, frozen=True, tag_field="v", tag=1):
     def grant(self, what: str) -> Grant:
         if len(self.poses) != len(self.nodes):
             raise ValueError(f"{what}.poses: {len(self.nodes)} nodes but {len(self.poses)} poses")
-        return Grant(
-            self.robot,
-            self.path_id,
-            self.horizon,
-            self.current,
-            self.nodes,
-            tuple(Pose2D(*p) for p in self.poses),
-            self.final,
-            self.waiting,
-            self.done,
-            self.alive,
-            self.task_id,
-            self.purpose,
-            self.laps,
-            self.seq,
-        )
+        fields = msgspec.structs.asdict(self)
+        fields["poses"] = tuple(Pose2D(*p) for p in self.poses)
+        return Grant(**fields)
 
 
 GRANT_CODEC: Final = Codec(_GrantWire, "grant")

@@ -135,13 +135,14 @@ def test_server_dedupes_resends_late_goals_and_early_cancels(zenoh_endpoint: str
         try:
             # both directions live: the client hears states, the server hears requests
             settle(server.publish, lambda: bool(states), 30, "a state message")
-            probe = json.dumps({"v": 1, "goal_id": "probe"})
-            settle(
-                lambda: client.put("fleet/robot1/nav/cancel", probe),
-                lambda: server.received > 0,
-                30,
-                "a cancel",
-            )
+            probes: list[str] = []
+
+            def probe() -> None:
+                probes.append(f"probe{len(probes)}")
+                client.put("fleet/robot1/nav/cancel", json.dumps({"v": 1, "goal_id": probes[-1]}))
+
+            settle(probe, lambda: server.received > 0, 30, "a cancel")
+            wait_until(lambda: server.received == len(probes), 20, "every probe")  # none left in flight
             server.process()
             received = server.received
 
