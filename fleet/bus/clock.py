@@ -4,23 +4,21 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any
 
 import zenoh
 
 from fleet.bus.keys import CLOCK_KEY
-from fleet.messages import (
-    _loads,
-    as_float,
-    req,
-)
+from fleet.bus.session import undeclare_all
+from fleet.messages.nav import CLOCK_CODEC
 
 
 class BusClock:
     """A :class:`~fleet.navigation.Clock` following ``fleet/sim/clock`` (simulated seconds).
 
-    :meth:`now` is the latest time received (``start`` before the first message). Call
-    :meth:`close` when done.
+    :meth:`now` is the latest time received (``start`` before the first message); ``speed``
+    and ``step_s`` are the simulator's (``None`` before the first message). A malformed clock
+    message is counted in ``malformed`` (``last_malformed`` says why) and dropped. Call
+    :meth:`close` when done (the session stays open).
     """
 
     def __init__(self, session: zenoh.Session, *, start: float = 0.0) -> None:
@@ -29,23 +27,22 @@ class BusClock:
         self._cond = threading.Condition(self._lock)
         self.updates = 0
         self.malformed = 0
+        self.last_malformed: str | None = None
         self.speed: float | None = None
         self.step_s: float | None = None
-        self._sub: Any = session.declare_subscriber(CLOCK_KEY, self._on_clock)
+        self._sub: zenoh.Subscriber[None] | None = session.declare_subscriber(CLOCK_KEY, self._on_clock)
 
-    def _on_clock(self, sample: Any) -> None:
+    def _on_clock(self, sample: zenoh.Sample) -> None:
         try:
-            d = _loads(sample.payload.to_bytes(), "clock")
-            t = as_float(req(d, "t", "clock"), "clock.t")
-            speed = as_float(d.get("speed", 0.0), "clock.speed")
-            step_s = as_float(d.get("step_s", 0.0), "clock.step_s")
-        except Exception:  # noqa: BLE001
+            msg = CLOCK_CODEC.decode(sample.payload.to_bytes())
+        except Exception as e:  # noqa: BLE001 - count and drop
             with self._lock:
                 self.malformed += 1
+                self.last_malformed = f"{CLOCK_KEY}: {e}"
             return
         with self._cond:
-            self._t = t
-            self.speed, self.step_s = speed, step_s
+            self._t = msg.t
+            self.speed, self.step_s = msg.speed, msg.step_s
             self.updates += 1
             self._cond.notify_all()
 
@@ -76,7 +73,6 @@ class BusClock:
             return True
 
     def close(self) -> None:
-        try:
-            self._sub.undeclare()
-        except Exception:  # noqa: BLE001
-            pass
+        """Undeclare the subscription (idempotent)."""
+        sub, self._sub = self._sub, None
+        undeclare_all([sub])

@@ -8,23 +8,13 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import zenoh
 
 from fleet.bus.keys import nav_key, robot_key_name
+from fleet.bus.session import undeclare_all
 from fleet.errors import BackendError
-from fleet.messages import (
-    BRIDGE_VERSION,
-    _dumps,
-    _loads,
-    as_dict,
-    as_float,
-    goal_state_from_dict,
-    goal_to_dict,
-    req,
-    robot_state_from_dict,
-)
+from fleet.messages.nav import NAV_STATE_CODEC, CancelRequest, GoalRequest, goal_message, robot_state_of
 from fleet.types import ErrorCode, Goal, GoalState, GoalStatus, RobotState
 
 #: Default wall seconds without a state message before an active goal is declared lost.
@@ -80,13 +70,16 @@ class ZenohNavBackend:
         self.states_received = 0
         self.malformed = 0
         self.last_malformed: str | None = None
+        self._first_state = threading.Event()
         self._goal_pub = session.declare_publisher(
             nav_key(namespace, "goal"), congestion_control=zenoh.CongestionControl.BLOCK
         )
         self._cancel_pub = session.declare_publisher(
             nav_key(namespace, "cancel"), congestion_control=zenoh.CongestionControl.BLOCK
         )
-        self._sub: Any = session.declare_subscriber(nav_key(namespace, "state"), self._on_state)
+        self._sub: zenoh.Subscriber[None] = session.declare_subscriber(
+            nav_key(namespace, "state"), self._on_state
+        )
 
     @property
     def namespace(self) -> str:
@@ -95,17 +88,14 @@ class ZenohNavBackend:
 
     # -- state messages (Zenoh's thread) -------------------------------------------------
 
-    def _on_state(self, sample: Any) -> None:
+    def _on_state(self, sample: zenoh.Sample) -> None:
         try:
-            d = _loads(sample.payload.to_bytes(), "state")
-            t = as_float(req(d, "t", "state"), "state.t")
-            rs = robot_state_from_dict(req(d, "robot_state", "state"), "state.robot_state")
-            goals = as_dict(req(d, "goals", "state"), "state.goals")
-            parsed: dict[str, GoalState] = {}
+            msg = NAV_STATE_CODEC.decode(sample.payload.to_bytes())
+            t = msg.t
+            rs = robot_state_of(msg.robot_state)
             with self._lock:
-                mine = [gid for gid in goals if gid in self._goals]
-            for gid in mine:
-                parsed[gid] = goal_state_from_dict(gid, goals[gid], f"state.goals[{gid!r}]")
+                mine = [gid for gid in msg.goals if gid in self._goals]
+            parsed = {gid: msg.goal_state(gid) for gid in mine}  # other clients' goals stay unparsed
         except Exception as e:  # noqa: BLE001 - count and drop
             with self._lock:
                 self.malformed += 1
@@ -117,6 +107,7 @@ class ZenohNavBackend:
             self.sim_time = t
             self._last_state_wall = now
             self.states_received += 1
+            self._first_state.set()
             for gid, st in parsed.items():
                 g = self._goals[gid]
                 g.acked = True
@@ -145,15 +136,7 @@ class ZenohNavBackend:
         now = self._wall()
         kind = getattr(goal, "kind", type(goal).__name__)
         try:
-            payload = _dumps(
-                {
-                    "v": BRIDGE_VERSION,
-                    "goal_id": gid,
-                    "client": self._tag,
-                    "seq": seq,
-                    "goal": goal_to_dict(goal),
-                }
-            )
+            payload = GoalRequest(gid, self._tag, seq, goal_message(goal)).to_json()
         except (ValueError, TypeError) as e:
             with self._lock:
                 self._goals[gid] = _ClientGoal(
@@ -169,7 +152,7 @@ class ZenohNavBackend:
         self._put(self._goal_pub, payload)
         return gid
 
-    def _put(self, pub: Any, payload: bytes) -> None:
+    def _put(self, pub: zenoh.Publisher, payload: bytes) -> None:
         try:
             pub.put(payload)
         except Exception:  # noqa: BLE001 - a closed session: the timeout will end the goal
@@ -177,7 +160,7 @@ class ZenohNavBackend:
 
     def goal_state(self, goal_id: str) -> GoalState:
         """Latest state of ``goal_id`` (``KeyError`` if this backend never issued it)."""
-        resend: list[tuple[Any, bytes]] = []
+        resend: list[tuple[zenoh.Publisher, bytes]] = []
         with self._lock:
             g = self._goals[goal_id]
             self._check(goal_id, g, resend)
@@ -186,7 +169,7 @@ class ZenohNavBackend:
             self._put(pub, payload)
         return st
 
-    def _check(self, gid: str, g: _ClientGoal, resend: list[tuple[Any, bytes]]) -> None:
+    def _check(self, gid: str, g: _ClientGoal, resend: list[tuple[zenoh.Publisher, bytes]]) -> None:
         # caller holds the lock
         s = g.state.status
         if s.terminal:
@@ -217,7 +200,7 @@ class ZenohNavBackend:
             and now - g.cancel_sent_wall >= self.resend_s
         ):
             g.cancel_sent_wall = now
-            resend.append((self._cancel_pub, _dumps({"v": BRIDGE_VERSION, "goal_id": gid})))
+            resend.append((self._cancel_pub, CancelRequest(gid).to_json()))
 
     def cancel_goal(self, goal_id: str) -> None:
         """Ask to cancel (``CANCELING`` until the server reports the end); a no-op for an
@@ -228,7 +211,7 @@ class ZenohNavBackend:
                 return
             g.state = GoalState(goal_id, g.state.kind, GoalStatus.CANCELING, g.state.feedback)
             g.cancel_sent_wall = self._wall()
-        self._put(self._cancel_pub, _dumps({"v": BRIDGE_VERSION, "goal_id": goal_id}))
+        self._put(self._cancel_pub, CancelRequest(goal_id).to_json())
 
     def robot_state(self) -> RobotState:
         """The robot state of the latest state message (``pose=None`` before the first)."""
@@ -244,22 +227,11 @@ class ZenohNavBackend:
 
     def wait_for_server(self, timeout_s: float) -> bool:
         """Block up to ``timeout_s`` wall seconds for the first state message."""
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            with self._lock:
-                if self._last_state_wall is not None:
-                    return True
-            time.sleep(0.01)
-        with self._lock:
-            return self._last_state_wall is not None
+        return self._first_state.wait(timeout_s)
 
     def close(self) -> None:
         """Undeclare the subscriber and publishers (idempotent; the session stays open)."""
-        for obj in (self._sub, self._goal_pub, self._cancel_pub):
-            try:
-                obj.undeclare()
-            except Exception:  # noqa: BLE001
-                pass
+        undeclare_all([self._sub, self._goal_pub, self._cancel_pub])
 
     def __repr__(self) -> str:
         return f"ZenohNavBackend({self._namespace!r})"

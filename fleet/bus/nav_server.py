@@ -8,23 +8,24 @@ import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Protocol
 
 import zenoh
 
 from fleet.bus.keys import CLOCK_KEY, nav_key, robot_key_name
-from fleet.messages import (
-    BRIDGE_VERSION,
-    _dumps,
-    _loads,
-    as_int,
-    as_str,
-    goal_from_dict,
-    goal_state_to_dict,
-    req,
-    robot_state_to_dict,
+from fleet.bus.session import Declaration, undeclare_all
+from fleet.messages.nav import (
+    CANCEL_REQUEST_CODEC,
+    GOAL_REQUEST_CODEC,
+    CancelRequest,
+    ClockMsg,
+    GoalRequest,
+    NavState,
+    goal_of,
 )
-from fleet.types import Goal, GoalState, GoalStatus
+from fleet.navigation import Clock
+from fleet.robots import SimParams
+from fleet.types import Goal, GoalState, GoalStatus, RobotState
 
 #: Terminal goals stay in state messages this many wall seconds.
 DEFAULT_LINGER_S = 3.0
@@ -32,6 +33,38 @@ DEFAULT_LINGER_S = 3.0
 
 #: Goal ids remembered per robot by the server (for de-duplication of re-sends).
 REMEMBER_IDS = 4096
+
+
+class ServedSimulator(Protocol):
+    """What :class:`SimNavServer` needs of a simulator (:class:`sim.simulator.Simulator`):
+    its robots' namespaces, clock and step, and per-namespace navigation. ``steps`` (the
+    step count, in clock messages) is read if present."""
+
+    @property
+    def namespaces(self) -> list[str]: ...
+
+    @property
+    def clock(self) -> Clock: ...
+
+    @property
+    def params(self) -> SimParams: ...
+
+    def send_goal(self, namespace: str, goal: Goal) -> str: ...
+
+    def goal_state(self, goal_id: str) -> GoalState: ...
+
+    def cancel_goal(self, goal_id: str) -> None: ...
+
+    def robot_state(self, namespace: str) -> RobotState: ...
+
+
+@dataclass(frozen=True)
+class _Request:
+    robot: str
+    goal_id: str
+    goal: Goal | None = None  # None: a cancel
+    client: str = ""
+    seq: int = 0
 
 
 @dataclass
@@ -49,12 +82,15 @@ class SimNavServer:
     Call :meth:`process` before each simulator step and :meth:`publish` after a batch of
     steps, both from the thread that steps the simulator. ``wall`` is a monotonic clock in
     seconds (for how long terminal goals stay listed).
+
+    Counters: ``received`` valid requests queued, ``requests`` requests applied,
+    ``malformed`` requests dropped (``last_malformed`` says why: ``<key>: <field>: <reason>``).
     """
 
     def __init__(
         self,
         session: zenoh.Session,
-        simulator: Any,
+        simulator: ServedSimulator,
         *,
         linger_s: float = DEFAULT_LINGER_S,
         wall: Callable[[], float] = time.monotonic,
@@ -66,8 +102,9 @@ class SimNavServer:
         self.malformed = 0
         self.last_malformed: str | None = None
         self.requests = 0
+        self.received = 0
         self._lock = threading.Lock()
-        self._inbox: deque[tuple[str, str, dict[str, Any]]] = deque()
+        self._inbox: deque[_Request] = deque()
         self._ns: dict[str, str] = {robot_key_name(ns): ns for ns in simulator.namespaces}
         self._goals: dict[str, OrderedDict[str, _ServedGoal]] = {r: OrderedDict() for r in self._ns}
         self._shown: dict[str, dict[str, _ServedGoal]] = {r: {} for r in self._ns}  # listed in states
@@ -75,13 +112,13 @@ class SimNavServer:
         self._precanceled: dict[str, OrderedDict[str, None]] = {r: OrderedDict() for r in self._ns}
         self._state_pubs = {r: session.declare_publisher(nav_key(ns, "state")) for r, ns in self._ns.items()}
         self._clock_pub = session.declare_publisher(CLOCK_KEY)
-        self._subs: list[Any] = [
+        self._subs: list[Declaration] = [
             session.declare_subscriber("fleet/*/nav/goal", self._on_request),
             session.declare_subscriber("fleet/*/nav/cancel", self._on_request),
         ]
         self.speed = 0.0
 
-    def _on_request(self, sample: Any) -> None:
+    def _on_request(self, sample: zenoh.Sample) -> None:
         key = "?"
         try:
             key = str(sample.key_expr)
@@ -89,14 +126,17 @@ class SimNavServer:
             robot, what = parts[1], parts[3]
             if robot not in self._ns:
                 raise ValueError(f"no robot {robot!r} in this simulator")
-            d = _loads(sample.payload.to_bytes(), what)
-            as_str(req(d, "goal_id", what), f"{what}.goal_id")
+            data = sample.payload.to_bytes()
+            msg: GoalRequest | CancelRequest
             if what == "goal":
-                d["_goal"] = goal_from_dict(req(d, "goal", what))
-                as_str(req(d, "client", what), "goal.client")
-                as_int(req(d, "seq", what), "goal.seq", minimum=0)
+                msg = GOAL_REQUEST_CODEC.decode(data)
+                req = _Request(robot, msg.goal_id, goal_of(msg.goal), msg.client, msg.seq)
+            else:
+                msg = CANCEL_REQUEST_CODEC.decode(data)
+                req = _Request(robot, msg.goal_id)
             with self._lock:
-                self._inbox.append((robot, what, d))
+                self._inbox.append(req)
+                self.received += 1
         except Exception as e:  # noqa: BLE001 - count and drop
             with self._lock:
                 self.malformed += 1
@@ -107,12 +147,12 @@ class SimNavServer:
         with self._lock:
             batch = list(self._inbox)
             self._inbox.clear()
-        for robot, what, d in batch:
+        for req in batch:
             self.requests += 1
-            if what == "goal":
-                self._goal(robot, d)
+            if req.goal is not None:
+                self._goal(req, req.goal)
             else:
-                self._cancel(robot, d["goal_id"])
+                self._cancel(req.robot, req.goal_id)
         return len(batch)
 
     def _remember(self, robot: str, g: _ServedGoal) -> None:
@@ -121,9 +161,8 @@ class SimNavServer:
         while len(goals) > REMEMBER_IDS:
             goals.popitem(last=False)
 
-    def _goal(self, robot: str, d: dict[str, Any]) -> None:
-        gid: str = d["goal_id"]
-        goal: Goal = d["_goal"]
+    def _goal(self, req: _Request, goal: Goal) -> None:
+        robot, gid = req.robot, req.goal_id
         goals = self._goals[robot]
         known = goals.get(gid)
         if known is not None:  # a re-send: list it again, never execute it twice
@@ -132,8 +171,8 @@ class SimNavServer:
                 known.ended_wall = self._wall()
             return
         g = _ServedGoal(gid, goal.kind)
-        client_seq = (d["client"], robot)
-        seq = int(d["seq"])
+        client_seq = (req.client, robot)
+        seq = req.seq
         if gid in self._precanceled[robot]:
             g.fixed = GoalState(gid, goal.kind, GoalStatus.CANCELED, error_msg="canceled before it started")
         elif seq < self._last_seq.get(client_seq, -1):
@@ -172,7 +211,7 @@ class SimNavServer:
         now_wall = self._wall()
         t = float(self.sim.clock.now())
         for robot, ns in self._ns.items():
-            goals: dict[str, Any] = {}
+            goals: dict[str, GoalState] = {}
             shown = self._shown[robot]
             for g in list(shown.values()):
                 st = self._state_of(g)
@@ -182,34 +221,16 @@ class SimNavServer:
                     elif now_wall - g.ended_wall > self.linger_s:
                         del shown[g.goal_id]
                         continue
-                goals[g.goal_id] = goal_state_to_dict(st)
-            msg = {
-                "v": BRIDGE_VERSION,
-                "robot": robot,
-                "t": t,
-                "robot_state": robot_state_to_dict(self.sim.robot_state(ns)),
-                "goals": goals,
-            }
-            self._state_pubs[robot].put(_dumps(msg))
-        self._clock_pub.put(
-            _dumps(
-                {
-                    "v": BRIDGE_VERSION,
-                    "t": t,
-                    "step": int(getattr(self.sim, "steps", 0)),
-                    "step_s": float(self.sim.params.step_s),
-                    "speed": float(self.speed),
-                }
-            )
+                goals[g.goal_id] = st
+            msg = NavState.build(robot, t, self.sim.robot_state(ns), goals)
+            self._state_pubs[robot].put(msg.to_json())
+        clock = ClockMsg(
+            t, int(getattr(self.sim, "steps", 0)), float(self.sim.params.step_s), float(self.speed)
         )
+        self._clock_pub.put(clock.to_json())
 
     def close(self) -> None:
         """Undeclare the subscribers and publishers (the session stays open)."""
-        objs: list[Any] = [*self._subs, *self._state_pubs.values(), self._clock_pub]
-        for obj in objs:
-            try:
-                obj.undeclare()
-            except Exception:  # noqa: BLE001
-                pass
+        undeclare_all([*self._subs, *self._state_pubs.values(), self._clock_pub])
         self._subs = []
         self._state_pubs = {}

@@ -7,12 +7,16 @@ through a router)."""
 from __future__ import annotations
 
 import json
+import logging
 import re
-from typing import Literal
+from collections.abc import Iterable
+from typing import Literal, Protocol
 
 import zenoh
 
 from fleet.errors import BusError
+
+logger = logging.getLogger(__name__)
 
 #: The default endpoint of a fleet (where ``fleet run`` / ``fleet sim`` listen).
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -103,3 +107,32 @@ def open_session(
                 f"no Zenoh router at {endpoint} — start `fleet run` (or `fleet sim`) first or pass --endpoint"
             ) from None
         raise BusError(f"cannot open a Zenoh {role} session on {endpoint}: {text}") from None
+
+
+class Declaration(Protocol):
+    """A Zenoh declaration: a subscriber, a publisher or a liveliness token."""
+
+    def undeclare(self) -> None: ...
+
+
+class Closable(Protocol):
+    """Something with ``close()``: a Zenoh session."""
+
+    def close(self) -> None: ...
+
+
+def undeclare_all(objs: Iterable[Declaration | None]) -> None:
+    """Undeclare each of ``objs`` (``None`` skipped), best effort: a declaration whose session
+    is already closed is ignored."""
+    for obj in objs:
+        if obj is None:
+            continue
+        try:
+            obj.undeclare()
+        except Exception as e:  # noqa: BLE001 - the session may already be closed
+            logger.debug("undeclare %r: %s", obj, e)
+
+
+def close_session(session: Closable) -> None:
+    """Close a Zenoh session (typed wrapper: zenoh's stub leaves ``close`` unannotated)."""
+    session.close()

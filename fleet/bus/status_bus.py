@@ -1,22 +1,21 @@
-"""The Zenoh status bus: sessions, status and task records, liveliness.
+"""The Zenoh status bus: status records, orders, traffic grants and liveliness.
 
 Topics (JSON, UTF-8; see ``docs/status_bus.md`` for schemas and examples):
 
-* ``fleet/<robot>/status``: a :class:`StatusRecord`, robot -> everyone;
-* ``fleet/<robot>/task``: a :class:`TaskMessage`, coordinator -> robot;
+* ``fleet/<robot>/status``: a :class:`~fleet.messages.StatusRecord`, robot -> everyone;
+* ``fleet/<robot>/task``: a :class:`~fleet.messages.TaskMessage`, coordinator -> robot;
+* ``fleet/<robot>/grant``: a :class:`~fleet.messages.Grant`, coordinator -> robot;
 * ``fleet/<robot>/alive``: a liveliness token held by the robot's agent session.
 
-Sessions: one process *listens* on the endpoint in ``router`` mode (``fleet run``, ``fleet
-sim``); every other process connects in ``client`` mode (a ``peer`` that does not listen
-receives nothing through a router). Multicast scouting and gossip are off; endpoints are
-explicit (``tcp/127.0.0.1:7447``).
+Sessions are opened with :func:`fleet.bus.session.open_session` and belong to the caller.
 
-Threading: Zenoh runs callbacks on its own threads (one per callback subscriber). :class:`StatusBus` callbacks parse and
-validate the payload, update the latest-record table, append a :class:`BusEvent` to a bounded
-queue (:meth:`StatusBus.drain_events`) and call the user callbacks, which must be cheap and
-thread-safe. A malformed payload is counted (:attr:`StatusBus.malformed`,
-:attr:`StatusBus.last_malformed`) and dropped; an exception raised by a user callback is
-counted (:attr:`StatusBus.callback_errors`); nothing ever raises out of a Zenoh callback."""
+Threading: Zenoh runs callbacks on its own threads (one per callback subscriber).
+:class:`StatusBus` callbacks parse and validate the payload, update the latest-record table,
+append a :class:`BusEvent` to a bounded queue (:meth:`StatusBus.drain_events`) and call the
+user callbacks, which must be cheap and thread-safe. A malformed payload is counted
+(:attr:`StatusBus.malformed`, :attr:`StatusBus.last_malformed`) and dropped; an exception
+raised by a user callback is counted (:attr:`StatusBus.callback_errors`); nothing ever raises
+out of a Zenoh callback."""
 
 from __future__ import annotations
 
@@ -24,32 +23,35 @@ import threading
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal, TypeVar
 
+import msgspec
 import zenoh
 
 from fleet.bus.keys import ALIVE_KEYS, STATUS_KEYS, alive_key, grant_key, robot_of_key, status_key, task_key
-from fleet.messages import (
-    StatusRecord,
-    TaskMessage,
-    _decode,
-    _dumps,
-)
+from fleet.bus.session import Declaration, close_session, undeclare_all
+from fleet.messages import Grant, StatusRecord, TaskMessage
 
 #: At most this many events wait in :meth:`StatusBus.drain_events` (oldest dropped first).
 MAX_EVENTS = 10000
+
+T = TypeVar("T")
+
+#: What one robot's subscription delivers (:meth:`StatusBus.subscribe_tasks`, ``_grants``).
+Order = TypeVar("Order", TaskMessage, Grant)
+
+EventKind = Literal["status", "task", "grant", "join", "leave"]
 
 
 @dataclass(frozen=True)
 class BusEvent:
     """What :meth:`StatusBus.drain_events` returns: ``kind`` is ``status`` (``payload`` a
-    :class:`StatusRecord`), ``task`` (a :class:`TaskMessage`), ``grant`` (a
-    :class:`~fleet.traffic.Grant`), ``join`` or ``leave``
-    (``payload`` ``None``)."""
+    :class:`StatusRecord`), ``task`` (a :class:`TaskMessage`), ``grant`` (a :class:`Grant`),
+    ``join`` or ``leave`` (``payload`` ``None``)."""
 
-    kind: Literal["status", "task", "grant", "join", "leave"]
+    kind: EventKind
     robot: str
-    payload: Any = None
+    payload: StatusRecord | TaskMessage | Grant | None = None
 
 
 class BusHandle:
@@ -79,19 +81,27 @@ StatusCallback = Callable[[StatusRecord], None]
 TaskCallback = Callable[[TaskMessage], None]
 
 
+GrantCallback = Callable[[Grant], None]
+
+
 RobotCallback = Callable[[str], None]
 
 
+def _is_delete(sample: zenoh.Sample) -> bool:
+    return sample.kind == zenoh.SampleKind.DELETE
+
+
 class StatusBus:
-    """Status records, task messages and liveliness on one Zenoh ``session``.
+    """Status records, task messages, grants and liveliness on one Zenoh ``session``.
 
     The session belongs to the caller: :meth:`close` undeclares what the bus declared;
     :meth:`shutdown` does that and closes the session. ``robot`` is this process's robot (for
     logs only). See the module docstring for threading and malformed-message handling.
 
-    Counters (read at any time): ``received`` valid status and task messages, ``malformed``
-    dropped payloads (``last_malformed`` says why), ``callback_errors`` exceptions raised by
-    user callbacks, ``events_dropped`` events pushed out of the bounded event queue.
+    Counters (read at any time): ``received`` valid status, task and grant messages,
+    ``malformed`` dropped payloads (``last_malformed`` says why: ``<key>: <field>: <reason>``),
+    ``callback_errors`` exceptions raised by user callbacks, ``events_dropped`` events pushed
+    out of the bounded event queue.
     """
 
     def __init__(
@@ -113,15 +123,16 @@ class StatusBus:
         self._status_cbs: list[StatusCallback] = []
         self._join_cbs: list[RobotCallback] = []
         self._leave_cbs: list[RobotCallback] = []
-        self._status_sub: Any = None
-        self._alive_sub: Any = None
-        self._publishers: dict[str, Any] = {}
+        self._status_sub: zenoh.Subscriber[None] | None = None
+        self._alive_sub: zenoh.Subscriber[None] | None = None
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._status_pubs: dict[str, zenoh.Publisher] = {}  # by robot name: the hot path
         self._handles: list[BusHandle] = []
         self._closed = False
 
     # -- publishing ------------------------------------------------------------------
 
-    def _publisher(self, key: str, block: bool) -> Any:
+    def _publisher(self, key: str, block: bool) -> zenoh.Publisher:
         pub = self._publishers.get(key)
         if pub is None:
             pub = self.session.declare_publisher(
@@ -133,12 +144,18 @@ class StatusBus:
         return pub
 
     def publish_status(self, rec: StatusRecord) -> None:
-        """Publish ``rec`` on ``fleet/<rec.robot>/status``. ValueError if ``rec`` is invalid."""
-        self._publisher(status_key(rec.robot), False).put(rec.to_json())
+        """Publish ``rec`` on ``fleet/<rec.robot>/status`` (congestion: drop, the next record
+        replaces a lost one). ValueError for a robot name that cannot be a key chunk or a
+        non-finite number; the record's types are not checked again here (receivers do)."""
+        pub = self._status_pubs.get(rec.robot)
+        if pub is None:
+            pub = self._status_pubs[rec.robot] = self._publisher(status_key(rec.robot), False)
+        pub.put(rec.to_json())
 
     def publish_task(self, robot: str | TaskMessage, msg: TaskMessage | None = None) -> None:
         """Publish an order on ``fleet/<robot>/task``: ``publish_task(robot, msg)`` or
-        ``publish_task(msg)`` with ``msg.robot`` set. Sent reliably (congestion: block)."""
+        ``publish_task(msg)`` with ``msg.robot`` set. Sent reliably (congestion: block).
+        ValueError naming the field for an inconsistent order."""
         if isinstance(robot, TaskMessage):
             msg, name = robot, robot.robot
         else:
@@ -146,15 +163,15 @@ class StatusBus:
         if msg is None or name is None:
             raise ValueError("publish_task needs a robot name and a TaskMessage")
         if msg.robot is None:
-            msg = TaskMessage(msg.task_id, msg.kind, name, msg.route, msg.poses, msg.charger, msg.pick)
+            msg = msgspec.structs.replace(msg, robot=name)
         elif msg.robot != name:
             raise ValueError(f"task for {msg.robot!r} published to robot {name!r}")
         self._publisher(task_key(name), True).put(msg.to_json())
 
-    def publish_grant(self, grant: Any) -> None:
-        """Publish a traffic :class:`~fleet.traffic.Grant` on ``fleet/<grant.robot>/grant``
-        (JSON of ``Grant.to_dict``; congestion: block, like orders)."""
-        self._publisher(grant_key(grant.robot), True).put(_dumps(grant.to_dict()))
+    def publish_grant(self, grant: Grant) -> None:
+        """Publish a traffic :class:`Grant` on ``fleet/<grant.robot>/grant`` (congestion:
+        block, like orders)."""
+        self._publisher(grant_key(grant.robot), True).put(grant.to_json())
 
     # -- receiving -------------------------------------------------------------------
 
@@ -172,7 +189,7 @@ class StatusBus:
             self.events_dropped += 1
         self._events.append(ev)
 
-    def _call(self, cbs: list[Any], arg: Any) -> None:
+    def _call(self, cbs: list[Callable[[T], None]], arg: T) -> None:
         for cb in cbs:
             try:
                 cb(arg)
@@ -181,11 +198,11 @@ class StatusBus:
                     self.callback_errors += 1
                     self.last_callback_error = f"{getattr(cb, '__qualname__', cb)}: {e!r}"
 
-    def _on_status_sample(self, sample: Any) -> None:
+    def _on_status_sample(self, sample: zenoh.Sample) -> None:
         key = "?"
         try:
             key = str(sample.key_expr)
-            if sample.kind == zenoh.SampleKind.DELETE:
+            if _is_delete(sample):
                 return
             robot = robot_of_key(key)
             rec = StatusRecord.from_json(sample.payload.to_bytes())
@@ -231,32 +248,29 @@ class StatusBus:
 
     def subscribe_tasks(self, robot: str, callback: TaskCallback) -> BusHandle:
         """Call ``callback(msg)`` (on Zenoh's thread) for every valid order on
-        ``fleet/<robot>/task``. The handle's ``undeclare()`` ends the subscription."""
+        ``fleet/<robot>/task``; ``msg.robot`` is filled from the key if the order left it out,
+        and an order naming another robot is malformed. The handle's ``undeclare()`` ends the
+        subscription."""
 
         def parse(data: bytes) -> TaskMessage:
             msg = TaskMessage.from_json(data)
             if msg.robot is None:
-                return TaskMessage(msg.task_id, msg.kind, robot, msg.route, msg.poses, msg.charger, msg.pick)
+                return msgspec.structs.replace(msg, robot=robot)
             if msg.robot != robot:
                 raise ValueError(f"task.robot: {msg.robot!r} does not match the key's robot {robot!r}")
             return msg
 
         return self._subscribe_robot(task_key(robot), robot, "task", parse, callback)
 
-    def subscribe_grants(self, robot: str, callback: Callable[[Any], None]) -> BusHandle:
+    def subscribe_grants(self, robot: str, callback: GrantCallback) -> BusHandle:
         """Call ``callback(grant)`` (on Zenoh's thread) for every valid traffic grant on
-        ``fleet/<robot>/grant``; a malformed one is counted in ``malformed`` and dropped."""
-        from fleet.messages import Grant
+        ``fleet/<robot>/grant``; a malformed one (or one naming another robot) is counted in
+        ``malformed`` and dropped."""
 
         def parse(data: bytes) -> Grant:
-            try:
-                g = Grant.from_dict(_decode(data, "grant"))
-            except (KeyError, TypeError, IndexError) as e:
-                raise ValueError(f"grant: {type(e).__name__}: {e}") from None
+            g = Grant.from_json(data)
             if g.robot != robot:
                 raise ValueError(f"grant.robot: {g.robot!r} does not match the key's robot {robot!r}")
-            if len(g.poses) != len(g.nodes):
-                raise ValueError(f"grant: {len(g.nodes)} nodes but {len(g.poses)} poses")
             return g
 
         return self._subscribe_robot(grant_key(robot), robot, "grant", parse, callback)
@@ -266,17 +280,17 @@ class StatusBus:
         key: str,
         robot: str,
         kind: Literal["task", "grant"],
-        parse: Callable[[bytes], Any],
-        callback: Callable[[Any], None],
+        parse: Callable[[bytes], Order],
+        callback: Callable[[Order], None],
     ) -> BusHandle:
         """Subscribe to one robot's ``key``: ``parse`` each payload (an exception = malformed:
         counted and dropped), record a :class:`BusEvent` of ``kind`` and call ``callback``."""
 
-        def on_sample(sample: Any) -> None:
+        def on_sample(sample: zenoh.Sample) -> None:
             k = key
             try:
                 k = str(sample.key_expr)
-                if sample.kind == zenoh.SampleKind.DELETE:
+                if _is_delete(sample):
                     return
                 value = parse(sample.payload.to_bytes())
             except Exception as e:  # noqa: BLE001 - count and drop
@@ -287,7 +301,7 @@ class StatusBus:
                 self._push(BusEvent(kind, robot, value))
             self._call([callback], value)
 
-        sub = self.session.declare_subscriber(key, on_sample)
+        sub: Declaration = self.session.declare_subscriber(key, on_sample)
         h = BusHandle(sub.undeclare)
         self._handles.append(h)
         return h
@@ -297,12 +311,12 @@ class StatusBus:
     def declare_alive(self, robot: str) -> BusHandle:
         """Hold the liveliness token ``fleet/<robot>/alive`` until the handle is undeclared
         (or the bus / session closes, or the process dies)."""
-        token = self.session.liveliness().declare_token(alive_key(robot))
+        token: Declaration = self.session.liveliness().declare_token(alive_key(robot))
         h = BusHandle(token.undeclare)
         self._handles.append(h)
         return h
 
-    def _on_alive_sample(self, sample: Any) -> None:
+    def _on_alive_sample(self, sample: zenoh.Sample) -> None:
         key = "?"
         try:
             key = str(sample.key_expr)
@@ -346,10 +360,10 @@ class StatusBus:
 
         def remove() -> None:
             with self._lock:
-                if on_join in self._join_cbs:
-                    self._join_cbs.remove(on_join)  # type: ignore[arg-type]
-                if on_leave in self._leave_cbs:
-                    self._leave_cbs.remove(on_leave)  # type: ignore[arg-type]
+                if on_join is not None and on_join in self._join_cbs:
+                    self._join_cbs.remove(on_join)
+                if on_leave is not None and on_leave in self._leave_cbs:
+                    self._leave_cbs.remove(on_leave)
 
         h = BusHandle(remove)
         self._handles.append(h)
@@ -377,21 +391,17 @@ class StatusBus:
         self._closed = True
         for h in self._handles:
             h.undeclare()
-        for obj in (self._status_sub, self._alive_sub, *self._publishers.values()):
-            if obj is not None:
-                try:
-                    obj.undeclare()
-                except Exception:  # noqa: BLE001 - session already closed
-                    pass
+        undeclare_all([self._status_sub, self._alive_sub, *self._publishers.values()])
         self._status_sub = self._alive_sub = None
         self._publishers.clear()
+        self._status_pubs.clear()
 
     def shutdown(self) -> None:
         """:meth:`close`, then close the session."""
         try:
             self.close()
         finally:
-            self.session.close()
+            close_session(self.session)
 
     def __enter__(self) -> StatusBus:
         return self

@@ -3,11 +3,12 @@ into a path on the docked roadmap and hand out grants (``docs/traffic.md``)."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING
+
+import msgspec
 
 from fleet.errors import ConfigError, DockError, TrafficError
 from fleet.messages import Grant
@@ -160,7 +161,7 @@ class ReservationTraffic:
         patrol = purpose is Purpose.PATROL
         task = self._task.get(robot) if patrol else None
         laps = self.manager.laps(robot) if patrol else 0
-        return dataclasses.replace(g, task_id=task, purpose=purpose or "", laps=laps, seq=seq)
+        return msgspec.structs.replace(g, task_id=task, purpose=purpose or "", laps=laps, seq=seq)
 
     def purpose(self, robot: str) -> Purpose | None:
         """Why ``robot`` drives now (``None``: no errand)."""

@@ -16,10 +16,40 @@ from __future__ import annotations
 import signal
 import sys
 import threading
+import time
+from collections.abc import Callable
 
 from fleet.bus.session import open_session
 from fleet.bus.status_bus import StatusBus
 from fleet.messages import StatusRecord
+
+
+def wait_until(pred: Callable[[], bool], timeout_s: float, what: str, poll_s: float = 0.005) -> None:
+    """Poll ``pred`` until it is true; AssertionError naming ``what`` after ``timeout_s`` wall
+    seconds (a hang guard: choose it at least 3x what the wait takes on a loaded machine)."""
+    end = time.monotonic() + timeout_s
+    while not pred():
+        if time.monotonic() > end:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(poll_s)
+
+
+def settle(
+    send: Callable[[], object], seen: Callable[[], bool], timeout_s: float, what: str, every_s: float = 0.05
+) -> None:
+    """Call ``send()`` every ``every_s`` wall seconds until ``seen()``: a subscription is live
+    once something sent after its declaration reached it. AssertionError naming ``what`` after
+    ``timeout_s``."""
+    end = time.monotonic() + timeout_s
+    while True:
+        send()
+        step_end = time.monotonic() + every_s
+        while time.monotonic() < step_end:
+            if seen():
+                return
+            time.sleep(0.005)
+        if time.monotonic() > end:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
 
 
 def record(robot: str, seq: int) -> StatusRecord:

@@ -4,8 +4,7 @@ trajectory for robots whose world records them."""
 
 from __future__ import annotations
 
-import dataclasses
-
+import msgspec
 import pytest
 from bus_peer import record
 
@@ -48,7 +47,7 @@ def test_bus_view_memory_stays_flat_over_a_long_run() -> None:
         for k in range(120):
             t = minute * 60 + 0.5 * k
             for r in recs:
-                view.see(dataclasses.replace(r, t=t, pose=(t % 30, 1.0, 0.0)))
+                view.see(msgspec.structs.replace(r, t=t, pose=(t % 30, 1.0, 0.0)))
         sizes.append(view.trajectory_bytes())
     assert sizes[-1] == sizes[29] and sizes[-1] <= 50 * 256 * 24 * 2
     assert 128 <= len(view.trajectory("robot7")) <= 256
@@ -63,5 +62,5 @@ def test_bus_view_skips_the_robots_their_world_records() -> None:
     view.see(record("robot1", 30))
     assert view.trajectory("robot1") == [] and len(view.trajectory("robot2")) == 1
     assert set(view.latest()) == {"robot1", "robot2"} and view.latest()["robot1"].seq == 30
-    view.see(dataclasses.replace(record("robot3", 3), pose=None))
+    view.see(msgspec.structs.replace(record("robot3", 3), pose=None))
     assert view.trajectory("robot3") == [] and "robot3" in view.latest()

@@ -3,8 +3,7 @@ panes or a "not shown" line when the robots do not fit the height, flags first."
 
 from __future__ import annotations
 
-import dataclasses
-
+import msgspec
 from bus_peer import record
 from rich.console import Console
 
@@ -17,7 +16,9 @@ ESSENTIAL = ("robot", "x", "y", "bat", "mode", "task", "laps", "flags")
 def fleet(n: int) -> dict[str, StatusRecord]:
     """``n`` patrolling robots with coordinator-style task ids and a real leaf name."""
     return {
-        f"robot{i}": dataclasses.replace(record(f"robot{i}", i), task_id=f"p-{i:04d}", leaf="GrantToCharger")
+        f"robot{i}": msgspec.structs.replace(
+            record(f"robot{i}", i), task_id=f"p-{i:04d}", leaf="GrantToCharger"
+        )
         for i in range(1, n + 1)
     }
 
@@ -36,7 +37,7 @@ def header_cells(line: str) -> list[str]:
 
 def test_six_robots_one_per_line_with_every_column_and_flags() -> None:
     six = fleet(6)
-    six["robot3"] = dataclasses.replace(six["robot3"], stuck=True)
+    six["robot3"] = msgspec.structs.replace(six["robot3"], stuck=True)
     lines = render_table(six, alive=set(six) - {"robot6"}).splitlines()
     assert lines[0].startswith("fleet t=0.6 s: 6 robots, 5 alive") and "stuck 1, dead 1" in lines[0]
     cols = header_cells(lines[1])
@@ -95,7 +96,7 @@ def test_thirty_robots_at_160_columns_show_every_column() -> None:
 
 def test_a_short_terminal_splits_into_panes_or_says_what_is_not_shown() -> None:
     robots = fleet(30)
-    robots["robot29"] = dataclasses.replace(robots["robot29"], stuck=True)
+    robots["robot29"] = msgspec.structs.replace(robots["robot29"], stuck=True)
     # 160 x 24: two panes of 15 robots, the essential columns in each
     lines = draw(FleetTable(robots, alive=set(robots), height=23), 160)
     assert len(lines) <= 23 and max(map(len, lines)) <= 160
