@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip
 FLEET  := $(VENV)/bin/fleet
 
-.PHONY: setup setup-core setup-sumo setup-ros demo test bench lint clean
+.PHONY: setup setup-core setup-sumo setup-ros demo test test-scale bench lint clean
 
 setup: setup-core setup-sumo setup-ros
 
@@ -28,12 +28,17 @@ setup-ros: setup-core
 demo: setup-core
 	$(FLEET) run configs/warehouse_patrol.yaml --duration 300 --speed 10 --report out/demo_report.json --plot out/demo_trajectories.png
 
-test: setup
+test: setup lint
 	$(PY) -m pytest -q
+
+# long scale and soak runs (hundreds of robots, simulated hours); CI runs them after `make test`
+test-scale: setup
+	$(PY) -m pytest -q -m scale
 
 bench: setup
 	$(PY) bench/run_all.py
 
+# ruff, strict mypy and the package layout rules (tools/check_layout.py) gate `make test`
 lint: setup-core
 	$(VENV)/bin/ruff check fleet nodes sim tests bench tools
 	$(VENV)/bin/ruff format --check fleet nodes sim tests bench tools

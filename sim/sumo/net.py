@@ -403,7 +403,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = load_config(a.config)
         m = cfg.sim.model
         settings = settings_for_robot(m.radius, m.max_linear_speed, internal_links=a.internal_links)
-        out = write_network(cfg.roadmap.graph, a.out, settings)
+        out = write_network(as_graph(cfg.roadmap), a.out, settings)
     except FleetError as e:
         print(f"error: {e}")
         return 2
