@@ -53,6 +53,8 @@ class GoalDispatch:
         self.robots: dict[str, Robot] = {}
         #: robots in the order they were added (robot ``i`` is row ``i`` of the state)
         self.order: list[Robot] = []
+        #: the goal executor of each robot (by robot index; absent: no goal running)
+        self.tasks: dict[int, Task] = {}
         #: robots whose task gets :meth:`Task.control` calls (not following a path), by index
         self._py: dict[int, Robot] = {}
 
@@ -66,7 +68,7 @@ class GoalDispatch:
     def send(self, robot: Robot, goal: object) -> str:
         """Start ``goal`` on ``robot``; return its id (see :meth:`sim.simulator.Simulator.send_goal`)."""
         record = self.goals.open(robot.namespace, goal)
-        old = robot.task
+        old = self.tasks.get(robot.index)
         if old is not None and not old.done:
             preempt(old.record, record, old.feedback())
         self._set_task(robot, None)
@@ -84,7 +86,7 @@ class GoalDispatch:
         """Snapshot of goal ``goal_id``; ``KeyError`` for an id never issued."""
         record = self.goals.get(goal_id)
         if not record.terminal:
-            task = self.robots[record.namespace].task
+            task = self.tasks.get(self.robots[record.namespace].index)
             if task is not None and task.record is record:
                 return record.snapshot(task.feedback())
         return record.snapshot()
@@ -95,7 +97,7 @@ class GoalDispatch:
         if record is None:
             return
         robot = self.robots[record.namespace]
-        task = robot.task
+        task = self.tasks.get(robot.index)
         if task is not None and task.record is record:
             record.feedback = task.feedback()
             self._set_task(robot, None)
@@ -103,7 +105,10 @@ class GoalDispatch:
 
     def _set_task(self, robot: Robot, task: Task | None) -> None:
         i = robot.index
-        robot.task = task
+        if task is None:
+            self.tasks.pop(i, None)
+        else:
+            self.tasks[i] = task
         self.state.fol[i] = False
         self.state.has_task[i] = task is not None
         self.state.drives[i] = False
@@ -116,10 +121,10 @@ class GoalDispatch:
 
     def _task_changed(self, robot: Robot) -> None:
         """Re-file a robot whose task ended, or started / stopped following a path."""
-        task = robot.task
+        task = self.tasks.get(robot.index)
         i = robot.index
         if task is None or task.done:
-            robot.task = None
+            self.tasks.pop(i, None)
             self.state.fol[i] = False
             self.state.has_task[i] = False
             self._py.pop(i, None)
@@ -136,7 +141,7 @@ class GoalDispatch:
         s = self.state
         py_robots = [self._py[i] for i in sorted(self._py)] if self._py else []
         for robot in py_robots:
-            task = robot.task
+            task = self.tasks.get(robot.index)
             assert task is not None
             i = robot.index
             vd[i], wd[i] = task.control(now, dt)
@@ -147,7 +152,7 @@ class GoalDispatch:
     def after_move(self, robots: list[Robot], ds: np.ndarray, dth: np.ndarray) -> None:
         """Tell the tasks of ``robots`` the distance (m) and rotation (rad) they made."""
         for robot in robots:
-            task = robot.task
+            task = self.tasks.get(robot.index)
             if task is not None:
                 task.after_move(float(ds[robot.index]), float(dth[robot.index]))
 
@@ -157,7 +162,7 @@ class GoalDispatch:
         s = self.state
         for i, done in zip(stopped.tolist(), arrived.tolist(), strict=True):
             robot = self.order[i]
-            task = robot.task
+            task = self.tasks.get(robot.index)
             if task is None:
                 continue
             if done:
@@ -173,7 +178,7 @@ class GoalDispatch:
         s = self.state
         s.stuck[i] = True
         s.pt[i] = now
-        task = robot.task
+        task = self.tasks.get(robot.index)
         if task is not None:
             task.on_stuck()
             self._task_changed(robot)
@@ -196,7 +201,8 @@ class GoalDispatch:
     def detach_path(self, robot: Robot) -> None:
         """Stop following the robot's path; its task gets :meth:`Task.control` calls again."""
         self.state.detach(robot.index)
-        if robot.task is not None and not robot.task.done:
+        task = self.tasks.get(robot.index)
+        if task is not None and not task.done:
             self._py[robot.index] = robot
 
     def path_remaining(self, robot: Robot) -> float:

@@ -2,8 +2,8 @@
 
 :class:`Robot` names a row of :class:`sim.state.FleetState` (pose in the ``map`` frame,
 velocities, battery, odometer, flags) and holds what is not an array: the robot's name,
-namespace, the goal executor running on it (:class:`sim.tasks.Task`) and its fault. The goal
-executors live in :mod:`sim.tasks`.
+namespace and its fault. The goal executors running on robots (:mod:`sim.tasks`) are kept by
+the dispatcher (:class:`sim.dispatch.GoalDispatch`).
 """
 
 from __future__ import annotations
@@ -14,11 +14,10 @@ from fleet.types import Pose2D
 
 if TYPE_CHECKING:
     from sim.state import FleetState
-    from sim.tasks import Task
 
 
 class Robot:
-    """One simulated differential-drive robot: its identity, goal and fault, and a view of its
+    """One simulated differential-drive robot: its identity and fault, and a view of its
     row in the simulator's state arrays (:class:`sim.state.FleetState`).
 
     Pose ``x``, ``y`` (m) and ``theta`` (rad, in ``[-pi, pi)``) in the ``map`` frame; ``v``
@@ -30,14 +29,13 @@ class Robot:
     (a write counts as a change of the state's ``version``).
     """
 
-    __slots__ = ("name", "namespace", "index", "state", "task", "fault")
+    __slots__ = ("name", "namespace", "index", "state", "fault")
 
     def __init__(self, name: str, namespace: str, index: int, state: FleetState) -> None:
         self.name = name
         self.namespace = namespace
         self.index = index
         self.state = state
-        self.task: Task | None = None
         self.fault: str | None = None
 
     @property
