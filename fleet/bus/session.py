@@ -18,9 +18,6 @@ from fleet.errors import BusError
 
 logger = logging.getLogger(__name__)
 
-#: The default endpoint of a fleet (where ``fleet run`` / ``fleet sim`` listen).
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-
 
 #: Default Zenoh link lease (s): a frozen peer is declared gone after this long.
 DEFAULT_LEASE_S = 1.0

@@ -27,11 +27,12 @@ import time
 from collections.abc import Sequence
 from typing import Any, TextIO
 
-from fleet.bus.session import DEFAULT_ENDPOINT, open_session
+from fleet.bus.session import open_session
 from fleet.bus.status_bus import StatusBus
 from fleet.cli.common import SubParsers, add_command
 from fleet.cli.logs import add_log_level, configure_logging, resolve_level
 from fleet.errors import BusError
+from fleet.messages import DEFAULT_ENDPOINT
 from fleet.viz.display import FleetSnapshot, LiveTable
 from fleet.viz.table import render_table, robot_sort_key
 

@@ -7,11 +7,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from fleet.maps import OccupancyGrid
+from fleet.messages.codec import DEFAULT_ENDPOINT
 from fleet.roadmap.graph import Roadmap
 from fleet.robots import RobotSpec, SimParams
 from fleet.types import Pose2D
-
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 
 @dataclass(frozen=True)

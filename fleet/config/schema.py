@@ -43,8 +43,9 @@ from fleet.config.fields import (
     tname,
     unique_by,
 )
-from fleet.config.model import DEFAULT_ENDPOINT, CoordinatorParams, TrafficSettings
+from fleet.config.model import CoordinatorParams, TrafficSettings
 from fleet.errors import ConfigError
+from fleet.messages import DEFAULT_ENDPOINT
 from fleet.robots import BatteryModel, RobotModel, SimParams
 from fleet.types import Pose2D
 

@@ -9,7 +9,7 @@ and its clients, and the codec of goals, feedback, goal states and robot states)
 contract, with examples, is ``docs/status_bus.md``.
 """
 
-from fleet.messages.codec import BUS_VERSION, MAX_BRIDGE_PAYLOAD, MAX_PAYLOAD_BYTES
+from fleet.messages.codec import BUS_VERSION, DEFAULT_ENDPOINT, MAX_BRIDGE_PAYLOAD, MAX_PAYLOAD_BYTES
 from fleet.messages.nav import (
     BRIDGE_VERSION,
     GOAL_KINDS,
@@ -33,6 +33,7 @@ from fleet.messages.records import (
 __all__ = [
     "BRIDGE_VERSION",
     "BUS_VERSION",
+    "DEFAULT_ENDPOINT",
     "GOAL_KINDS",
     "MAX_BRIDGE_PAYLOAD",
     "MAX_PAYLOAD_BYTES",

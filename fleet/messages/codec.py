@@ -27,6 +27,9 @@ from msgspec import Meta, Struct
 
 #: Version of every top-level message (field ``v``).
 BUS_VERSION: Final = 1
+#: Where a fleet's messages travel unless a config or a command says otherwise: the Zenoh
+#: endpoint ``fleet run`` / ``fleet sim`` listen on and every other process connects to.
+DEFAULT_ENDPOINT: Final = "tcp/127.0.0.1:7447"
 
 #: Status, task and grant payloads larger than this are dropped unparsed.
 MAX_PAYLOAD_BYTES: Final = 256 * 1024

@@ -102,7 +102,8 @@ def serve_simulator(
     ``progress`` is called every ``progress_every_s`` wall seconds. Raises
     :class:`~fleet.errors.BackendError` for a negative or infinite ``speed``.
     """
-    from fleet.bus.session import DEFAULT_ENDPOINT, open_session
+    from fleet.bus.session import open_session
+    from fleet.messages import DEFAULT_ENDPOINT
 
     if speed < 0 or not math.isfinite(speed):
         raise BackendError(f"speed must be >= 0, got {speed}")
