@@ -20,7 +20,15 @@ from typing import Any
 
 import networkx as nx
 import pytest
-from test_e2e import PATROL, free_endpoint, kill, split_fleet, temp_config, two_routes_three_robots, wait_for
+from fleet_procs import (
+    PATROL,
+    kill,
+    split_fleet,
+    temp_config,
+    two_routes_three_robots,
+    wait_for,
+)
+from ports import free_endpoint
 
 from fleet.bus.keys import grant_key
 from fleet.bus.session import open_session
