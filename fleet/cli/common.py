@@ -45,6 +45,22 @@ def add_command(sub: SubParsers, name: str, handler: Handler, **kw: Any) -> argp
     return p
 
 
+def standalone_parser(
+    prog: str, description: str, epilog: str, add_arguments: Callable[[argparse.ArgumentParser], None]
+) -> argparse.ArgumentParser:
+    """The parser of a command run on its own (``python -m fleet.cli.status``): the command's
+    options plus ``--log-level``."""
+    p = argparse.ArgumentParser(
+        prog=prog,
+        description=description,
+        epilog=epilog,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_arguments(p)
+    add_log_level(p)
+    return p
+
+
 def add_config(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", type=Path, help="fleet config YAML (see docs/config.md)")
     p.add_argument(

@@ -9,8 +9,16 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from fleet.cli.argtypes import non_negative_float, positive_float, positive_int
-from fleet.cli.common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, SubParsers, add_command, guard
-from fleet.cli.logs import add_log_level, configure_logging, resolve_level
+from fleet.cli.common import (
+    EXIT_ERROR,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    SubParsers,
+    add_command,
+    guard,
+    standalone_parser,
+)
+from fleet.cli.logs import configure_logging, resolve_level
 from fleet.config.model import FleetConfig
 from fleet.loadtest.run import (
     DEFAULT_STATUS_HZ,
@@ -120,15 +128,7 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
 
 def build_parser() -> argparse.ArgumentParser:
     """The parser of :func:`loadtest_main` (the options of ``fleet loadtest``)."""
-    p = argparse.ArgumentParser(
-        prog="fleet loadtest",
-        description=DESCRIPTION,
-        epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    add_arguments(p)
-    add_log_level(p)
-    return p
+    return standalone_parser("fleet loadtest", DESCRIPTION, EPILOG, add_arguments)
 
 
 def handle(args: argparse.Namespace) -> int:

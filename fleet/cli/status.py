@@ -29,8 +29,8 @@ from typing import Any, TextIO
 
 from fleet.bus.session import open_session
 from fleet.bus.status_bus import StatusBus
-from fleet.cli.common import SubParsers, add_command
-from fleet.cli.logs import add_log_level, configure_logging, resolve_level
+from fleet.cli.common import SubParsers, add_command, standalone_parser
+from fleet.cli.logs import configure_logging, resolve_level
 from fleet.errors import BusError
 from fleet.messages import DEFAULT_ENDPOINT
 from fleet.viz.display import FleetSnapshot, LiveTable
@@ -96,15 +96,7 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
 
 def build_parser() -> argparse.ArgumentParser:
     """The parser of ``python -m fleet.cli.status`` (the options of ``fleet status``)."""
-    p = argparse.ArgumentParser(
-        prog="fleet status",
-        description=DESCRIPTION,
-        epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    add_arguments(p)
-    add_log_level(p)
-    return p
+    return standalone_parser("fleet status", DESCRIPTION, EPILOG, add_arguments)
 
 
 def snapshot(bus: StatusBus) -> dict[str, Any]:

@@ -120,6 +120,16 @@ def _console(out: TextIO, tty: bool | None) -> Console:
     return Console(file=out, force_terminal=tty, highlight=False, emoji=False, soft_wrap=False)
 
 
+def _screen(
+    out: TextIO, tty: bool | None, console: Console | None, interval_s: float, line_every_s: float
+) -> tuple[Console, bool, float]:
+    """A display's console, whether it redraws in place (a terminal), and how often it draws
+    (``interval_s`` on a terminal, ``line_every_s`` otherwise)."""
+    con = console or _console(out, tty)
+    is_tty = con.is_terminal if tty is None else tty
+    return con, is_tty, interval_s if is_tty else line_every_s
+
+
 class NullDisplay:
     """Shows nothing."""
 
@@ -151,10 +161,8 @@ class LiveTable:
         tty: bool | None = None,
         console: Console | None = None,
     ) -> None:
-        self.console = console or _console(out, tty)
-        self.tty = self.console.is_terminal if tty is None else tty
+        self.console, self.tty, self._every = _screen(out, tty, console, interval_s, line_every_s)
         self.out = out
-        self._every = interval_s if self.tty else line_every_s
         self._live: Live | None = None
         self.draws = 0
 
@@ -209,10 +217,8 @@ class ProgressDisplay:
         tty: bool | None = None,
         console: Console | None = None,
     ) -> None:
-        self.console = console or _console(out, tty)
-        self.tty = self.console.is_terminal if tty is None else tty
+        self.console, self.tty, self._every = _screen(out, tty, console, interval_s, line_every_s)
         self.out = out
-        self._every = interval_s if self.tty else line_every_s
         self._progress: Progress | None = None
         self._task: TaskID | None = None
         self.draws = 0
