@@ -40,3 +40,20 @@ class TrafficError(FleetError):
 
 class DockError(FleetError):
     """A dock pose (parking spot, charger, robot start) cannot be joined to the roadmap."""
+
+
+class TreeError(FleetError):
+    """A behavior tree (BehaviorTree.CPP XML) cannot be loaded. The message names the file,
+    the line, the node and the reason.
+
+    ``str(err)`` reads ``<file>:<line>: <node>: <reason>``, e.g.
+    ``trees/nav.xml:12: <Spinn>: unknown node 'Spinn'; did you mean Spin?``.
+    """
+
+    def __init__(self, file: str, line: int, node: str, reason: str) -> None:
+        self.file = str(file)
+        self.line = int(line)
+        self.node = node
+        self.reason = reason
+        where = f"{self.file}:{self.line}" if self.line > 0 else self.file
+        super().__init__(f"{where}: {node}: {reason}" if node else f"{where}: {reason}")

@@ -10,8 +10,17 @@ Contract:
 * :meth:`NavigationBackend.send_goal` never blocks. It returns a fresh goal id at once; the
   goal starts ``PENDING`` and becomes ``EXECUTING`` when the server accepts it (or
   ``REJECTED``).
-* A robot executes one goal at a time. A new goal preempts the one executing: the old goal
-  ends ``ABORTED`` (Nav2's action servers abort the goal they drop) and the new one runs.
+* A robot executes one *motion* goal at a time (:data:`fleet.types.MOTION_GOAL_KINDS`:
+  navigation, FollowPath, the behaviors). A new motion goal preempts the one executing: the
+  old goal ends ``ABORTED`` (Nav2's action servers abort the goal they drop) and the new one
+  runs. Goals that only compute (:data:`fleet.types.COMPUTE_GOAL_KINDS`: ComputePathToPose,
+  ComputePathThroughPoses, SmoothPath, ClearCostmaps) run beside it, as Nav2's planner,
+  smoother and costmap servers run beside its controller: they neither preempt the motion
+  goal nor are preempted by it. Their result (``GoalState.path`` for the planners and the
+  smoother) is in the terminal state; a backend may finish them before ``send_goal``
+  returns.
+* A backend that cannot execute a goal kind at all (SUMO vehicles cannot follow a free path
+  and have no costmaps) ends such a goal ``REJECTED`` with a message saying why.
 * :meth:`NavigationBackend.goal_state` is a pure read: polling it any number of times changes
   nothing. Ids are never reused, so a stale id can never observe (or complete) a newer goal.
 * :meth:`NavigationBackend.cancel_goal` is idempotent: canceling a finished or unknown goal is

@@ -103,9 +103,113 @@ class Wait:
     kind: str = field(default="wait", init=False)
 
 
-Goal = NavigateThroughPoses | NavigateToPose | FollowWaypoints | Spin | BackUp | DriveOnHeading | Wait
+#: A path: poses in order (``map`` frame), as Nav2's ``nav_msgs/Path`` carries them.
+Path = tuple[Pose2D, ...]
+
+
+@dataclass(frozen=True)
+class FollowPath:
+    """Drive along ``path`` with the controller (Nav2 ``follow_path``): the robot follows the
+    poses in order and turns to the last pose's yaw. An empty path aborts with
+    ``INVALID_PATH``; a robot that stops getting closer aborts with
+    ``FAILED_TO_MAKE_PROGRESS``. ``controller_id`` / ``goal_checker_id`` name Nav2 plugins
+    (a backend with one controller ignores them)."""
+
+    path: Path
+    controller_id: str = ""
+    goal_checker_id: str = ""
+    kind: str = field(default="follow_path", init=False)
+
+
+@dataclass(frozen=True)
+class ComputePathToPose:
+    """Plan a path to ``goal`` (Nav2 ``compute_path_to_pose``) from ``start``, or from the
+    robot's pose when ``start`` is ``None``. Moves nothing; the result's
+    :attr:`GoalState.path` holds the plan (start to goal, each pose facing the next, the last
+    one with the goal's yaw). Fails with the planner codes 2xx."""
+
+    goal: Pose2D
+    start: Pose2D | None = None
+    planner_id: str = ""
+    kind: str = field(default="compute_path_to_pose", init=False)
+
+
+@dataclass(frozen=True)
+class ComputePathThroughPoses:
+    """Plan one path through ``goals`` in order (Nav2 ``compute_path_through_poses``) from
+    ``start`` or the robot's pose. Moves nothing; the result carries the path. Fails with the
+    through-poses codes 3xx (``NO_VIAPOINTS_GIVEN`` for no goals)."""
+
+    goals: Path
+    start: Pose2D | None = None
+    planner_id: str = ""
+    kind: str = field(default="compute_path_through_poses", init=False)
+
+
+@dataclass(frozen=True)
+class SmoothPath:
+    """Smooth ``path`` (Nav2 ``smooth_path``): the same start and end, corners rounded where
+    the map allows. Moves nothing; the result carries the smoothed path. With
+    ``check_for_collisions`` a smoothed path that would touch an obstacle fails with
+    ``SMOOTHED_PATH_IN_COLLISION``; an empty path fails with ``SMOOTHER_INVALID_PATH``."""
+
+    path: Path
+    smoother_id: str = ""
+    max_smoothing_duration_s: float = 3.0
+    check_for_collisions: bool = False
+    kind: str = field(default="smooth_path", init=False)
+
+
+class Costmap(enum.StrEnum):
+    """Which of a robot's costmaps a :class:`ClearCostmaps` goal clears."""
+
+    GLOBAL = "global"
+    LOCAL = "local"
+    BOTH = "both"
+
+
+@dataclass(frozen=True)
+class ClearCostmaps:
+    """Clear the robot's ``costmap`` (``global``, ``local`` or ``both``) of everything but the
+    static map, as Nav2's ``clear_entirely_<global|local>_costmap`` services do. Moves
+    nothing; SUCCEEDS once the costmaps are cleared."""
+
+    costmap: Costmap = Costmap.BOTH
+    kind: str = field(default="clear_costmaps", init=False)
+
+
+Goal = (
+    NavigateThroughPoses
+    | NavigateToPose
+    | FollowWaypoints
+    | Spin
+    | BackUp
+    | DriveOnHeading
+    | Wait
+    | FollowPath
+    | ComputePathToPose
+    | ComputePathThroughPoses
+    | SmoothPath
+    | ClearCostmaps
+)
 
 NAV_GOAL_KINDS = ("navigate_through_poses", "navigate_to_pose", "follow_waypoints")
+#: Goals that move the robot. A robot executes one of these at a time: a new one preempts the
+#: one executing (it ends ABORTED).
+MOTION_GOAL_KINDS = (
+    "navigate_through_poses",
+    "navigate_to_pose",
+    "follow_waypoints",
+    "spin",
+    "backup",
+    "drive_on_heading",
+    "wait",
+    "follow_path",
+)
+#: Goals that compute (plan, smooth, clear costmaps) without moving the robot: Nav2's planner,
+#: smoother and costmap servers run beside the controller, so these neither preempt the
+#: robot's motion goal nor are preempted by it (any number may be outstanding).
+COMPUTE_GOAL_KINDS = ("compute_path_to_pose", "compute_path_through_poses", "smooth_path", "clear_costmaps")
 
 
 # ---------------------------------------------------------------------------
@@ -178,16 +282,41 @@ class ErrorCode(enum.IntEnum):
     NONE = 0
     # nav2_msgs/action/FollowPath
     CONTROLLER_UNKNOWN = 100
+    INVALID_CONTROLLER = 101
+    CONTROLLER_TF_ERROR = 102
+    INVALID_PATH = 103
+    PATIENCE_EXCEEDED = 104
     FAILED_TO_MAKE_PROGRESS = 105
+    NO_VALID_CONTROL = 106
     CONTROLLER_TIMED_OUT = 107
     # nav2_msgs/action/ComputePathToPose
     PLANNER_UNKNOWN = 200
+    INVALID_PLANNER = 201
+    PLANNER_TF_ERROR = 202
     START_OUTSIDE_MAP = 203
     GOAL_OUTSIDE_MAP = 204
     START_OCCUPIED = 205
     GOAL_OCCUPIED = 206
     PLANNER_TIMEOUT = 207
     NO_VALID_PATH = 208
+    # nav2_msgs/action/ComputePathThroughPoses (the ComputePathToPose codes + 100)
+    THROUGH_POSES_UNKNOWN = 300
+    THROUGH_POSES_INVALID_PLANNER = 301
+    THROUGH_POSES_TF_ERROR = 302
+    THROUGH_POSES_START_OUTSIDE_MAP = 303
+    THROUGH_POSES_GOAL_OUTSIDE_MAP = 304
+    THROUGH_POSES_START_OCCUPIED = 305
+    THROUGH_POSES_GOAL_OCCUPIED = 306
+    THROUGH_POSES_TIMEOUT = 307
+    THROUGH_POSES_NO_VALID_PATH = 308
+    NO_VIAPOINTS_GIVEN = 309
+    # nav2_msgs/action/SmoothPath
+    SMOOTHER_UNKNOWN = 500
+    INVALID_SMOOTHER = 501
+    SMOOTHER_TIMEOUT = 502
+    SMOOTHED_PATH_IN_COLLISION = 503
+    FAILED_TO_SMOOTH_PATH = 504
+    SMOOTHER_INVALID_PATH = 505
     # nav2_msgs/action/FollowWaypoints
     WAYPOINT_UNKNOWN = 600
     TASK_EXECUTOR_FAILED = 601
@@ -237,7 +366,9 @@ class Feedback:
 class GoalState:
     """A snapshot of one goal: its status, latest feedback and (when terminal) result.
 
-    ``missed_waypoints`` is only used by FollowWaypoints (indices into the goal's poses).
+    ``missed_waypoints`` is only used by FollowWaypoints (indices into the goal's poses);
+    ``path`` by the goals that compute one (ComputePathToPose, ComputePathThroughPoses,
+    SmoothPath: the path of a SUCCEEDED goal, ``()`` otherwise).
     """
 
     goal_id: str
@@ -247,6 +378,7 @@ class GoalState:
     error_code: int = 0
     error_msg: str = ""
     missed_waypoints: tuple[int, ...] = ()
+    path: Path = ()
 
     @property
     def result(self) -> TaskResult:

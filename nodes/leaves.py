@@ -33,6 +33,7 @@ from py_trees.common import Status
 
 from fleet.navigation import Clock, NavigationBackend
 from fleet.types import (
+    COMPUTE_GOAL_KINDS,
     BackUp,
     DriveOnHeading,
     ErrorCode,
@@ -160,17 +161,21 @@ class GoalAction(py_trees.behaviour.Behaviour):
         self.send(goal)
 
     def send(self, goal: Goal) -> str:
-        """Cancel the robot's outstanding goal (if another leaf left one), send ``goal`` and
-        make it this leaf's goal. Returns the new id."""
+        """Cancel the robot's outstanding motion goal (if another leaf left one), send ``goal``
+        and make it this leaf's goal. Returns the new id. A computation goal (a plan, a
+        smoothing, a costmap clearing: :data:`fleet.types.COMPUTE_GOAL_KINDS`) runs beside
+        the robot's motion goal: it cancels nothing and is not the ``active_goal``."""
         bb = self.blackboard
+        motion = goal.kind not in COMPUTE_GOAL_KINDS
         previous = bb.active_goal
-        if previous is not None and previous != self.goal_id:
+        if motion and previous is not None and previous != self.goal_id:
             self.backend.cancel_goal(previous)
         self.goal = goal
         self.goal_id = self.backend.send_goal(goal)
         self.last_state = None
         self.goals_sent += 1
-        bb.active_goal = self.goal_id
+        if motion:
+            bb.active_goal = self.goal_id
         self.feedback_message = f"sent {goal.kind} {self.goal_id}"
         return self.goal_id
 

@@ -104,13 +104,15 @@ class RoundRobin(py_trees.composites.Composite):
 
     On each start the node resumes with the child after the one that finished last time.
     A child's SUCCESS makes the node SUCCESS; a child's FAILURE moves on to the next child in
-    the same tick; FAILURE when every child failed in a row. RUNNING while a child runs.
+    the same tick; FAILURE when every child failed in a row (counted across ticks while the
+    node runs, as Nav2 counts them). RUNNING while a child runs.
     Interrupting it interrupts the running child.
     """
 
     def __init__(self, name: str, children: Sequence[Behaviour]) -> None:
         super().__init__(name, list(children))
         self._next = 0
+        self._failures = 0
 
     def tick(self) -> Iterator[Behaviour]:
         if not self.children:
@@ -119,8 +121,8 @@ class RoundRobin(py_trees.composites.Composite):
             return
         if self.status != Status.RUNNING:
             self.current_child = self.children[self._next % len(self.children)]
+            self._failures = 0
             self.initialise()
-        failures = 0
         while True:
             current = self.current_child
             assert current is not None
@@ -135,8 +137,8 @@ class RoundRobin(py_trees.composites.Composite):
                 self.stop(Status.SUCCESS)
                 yield self
                 return
-            failures += 1
-            if failures >= len(self.children):
+            self._failures += 1
+            if self._failures >= len(self.children):
                 self.stop(Status.FAILURE)
                 yield self
                 return

@@ -12,14 +12,15 @@ see.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from fleet.robots import SimParams
-from fleet.types import GoalState, GoalStatus
-from sim.goals import GoalBook, preempt, reject_if_invalid
-from sim.planner import GridPlanner
+from fleet.types import Costmap, GoalState, GoalStatus
+from sim.computations import Point, compute
+from sim.goals import GoalBook, is_computation, preempt, reject_if_invalid
+from sim.planner import GridPlanner, PlanResult
 from sim.robot import Robot
 from sim.safety import Safety
 from sim.state import FleetState
@@ -29,11 +30,20 @@ if TYPE_CHECKING:
     from fleet.clock import SimClock
 
 
+class CostmapOwner(Protocol):
+    """A world that keeps per-robot costmaps and can clear them."""
+
+    def clear_costmaps(self, namespace: str, which: str) -> None: ...
+
+
 class GoalDispatch:
     """The robots, their goals and their tasks (see the module docstring).
 
     ``obstacles`` returns the dynamic obstacles as rows ``(x, y, radius)`` (for
-    :meth:`free_distance`)."""
+    :meth:`free_distance`). ``costmaps``: the owner of the robots' costmaps, if the world
+    keeps any (ClearCostmaps goals clear them through it; without one they have nothing to
+    clear). Computation goals (:mod:`sim.computations`) run through :meth:`plan_path`,
+    :meth:`segment_free` and :meth:`clear_costmaps`."""
 
     def __init__(
         self,
@@ -57,6 +67,8 @@ class GoalDispatch:
         self.tasks: dict[int, Task] = {}
         #: robots whose task gets :meth:`Task.control` calls (not following a path), by index
         self._py: dict[int, Robot] = {}
+        #: the owner of the robots' costmaps (``None``: the world keeps none)
+        self.costmaps: CostmapOwner | None = None
 
     def add(self, robot: Robot) -> None:
         """Register ``robot`` (its index is the next row of the state)."""
@@ -66,8 +78,13 @@ class GoalDispatch:
     # -- goals ----------------------------------------------------------------------------
 
     def send(self, robot: Robot, goal: object) -> str:
-        """Start ``goal`` on ``robot``; return its id (see :meth:`sim.simulator.Simulator.send_goal`)."""
+        """Start ``goal`` on ``robot``; return its id (see :meth:`sim.simulator.Simulator.send_goal`).
+        A computation goal runs at once, beside the robot's motion goal."""
         record = self.goals.open(robot.namespace, goal)
+        if is_computation(record.goal):
+            if not reject_if_invalid(record):
+                compute(record, robot.pose, self)
+            return record.goal_id
         old = self.tasks.get(robot.index)
         if old is not None and not old.done:
             preempt(old.record, record, old.feedback())
@@ -182,6 +199,22 @@ class GoalDispatch:
         if task is not None:
             task.on_stuck()
             self._task_changed(robot)
+
+    # -- the Planner of the computation goals --------------------------------------------
+
+    def plan_path(self, namespace: str, start: Point, goal: Point) -> PlanResult:
+        """The simulator's plan from ``start`` to ``goal`` (see :mod:`sim.planner`)."""
+        return self.planner.plan(start, goal)
+
+    def segment_free(self, namespace: str, a: Point, b: Point) -> bool:
+        """Whether the robot's footprint stays off static obstacles from ``a`` to ``b``."""
+        return self.planner.segment_free(a, b, self.planner.footprint)
+
+    def clear_costmaps(self, namespace: str, which: Costmap) -> None:
+        """Clear the robot's ``which`` costmaps through :attr:`costmaps` (nothing to clear
+        without one)."""
+        if self.costmaps is not None:
+            self.costmaps.clear_costmaps(namespace, str(which))
 
     # -- the World of the tasks -----------------------------------------------------------
 

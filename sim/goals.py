@@ -13,12 +13,15 @@ One implementation of what a goal *is* on a backend, whatever moves the robots:
   is accepted but cannot start ends ``ABORTED`` at once with its action's code
   (:func:`start_error`: an empty FollowWaypoints ``WAYPOINT_UNKNOWN``, as Nav2's waypoint
   follower terminates an empty list; a non-finite Spin ``SPIN_UNKNOWN``; a non-positive
-  BackUp / DriveOnHeading ``*_INVALID_INPUT``).
+  BackUp / DriveOnHeading ``*_INVALID_INPUT``; an empty FollowPath ``INVALID_PATH``).
+* **Motion and computation.** A robot has one motion goal (:data:`fleet.types.MOTION_GOAL_KINDS`)
+  at a time; computation goals (:data:`fleet.types.COMPUTE_GOAL_KINDS`) run beside it
+  (:func:`is_computation`) and finish when they are sent (:mod:`sim.computations`).
 * **Records.** :class:`GoalRecord` holds the lifecycle of one id: EXECUTING (or REJECTED) to
   exactly one terminal status, the error code and message, the missed waypoints and the
   feedback frozen when the goal ended. :meth:`GoalRecord.snapshot` gives the
   :class:`fleet.types.GoalState` that ``goal_state`` returns.
-* **Preemption.** A new goal for a robot ends the goal it was executing ``ABORTED`` with code 0
+* **Preemption.** A new motion goal for a robot ends the goal it was executing ``ABORTED`` with code 0
   and the message ``Goal <old> was preempted by goal <new>.`` (:func:`preempt`).
 * **Cancel** is idempotent: :meth:`GoalBook.live` finds the record to cancel, ``None`` for an
   unknown or finished id (then cancel does nothing).
@@ -36,17 +39,23 @@ from typing import get_args
 
 from fleet.errors import BackendError
 from fleet.types import (
+    COMPUTE_GOAL_KINDS,
     BackUp,
+    ComputePathThroughPoses,
+    ComputePathToPose,
     DriveOnHeading,
     ErrorCode,
     Feedback,
+    FollowPath,
     FollowWaypoints,
     Goal,
     GoalState,
     GoalStatus,
     NavigateThroughPoses,
     NavigateToPose,
+    Path,
     Pose2D,
+    SmoothPath,
     Spin,
 )
 from sim.snapshots import make_goal_state
@@ -110,11 +119,29 @@ def goal_poses(goal: Goal) -> tuple[Pose2D, ...]:
     return ()
 
 
+def is_computation(goal: Goal) -> bool:
+    """Whether ``goal`` only computes (plans, smooths, clears costmaps) and so runs beside the
+    robot's motion goal (:data:`fleet.types.COMPUTE_GOAL_KINDS`)."""
+    return goal.kind in COMPUTE_GOAL_KINDS
+
+
+def input_poses(goal: Goal) -> Path:
+    """Every pose a goal carries (navigation poses, a path, a planner's start and goals), for
+    validation."""
+    if isinstance(goal, (FollowPath, SmoothPath)):
+        return tuple(goal.path)
+    if isinstance(goal, ComputePathToPose):
+        return (goal.goal,) if goal.start is None else (goal.start, goal.goal)
+    if isinstance(goal, ComputePathThroughPoses):
+        return tuple(goal.goals) if goal.start is None else (goal.start, *goal.goals)
+    return goal_poses(goal)
+
+
 def reject_reason(goal: Goal) -> str | None:
     """Why a server refuses ``goal`` outright (it ends ``REJECTED``), or ``None``."""
     if isinstance(goal, NavigateThroughPoses) and not goal.poses:
         return "NavigateThroughPoses needs at least one pose."
-    for i, pose in enumerate(goal_poses(goal)):
+    for i, pose in enumerate(input_poses(goal)):
         if not (math.isfinite(pose.x) and math.isfinite(pose.y) and math.isfinite(pose.theta)):
             return f"Pose {i} ({pose.x}, {pose.y}, {pose.theta}) is not finite."
     return None
@@ -125,6 +152,8 @@ def start_error(goal: Goal) -> tuple[ErrorCode, str] | None:
     at once), or ``None`` if it can run."""
     if isinstance(goal, FollowWaypoints) and not goal.poses:
         return ErrorCode.WAYPOINT_UNKNOWN, "FollowWaypoints got an empty list of waypoints."
+    if isinstance(goal, FollowPath) and not goal.path:
+        return ErrorCode.INVALID_PATH, "FollowPath got an empty path."
     if isinstance(goal, Spin) and not math.isfinite(goal.target_yaw):
         return ErrorCode.SPIN_UNKNOWN, f"Spin target {goal.target_yaw} rad is not a finite angle."
     if isinstance(goal, (BackUp, DriveOnHeading)):
@@ -154,6 +183,7 @@ class GoalRecord:
         "missed",
         "feedback",
         "final",
+        "path",
     )
 
     def __init__(self, goal_id: str, goal: Goal, namespace: str) -> None:
@@ -168,6 +198,8 @@ class GoalRecord:
         self.missed: tuple[int, ...] = ()
         self.feedback = Feedback()
         self.final: GoalState | None = None
+        #: The path a computation goal produced (its result).
+        self.path: Path = ()
 
     def finish(self, status: GoalStatus, code: int = 0, msg: str = "") -> None:
         """Move to terminal ``status`` once; later calls are ignored."""
@@ -196,6 +228,7 @@ class GoalRecord:
             error_code=self.error_code,
             error_msg=self.error_msg,
             missed_waypoints=self.missed,
+            path=self.path,
         )
 
 
@@ -217,9 +250,18 @@ class GoalBook:
         issued = self._issued.setdefault(namespace, deque())
         self._records[record.goal_id] = record
         issued.append(record.goal_id)
-        # only the newest goal of a robot can be live: the oldest beyond the limit is finished
+        # forget the oldest finished goal beyond the limit; a live goal (the robot's motion
+        # goal, however old) is kept in its place
         while len(issued) > self._keep + 1:
-            del self._records[issued.popleft()]
+            live: list[str] = []
+            while issued and not self._records[issued[0]].terminal:
+                live.append(issued.popleft())
+            found = bool(issued)
+            if found:
+                del self._records[issued.popleft()]
+            issued.extendleft(reversed(live))
+            if not found:
+                break
         return record
 
     def get(self, goal_id: str) -> GoalRecord:

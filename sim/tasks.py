@@ -29,6 +29,7 @@ from fleet.types import (
     DriveOnHeading,
     ErrorCode,
     Feedback,
+    FollowPath,
     FollowWaypoints,
     GoalStatus,
     NavigateThroughPoses,
@@ -232,6 +233,34 @@ class NavigateTask(Task):
         )
 
 
+class FollowPathTask(NavigateTask):
+    """FollowPath: drive along the given path (no planning) and turn to its last pose's yaw.
+
+    The robot joins the path at its nearest pose (the one after it, if the robot stands on
+    it), so a path re-sent while driving (replanning) continues smoothly. ABORTS with
+    ``INVALID_PATH`` for an empty path (at start) and ``FAILED_TO_MAKE_PROGRESS`` when the
+    robot is stuck or stops getting closer (a path through an obstacle, a blocked aisle).
+    """
+
+    def __init__(
+        self, record: GoalRecord, robot: Robot, world: World, now: float, path: tuple[Pose2D, ...]
+    ) -> None:
+        Task.__init__(self, record, robot, world, now)
+        self.poses = path[-1:]
+        self.planned = False
+        if not path:
+            return
+        x, y = robot.x, robot.y
+        k = min(range(len(path)), key=lambda i: (path[i].x - x) ** 2 + (path[i].y - y) ** 2)
+        near = math.hypot(path[k].x - x, path[k].y - y) <= world.params.goal_tolerance
+        rest = [(p.x, p.y) for p in path[k + 1 if near else k :]] or [(path[-1].x, path[-1].y)]
+        self.path = [(x, y), *rest]
+        # every pose is a via, passed in order: a path that returns to where it started is
+        # driven, not taken as already reached
+        self.vias = list(range(1, len(self.path)))
+        self.planned = True
+
+
 class FollowWaypointsTask(Task):
     """FollowWaypoints: navigate to each pose in turn (NavigateToPose semantics, yaw
     included). A waypoint that cannot be planned to or where the robot gets stuck is recorded
@@ -427,6 +456,8 @@ def make_task(record: GoalRecord, robot: Robot, world: World, now: float) -> Tas
         task = NavigateTask(record, robot, world, now, tuple(goal.poses))
     elif isinstance(goal, FollowWaypoints):
         task = FollowWaypointsTask(record, robot, world, now, tuple(goal.poses))
+    elif isinstance(goal, FollowPath):
+        task = FollowPathTask(record, robot, world, now, tuple(goal.path))
     elif isinstance(goal, Spin):
         task = SpinTask(record, robot, world, now, goal.target_yaw, goal.time_allowance_s)
     elif isinstance(goal, BackUp):

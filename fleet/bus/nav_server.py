@@ -25,7 +25,7 @@ from fleet.messages.nav import (
 )
 from fleet.navigation import Clock
 from fleet.robots import SimParams
-from fleet.types import Goal, GoalState, GoalStatus, RobotState
+from fleet.types import MOTION_GOAL_KINDS, Goal, GoalState, GoalStatus, RobotState
 
 #: Terminal goals stay in state messages this many wall seconds.
 DEFAULT_LINGER_S = 3.0
@@ -173,14 +173,16 @@ class SimNavServer:
         g = _ServedGoal(gid, goal.kind)
         client_seq = (req.client, robot)
         seq = req.seq
+        motion = goal.kind in MOTION_GOAL_KINDS
         if gid in self._precanceled[robot]:
             g.fixed = GoalState(gid, goal.kind, GoalStatus.CANCELED, error_msg="canceled before it started")
-        elif seq < self._last_seq.get(client_seq, -1):
+        elif motion and seq < self._last_seq.get(client_seq, -1):
             g.fixed = GoalState(
                 gid, goal.kind, GoalStatus.ABORTED, error_msg="preempted by a newer goal of the same client"
             )
         else:
-            self._last_seq[client_seq] = seq
+            if motion:  # computation goals run beside the motion goal and preempt nothing
+                self._last_seq[client_seq] = seq
             try:
                 g.sim_id = self.sim.send_goal(self._ns[robot], goal)
             except Exception as e:  # noqa: BLE001 - a goal the simulator cannot take

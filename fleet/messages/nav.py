@@ -30,8 +30,13 @@ from fleet.messages.codec import (
 from fleet.messages.records import pose_tuple
 from fleet.types import (
     BackUp,
+    ClearCostmaps,
+    ComputePathThroughPoses,
+    ComputePathToPose,
+    Costmap,
     DriveOnHeading,
     Feedback,
+    FollowPath,
     FollowWaypoints,
     Goal,
     GoalState,
@@ -40,6 +45,7 @@ from fleet.types import (
     NavigateToPose,
     Pose2D,
     RobotState,
+    SmoothPath,
     Spin,
     Wait,
 )
@@ -86,6 +92,35 @@ class WaitMsg(Struct, frozen=True, tag_field="kind", tag="wait"):
     duration_s: Finite
 
 
+class FollowPathMsg(Struct, frozen=True, tag_field="kind", tag="follow_path"):
+    path: Poses
+    controller_id: Text = ""
+    goal_checker_id: Text = ""
+
+
+class ComputePathToPoseMsg(Struct, frozen=True, tag_field="kind", tag="compute_path_to_pose"):
+    goal: Pose
+    start: Pose | None = None
+    planner_id: Text = ""
+
+
+class ComputePathThroughPosesMsg(Struct, frozen=True, tag_field="kind", tag="compute_path_through_poses"):
+    goals: Poses
+    start: Pose | None = None
+    planner_id: Text = ""
+
+
+class SmoothPathMsg(Struct, frozen=True, tag_field="kind", tag="smooth_path"):
+    path: Poses
+    smoother_id: Text = ""
+    max_smoothing_duration_s: Finite = 3.0
+    check_for_collisions: bool = False
+
+
+class ClearCostmapsMsg(Struct, frozen=True, tag_field="kind", tag="clear_costmaps"):
+    costmap: Costmap = Costmap.BOTH
+
+
 GoalMsg = Union[  # noqa: UP007 - a runtime union msgspec decodes by its ``kind`` tag
     NavigateToPoseMsg,
     NavigateThroughPosesMsg,
@@ -94,6 +129,11 @@ GoalMsg = Union[  # noqa: UP007 - a runtime union msgspec decodes by its ``kind`
     BackUpMsg,
     DriveOnHeadingMsg,
     WaitMsg,
+    FollowPathMsg,
+    ComputePathToPoseMsg,
+    ComputePathThroughPosesMsg,
+    SmoothPathMsg,
+    ClearCostmapsMsg,
 ]
 
 #: The goal kinds (Nav2 action names) the protocol carries.
@@ -105,7 +145,20 @@ GOAL_KINDS: Final = (
     "backup",
     "drive_on_heading",
     "wait",
+    "follow_path",
+    "compute_path_to_pose",
+    "compute_path_through_poses",
+    "smooth_path",
+    "clear_costmaps",
 )
+
+
+def _poses(poses: tuple[Pose2D, ...]) -> tuple[tuple[float, float, float], ...]:
+    return tuple(pose_tuple(p) for p in poses)
+
+
+def _pose_or_none(p: Pose2D | None) -> tuple[float, float, float] | None:
+    return None if p is None else pose_tuple(p)
 
 
 def goal_message(goal: Goal) -> GoalMsg:
@@ -124,6 +177,18 @@ def goal_message(goal: Goal) -> GoalMsg:
         return DriveOnHeadingMsg(goal.distance_m, goal.speed_mps, goal.time_allowance_s)
     if isinstance(goal, Wait):
         return WaitMsg(goal.duration_s)
+    if isinstance(goal, FollowPath):
+        return FollowPathMsg(_poses(goal.path), goal.controller_id, goal.goal_checker_id)
+    if isinstance(goal, ComputePathToPose):
+        return ComputePathToPoseMsg(pose_tuple(goal.goal), _pose_or_none(goal.start), goal.planner_id)
+    if isinstance(goal, ComputePathThroughPoses):
+        return ComputePathThroughPosesMsg(_poses(goal.goals), _pose_or_none(goal.start), goal.planner_id)
+    if isinstance(goal, SmoothPath):
+        return SmoothPathMsg(
+            _poses(goal.path), goal.smoother_id, goal.max_smoothing_duration_s, goal.check_for_collisions
+        )
+    if isinstance(goal, ClearCostmaps):
+        return ClearCostmapsMsg(Costmap(goal.costmap))
     raise TypeError(f"not a navigation goal: {type(goal).__name__}")
 
 
@@ -141,7 +206,25 @@ def goal_of(msg: GoalMsg) -> Goal:
         return DriveOnHeading(msg.distance_m, speed_mps=msg.speed_mps, time_allowance_s=msg.time_allowance_s)
     if isinstance(msg, BackUpMsg):
         return BackUp(msg.distance_m, speed_mps=msg.speed_mps, time_allowance_s=msg.time_allowance_s)
+    if isinstance(msg, FollowPathMsg):
+        return FollowPath(_pose2ds(msg.path), msg.controller_id, msg.goal_checker_id)
+    if isinstance(msg, ComputePathToPoseMsg):
+        start = None if msg.start is None else Pose2D(*msg.start)
+        return ComputePathToPose(Pose2D(*msg.goal), start, msg.planner_id)
+    if isinstance(msg, ComputePathThroughPosesMsg):
+        start = None if msg.start is None else Pose2D(*msg.start)
+        return ComputePathThroughPoses(_pose2ds(msg.goals), start, msg.planner_id)
+    if isinstance(msg, SmoothPathMsg):
+        return SmoothPath(
+            _pose2ds(msg.path), msg.smoother_id, msg.max_smoothing_duration_s, msg.check_for_collisions
+        )
+    if isinstance(msg, ClearCostmapsMsg):
+        return ClearCostmaps(msg.costmap)
     return Wait(msg.duration_s)
+
+
+def _pose2ds(poses: tuple[tuple[float, float, float], ...]) -> tuple[Pose2D, ...]:
+    return tuple(Pose2D(*p) for p in poses)
 
 
 def goal_to_dict(goal: Goal) -> dict[str, object]:
@@ -221,7 +304,8 @@ def feedback_of(m: FeedbackMsg) -> Feedback:
 
 class GoalStateMsg(Struct, frozen=True):
     """:class:`fleet.types.GoalState` on the wire, without ``goal_id`` (a state message keys
-    goal states by the client's goal id); ``missed_waypoints`` only when non-empty."""
+    goal states by the client's goal id); ``missed_waypoints`` and ``path`` only when
+    non-empty."""
 
     kind: Text
     status: GoalStatus
@@ -229,6 +313,7 @@ class GoalStateMsg(Struct, frozen=True):
     error_code: Count = 0
     error_msg: LongText = ""
     missed_waypoints: tuple[Count, ...] | UnsetType = UNSET
+    path: Poses | UnsetType = UNSET
 
 
 def goal_state_message(state: GoalState) -> GoalStateMsg:
@@ -239,6 +324,7 @@ def goal_state_message(state: GoalState) -> GoalStateMsg:
         error_code=int(state.error_code),
         error_msg=state.error_msg,
         missed_waypoints=tuple(int(i) for i in state.missed_waypoints) if state.missed_waypoints else UNSET,
+        path=_poses(state.path) if state.path else UNSET,
     )
 
 
@@ -251,6 +337,7 @@ def goal_state_of(goal_id: str, m: GoalStateMsg) -> GoalState:
         error_code=m.error_code,
         error_msg=m.error_msg,
         missed_waypoints=() if isinstance(m.missed_waypoints, UnsetType) else m.missed_waypoints,
+        path=() if isinstance(m.path, UnsetType) else _pose2ds(m.path),
     )
 
 

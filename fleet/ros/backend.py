@@ -14,9 +14,14 @@ Mapping onto the protocol (:mod:`fleet.navigation`):
 * :meth:`~RosNavigationBackend.send_goal` never blocks: it records the goal ``PENDING``, hands
   the request to the executor thread and returns an id ``"<ns>#r<n>"`` (never reused). The
   goal becomes ``EXECUTING`` when the server accepts it, ``REJECTED`` if it refuses.
-* Preemption: the goal this backend was running ends ``ABORTED`` at once when a new goal is
-  sent (error message names the new goal); if it ran on another action server, a cancel
-  request is sent to that server so the robot executes one goal at a time.
+* Preemption: the motion goal this backend was running ends ``ABORTED`` at once when a new
+  motion goal is sent (error message names the new goal); if it ran on another action server,
+  a cancel request is sent to that server so the robot executes one goal at a time.
+  Computation goals (``compute_path_to_pose``, ``compute_path_through_poses``,
+  ``smooth_path``: Nav2's planner and smoother servers; ``clear_costmaps``: the
+  ``clear_entirely_{global,local}_costmap`` services) run beside it; their action clients
+  (and ``follow_path``'s) are created on first use. A planner's or smoother's path is the
+  terminal state's ``path``.
 * Results: Nav2's status and ``error_code`` / ``error_msg`` (FollowWaypoints: missed waypoint
   indices) become the terminal :class:`~fleet.types.GoalState`; feedback messages become
   :class:`~fleet.types.Feedback`.
@@ -48,7 +53,9 @@ apply_ros_env_defaults()
 import rclpy  # noqa: E402
 from action_msgs.msg import GoalStatus as RosGoalStatus  # noqa: E402
 from builtin_interfaces.msg import Time  # noqa: E402
+from nav2_msgs.srv import ClearEntireCostmap  # noqa: E402
 from rclpy.action.client import ActionClient, ClientGoalHandle  # noqa: E402
+from rclpy.client import Client  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
@@ -58,16 +65,32 @@ from rclpy.task import Future  # noqa: E402
 from fleet.errors import BackendError  # noqa: E402
 from fleet.ros.conversions import (  # noqa: E402
     ACTION_TYPES,
+    CLEAR_COSTMAP_SERVICES,
     NAVIGATION_ACTIONS,
+    PLANNING_ACTIONS,
     FeedbackMsg,
     goal_to_msg,
     msg_to_feedback,
+    result_path,
 )
 from fleet.ros.robot_state import RobotStateTracker  # noqa: E402
-from fleet.types import ErrorCode, Feedback, Goal, GoalState, GoalStatus, RobotState  # noqa: E402
+from fleet.types import (  # noqa: E402
+    MOTION_GOAL_KINDS,
+    ClearCostmaps,
+    Costmap,
+    ErrorCode,
+    Feedback,
+    Goal,
+    GoalState,
+    GoalStatus,
+    Path,
+    RobotState,
+)
 
-#: Goal kinds (= Nav2 action names) the backend sends.
+#: Goal kinds (= Nav2 action names) whose servers the backend waits for at start.
 BACKEND_KINDS = NAVIGATION_ACTIONS
+#: Every goal kind the backend sends (the last is a service call).
+SENT_KINDS = (*NAVIGATION_ACTIONS, *PLANNING_ACTIONS, "clear_costmaps")
 _STATUS_MAP = {
     RosGoalStatus.STATUS_SUCCEEDED: GoalStatus.SUCCEEDED,
     RosGoalStatus.STATUS_CANCELED: GoalStatus.CANCELED,
@@ -85,6 +108,7 @@ class _Goal:
     error_code: int = 0
     error_msg: str = ""
     missed: tuple[int, ...] = ()
+    path: Path = ()
     #: ``None`` until the request is sent, the request's future until the server answers,
     #: then the server's goal handle.
     handle: ClientGoalHandle | Future | None = None
@@ -94,7 +118,14 @@ class _Goal:
 
     def snapshot(self) -> GoalState:
         return GoalState(
-            self.goal_id, self.kind, self.status, self.feedback, self.error_code, self.error_msg, self.missed
+            self.goal_id,
+            self.kind,
+            self.status,
+            self.feedback,
+            self.error_code,
+            self.error_msg,
+            self.missed,
+            self.path,
         )
 
     def finish(self, status: GoalStatus, code: int = 0, msg: str = "") -> None:
@@ -126,6 +157,7 @@ class RosNavigationBackend:
             enable_rosout=False,
         )
         self._clients = {k: ActionClient(self.node, ACTION_TYPES[k], k) for k in BACKEND_KINDS}
+        self._services: dict[str, Client] = {}
         self._goals: dict[str, _Goal] = {}
         self._ids = itertools.count(1)
         self._current: _Goal | None = None
@@ -139,15 +171,18 @@ class RosNavigationBackend:
 
     def send_goal(self, goal: Goal) -> str:
         """Record ``goal`` PENDING, queue it for the executor thread, return its id at once."""
-        if goal.kind not in self._clients:
+        if getattr(goal, "kind", None) not in SENT_KINDS:
             raise BackendError(f"{self._ns}: the ROS backend cannot send a {type(goal).__name__} goal")
         gid = f"{self._ns}#r{next(self._ids)}"
         rec = _Goal(gid, goal.kind, goal, sent_at=time.monotonic())
         with self._lock:
             old = self._current
             self._goals[gid] = rec
-            self._current = rec
             cancel_old = None
+            if goal.kind not in MOTION_GOAL_KINDS:
+                old = None  # a computation runs beside the motion goal
+            else:
+                self._current = rec
             if old is not None and not old.status.terminal:
                 old.finish(GoalStatus.ABORTED, 0, f"Goal {old.goal_id} was preempted by goal {gid}.")
                 if old.kind != goal.kind:
@@ -192,11 +227,54 @@ class RosNavigationBackend:
 
     # -- executor thread ------------------------------------------------------------------
 
+    def _client(self, kind: str) -> ActionClient:
+        """The action client of ``kind`` (created on first use; executor thread)."""
+        client = self._clients.get(kind)
+        if client is None:
+            client = self._clients[kind] = ActionClient(self.node, ACTION_TYPES[kind], kind)
+        return client
+
+    def _ready(self, kind: str) -> bool:
+        """Whether the server(s) of goal kind ``kind`` are discovered (executor thread)."""
+        if kind == "clear_costmaps":
+            return all(self._service(n).service_is_ready() for n in CLEAR_COSTMAP_SERVICES.values())
+        return bool(self._client(kind).server_is_ready())
+
+    def _service(self, name: str) -> Client:
+        client = self._services.get(name)
+        if client is None:
+            client = self._services[name] = self.node.create_client(ClearEntireCostmap, name)
+        return client
+
+    def _clear_costmaps(self, rec: _Goal) -> None:
+        """Call the clear services of the goal's costmaps; the goal SUCCEEDS when all answered."""
+        assert isinstance(rec.goal, ClearCostmaps)
+        which = Costmap(rec.goal.costmap)
+        names = [n for c, n in CLEAR_COSTMAP_SERVICES.items() if which in (Costmap.BOTH, c)]
+        done = Future()
+        rec.sent_at = time.monotonic()
+        rec.handle = done
+        pending = [self._service(n).call_async(ClearEntireCostmap.Request()) for n in names]
+
+        def answered(_f: Future) -> None:
+            if all(f.done() for f in pending) and not done.done():
+                done.set_result(True)
+                with self._lock:
+                    rec.finish(GoalStatus.SUCCEEDED)
+
+        for f in pending:
+            f.add_done_callback(answered)
+
     def _send_remote(self, rec: _Goal) -> None:
         with self._lock:
             if rec.status.terminal:
                 return
-        client = self._clients[rec.kind]
+        if not self._ready(rec.kind):
+            return  # the watchdog retries, then gives up after server_timeout_s
+        if rec.kind == "clear_costmaps":
+            self._clear_costmaps(rec)
+            return
+        client = self._client(rec.kind)
         if not client.server_is_ready():
             return  # the watchdog retries, then gives up after server_timeout_s
         rec.sent_at = time.monotonic()
@@ -245,6 +323,7 @@ class RosNavigationBackend:
         with self._lock:
             if rec.kind == "follow_waypoints":
                 rec.missed = tuple(int(m.index) for m in result.missed_waypoints)
+            rec.path = result_path(rec.kind, result)
             if status is GoalStatus.CANCELED and not rec.cancel_wanted:
                 status = GoalStatus.ABORTED  # canceled by someone else: not what we asked for
                 msg = msg or "canceled by another client"
@@ -268,7 +347,7 @@ class RosNavigationBackend:
         with self._lock:
             live = [r for r in self._goals.values() if not r.status.terminal]
         for rec in live:
-            ready = self._clients[rec.kind].server_is_ready()
+            ready = self._ready(rec.kind)
             if rec.handle is None and ready:
                 self._send_remote(rec)
                 continue
@@ -295,6 +374,8 @@ class RosNavigationBackend:
     def _destroy(self) -> None:
         for c in self._clients.values():
             c.destroy()
+        for s in self._services.values():
+            self.node.destroy_client(s)
         self.node.destroy_node()
 
 

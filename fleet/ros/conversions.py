@@ -19,6 +19,7 @@ from nav2_msgs.action import (
     ComputePathThroughPoses,
     ComputePathToPose,
     FollowPath,
+    SmoothPath,
 )
 from nav2_msgs.action import (
     DriveOnHeading as DriveOnHeadingAction,
@@ -39,6 +40,7 @@ from nav2_msgs.action import (
     Wait as WaitAction,
 )
 from nav2_msgs.msg import MissedWaypoint
+from nav_msgs.msg import Path as PathMsg
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from fleet.types import (
@@ -50,9 +52,22 @@ from fleet.types import (
     GoalState,
     NavigateThroughPoses,
     NavigateToPose,
+    Path,
     Pose2D,
     Spin,
     Wait,
+)
+from fleet.types import (
+    ComputePathThroughPoses as ComputePathThroughPosesGoal,
+)
+from fleet.types import (
+    ComputePathToPose as ComputePathToPoseGoal,
+)
+from fleet.types import (
+    FollowPath as FollowPathGoal,
+)
+from fleet.types import (
+    SmoothPath as SmoothPathGoal,
 )
 
 #: A Nav2 action type, and the Goal / Feedback / Result messages of one. nav2_msgs carries no
@@ -68,6 +83,7 @@ ActionType: TypeAlias = (
     | FollowPath
     | ComputePathToPose
     | ComputePathThroughPoses
+    | SmoothPath
 )
 GoalMsg: TypeAlias = (
     NavigateThroughPosesAction.Goal
@@ -80,6 +96,7 @@ GoalMsg: TypeAlias = (
     | FollowPath.Goal
     | ComputePathToPose.Goal
     | ComputePathThroughPoses.Goal
+    | SmoothPath.Goal
 )
 FeedbackMsg: TypeAlias = (
     NavigateThroughPosesAction.Feedback
@@ -102,6 +119,7 @@ ResultMsg: TypeAlias = (
     | FollowPath.Result
     | ComputePathToPose.Result
     | ComputePathThroughPoses.Result
+    | SmoothPath.Result
 )
 
 #: The navigation actions a robot serves and the fleet's backend drives (Nav2's server names).
@@ -122,8 +140,17 @@ AMCL_POSE_QOS = QoSProfile(
     depth=1,
 )
 
+#: The controller, planner and smoother actions (Nav2's controller_server, planner_server and
+#: smoother_server serve them beside the navigators).
+PLANNING_ACTIONS = ("follow_path", "compute_path_to_pose", "compute_path_through_poses", "smooth_path")
+#: Nav2's services that clear a whole costmap, by the costmap they clear.
+CLEAR_COSTMAP_SERVICES = {
+    "global": "global_costmap/clear_entirely_global_costmap",
+    "local": "local_costmap/clear_entirely_local_costmap",
+}
+
 #: Nav2 action type of each goal kind (the kind is also the action server's name): the
-#: :data:`NAVIGATION_ACTIONS` first, then the controller and planner actions.
+#: :data:`NAVIGATION_ACTIONS` first, then the controller, planner and smoother actions.
 ACTION_TYPES: dict[str, type[ActionType]] = {
     "navigate_through_poses": NavigateThroughPosesAction,
     "navigate_to_pose": NavigateToPoseAction,
@@ -135,6 +162,7 @@ ACTION_TYPES: dict[str, type[ActionType]] = {
     "follow_path": FollowPath,
     "compute_path_to_pose": ComputePathToPose,
     "compute_path_through_poses": ComputePathThroughPoses,
+    "smooth_path": SmoothPath,
 }
 
 
@@ -229,6 +257,37 @@ def goal_to_msg(goal: Goal) -> GoalMsg:
         g = WaitAction.Goal()
         g.time = seconds_to_duration(goal.duration_s)
         return g
+    return planning_goal_to_msg(goal)
+
+
+def planning_goal_to_msg(goal: Goal) -> GoalMsg:
+    """The Nav2 goal message of a FollowPath, ComputePathToPose, ComputePathThroughPoses or
+    SmoothPath goal (TypeError for another goal: ClearCostmaps is a service call)."""
+    if isinstance(goal, FollowPathGoal):
+        g = FollowPath.Goal()
+        g.path = path_to_msg(goal.path)
+        g.controller_id = goal.controller_id
+        g.goal_checker_id = goal.goal_checker_id
+        return g
+    if isinstance(goal, (ComputePathToPoseGoal, ComputePathThroughPosesGoal)):
+        if isinstance(goal, ComputePathToPoseGoal):
+            g = ComputePathToPose.Goal()
+            g.goal = pose2d_to_pose_stamped(goal.goal)
+        else:
+            g = ComputePathThroughPoses.Goal()
+            g.goals = [pose2d_to_pose_stamped(p) for p in goal.goals]
+        g.use_start = goal.start is not None
+        if goal.start is not None:
+            g.start = pose2d_to_pose_stamped(goal.start)
+        g.planner_id = goal.planner_id
+        return g
+    if isinstance(goal, SmoothPathGoal):
+        g = SmoothPath.Goal()
+        g.path = path_to_msg(goal.path)
+        g.smoother_id = goal.smoother_id
+        g.max_smoothing_duration = seconds_to_duration(goal.max_smoothing_duration_s)
+        g.check_for_collisions = bool(goal.check_for_collisions)
+        return g
     raise TypeError(f"no Nav2 action for goal type {type(goal).__name__}")
 
 
@@ -256,7 +315,38 @@ def msg_to_goal(kind: str, msg: GoalMsg) -> Goal:
         )
     if kind == "wait":
         return Wait(duration_to_seconds(msg.time))
+    if kind == "follow_path":
+        return FollowPathGoal(msg_to_path(msg.path), msg.controller_id, msg.goal_checker_id)
+    if kind == "compute_path_to_pose":
+        start = pose_stamped_to_pose2d(msg.start) if msg.use_start else None
+        return ComputePathToPoseGoal(pose_stamped_to_pose2d(msg.goal), start, msg.planner_id)
+    if kind == "compute_path_through_poses":
+        start = pose_stamped_to_pose2d(msg.start) if msg.use_start else None
+        goals = tuple(pose_stamped_to_pose2d(p) for p in msg.goals)
+        return ComputePathThroughPosesGoal(goals, start, msg.planner_id)
+    if kind == "smooth_path":
+        return SmoothPathGoal(
+            msg_to_path(msg.path),
+            msg.smoother_id,
+            duration_to_seconds(msg.max_smoothing_duration),
+            bool(msg.check_for_collisions),
+        )
     raise ValueError(f"no fleet goal for action {kind!r}")
+
+
+def path_to_msg(path: Path, stamp: Time | None = None) -> PathMsg:
+    """A ``nav_msgs/Path`` in ``map`` of a fleet path."""
+    m = PathMsg()
+    m.header.frame_id = "map"
+    if stamp is not None:
+        m.header.stamp = stamp
+    m.poses = [pose2d_to_pose_stamped(p, stamp) for p in path]
+    return m
+
+
+def msg_to_path(m: PathMsg) -> Path:
+    """The fleet path of a ``nav_msgs/Path`` (its frame is assumed to be ``map``)."""
+    return tuple(pose_stamped_to_pose2d(p) for p in m.poses)
 
 
 # -- feedback -----------------------------------------------------------------------------
@@ -288,6 +378,14 @@ def feedback_to_msg(kind: str, fb: Feedback, stamp: Time | None = None) -> Feedb
     return m
 
 
+def follow_path_feedback(distance_to_goal_m: float, speed_mps: float) -> FollowPath.Feedback:
+    """FollowPath's feedback: distance to the path's end (m) and the robot's speed (m/s)."""
+    m = FollowPath.Feedback()
+    m.distance_to_goal = float(distance_to_goal_m)
+    m.speed = float(speed_mps)
+    return m
+
+
 def msg_to_feedback(kind: str, m: FeedbackMsg) -> Feedback:
     """The fleet :class:`~fleet.types.Feedback` of a Nav2 feedback message on action ``kind``."""
     if kind in ("navigate_through_poses", "navigate_to_pose"):
@@ -309,6 +407,8 @@ def msg_to_feedback(kind: str, m: FeedbackMsg) -> Feedback:
         return Feedback(distance_traveled=float(m.distance_traveled))
     if kind == "wait":
         return Feedback(time_left_s=duration_to_seconds(m.time_left))
+    if kind == "follow_path":
+        return Feedback(distance_remaining_m=float(m.distance_to_goal))
     return Feedback()
 
 
@@ -336,4 +436,18 @@ def result_to_msg(
         m.missed_waypoints = missed
     if kind in ("spin", "backup", "drive_on_heading", "wait"):
         m.total_elapsed_time = seconds_to_duration(elapsed_s)
+    if kind in ("compute_path_to_pose", "compute_path_through_poses"):
+        m.path = path_to_msg(state.path)
+        m.planning_time = seconds_to_duration(elapsed_s)
+    if kind == "smooth_path":
+        m.path = path_to_msg(state.path)
+        m.smoothing_duration = seconds_to_duration(elapsed_s)
+        m.was_completed = bool(state.path)
     return m
+
+
+def result_path(kind: str, result: ResultMsg) -> Path:
+    """The path a planner or smoother result carries (``()`` for other actions)."""
+    if kind in ("compute_path_to_pose", "compute_path_through_poses", "smooth_path"):
+        return msg_to_path(result.path)
+    return ()

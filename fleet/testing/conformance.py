@@ -43,18 +43,29 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Callable, Iterable, Mapping
-from contextlib import AbstractContextManager
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Protocol
 
 from fleet.errors import FleetError
 from fleet.navigation import NavigationBackend
+from fleet.testing.harness import (
+    CAPABILITIES,
+    Case,
+    CaseFailed,
+    ConformanceHarness,
+    ConformanceWorld,
+    HarnessFactory,
+    case_registry,
+    expect,
+    finish,
+    robot_pose,
+    wait_for,
+)
+from fleet.testing.planning_cases import PLANNING_CASES
 from fleet.types import (
     BackUp,
     ErrorCode,
     FollowWaypoints,
-    GoalState,
     GoalStatus,
     NavigateToPose,
     Pose2D,
@@ -64,90 +75,21 @@ from fleet.types import (
     normalize_angle,
 )
 
-
-@dataclass(frozen=True)
-class ConformanceWorld:
-    """What a conformance case may assume about the harness's world (``map`` frame, m, rad).
-
-    ``reachable`` is free and reachable from ``start`` within ``nav_time_s`` seconds;
-    ``occupied`` lies inside a static obstacle (GOAL_OCCUPIED); ``off_map`` is outside the map
-    (GOAL_OUTSIDE_MAP); ``unreachable`` is free but enclosed (NO_VALID_PATH);
-    ``free_behind_m`` is the free straight distance behind ``start`` (for BackUp).
-    ``goal_tolerance`` / ``yaw_tolerance`` are the backend's goal-checker tolerances.
-    """
-
-    start: Pose2D
-    reachable: Pose2D
-    occupied: Pose2D
-    off_map: Pose2D
-    unreachable: Pose2D
-    free_behind_m: float
-    goal_tolerance: float
-    yaw_tolerance: float
-    nav_time_s: float = 60.0
-
-
-class ConformanceHarness(Protocol):
-    """One robot behind a backend under test, in a known world (see the module docstring)."""
-
-    @property
-    def backend(self) -> NavigationBackend: ...
-
-    @property
-    def world(self) -> ConformanceWorld: ...
-
-    def advance(self, seconds: float) -> None: ...
-
-
-#: Makes a fresh harness for one case: a context manager yielding it and cleaning up on exit.
-HarnessFactory = Callable[[], AbstractContextManager[ConformanceHarness]]
-
-#: Capabilities a case may require. A backend that ``lacks`` one is not checked for it.
-CAPABILITIES: dict[str, str] = {
-    "occupancy_map": "knows static obstacles, so a goal inside one aborts with GOAL_OCCUPIED",
-    "spin_in_place": "can turn on the spot (Spin)",
-    "reverse": "can drive backwards (BackUp)",
-}
-
-
-class _Failed(Exception):
-    """A case found the backend breaking the contract (the message says how)."""
-
-
-def expect(condition: bool, reason: str) -> None:
-    """Fail the running case with ``reason`` unless ``condition`` holds."""
-    if not condition:
-        raise _Failed(reason)
-
-
-def wait_for(
-    harness: ConformanceHarness, predicate: Callable[[], bool], timeout_s: float, step_s: float = 0.1
-) -> bool:
-    """Advance the harness in ``step_s`` increments until ``predicate()`` holds or
-    ``timeout_s`` of backend time passed; return whether it held."""
-    waited = 0.0
-    while not predicate():
-        if waited >= timeout_s - 1e-9:
-            return False
-        harness.advance(step_s)
-        waited += step_s
-    return True
-
-
-@dataclass(frozen=True)
-class Case:
-    """One conformance case: ``check(harness)`` fails (raises) when the backend breaks the
-    contract. ``requires`` names capabilities of :data:`CAPABILITIES`."""
-
-    name: str
-    check: Callable[[ConformanceHarness], None]
-    requires: frozenset[str] = frozenset()
-
-    @property
-    def doc(self) -> str:
-        """What the case checks (the first line of its docstring)."""
-        text = (self.check.__doc__ or self.name).strip().split("\n\n")[0]
-        return " ".join(text.split())
+__all__ = [
+    "CAPABILITIES",
+    "CASES",
+    "Case",
+    "CaseResult",
+    "ConformanceHarness",
+    "ConformanceReport",
+    "ConformanceWorld",
+    "HarnessFactory",
+    "Outcome",
+    "check_backend",
+    "expect",
+    "run_case",
+    "wait_for",
+]
 
 
 class Outcome(enum.Enum):
@@ -206,7 +148,7 @@ def run_case(factory: HarnessFactory, case: Case, lacks: Mapping[str, str] | Non
     try:
         with factory() as harness:
             case.check(harness)
-    except _Failed as e:
+    except CaseFailed as e:
         return CaseResult(case.name, Outcome.FAILED, str(e))
     except Exception as e:  # noqa: BLE001 - any error of the backend is a failure to report
         return CaseResult(case.name, Outcome.FAILED, f"raised {type(e).__name__}: {e}")
@@ -232,31 +174,9 @@ def check_backend(
 # The cases
 # ---------------------------------------------------------------------------------------------
 
-_CASES: list[Case] = []
-
-
-def _case(
-    *requires: str,
-) -> Callable[[Callable[[ConformanceHarness], None]], Callable[[ConformanceHarness], None]]:
-    def register(check: Callable[[ConformanceHarness], None]) -> Callable[[ConformanceHarness], None]:
-        _CASES.append(Case(check.__name__, check, frozenset(requires)))
-        return check
-
-    return register
-
-
-def _finish(h: ConformanceHarness, goal_id: str, timeout_s: float) -> GoalState:
-    ok = wait_for(h, lambda: h.backend.goal_state(goal_id).status.terminal, timeout_s)
-    state = h.backend.goal_state(goal_id)
-    expect(ok, f"goal {goal_id} still {state.status.value} after {timeout_s} s")
-    return state
-
-
-def _pose(h: ConformanceHarness) -> Pose2D:
-    pose = h.backend.robot_state().pose
-    expect(pose is not None, "the harness robot must be localized (robot_state().pose is None)")
-    assert pose is not None
-    return pose
+_CASES, _case = case_registry()
+_finish = finish
+_pose = robot_pose
 
 
 @_case()
@@ -481,4 +401,4 @@ def unknown_goal_kind_raises_and_changes_nothing(h: ConformanceHarness) -> None:
 
 
 #: Every conformance case, in the order they run.
-CASES: tuple[Case, ...] = tuple(_CASES)
+CASES: tuple[Case, ...] = (*_CASES, *PLANNING_CASES)

@@ -30,6 +30,8 @@ How Nav2 actions map onto SUMO (poses are in the ``map`` frame; SUMO x/y are the
   zero distance travelled in its feedback. A duration above ``time_allowance_s`` aborts with the
   action's TIMEOUT code after the allowance; non-positive distance or speed aborts with the
   INVALID_INPUT code. Behavior-tree recoveries therefore "succeed" without moving on SUMO.
+* **Planner goals** (ComputePathToPose / ThroughPoses, SmoothPath) run on the lanes beside the
+  motion goal; FollowPath and ClearCostmaps are REJECTED (:mod:`sim.sumo.planning`).
 * **Cancel** ends the goal CANCELED at once; the vehicle brakes to a stop at the next position
   it can reach (never an emergency stop). **Preemption**: a new goal aborts the executing one
   (``error_msg`` names the new goal) and sets a new route from where the vehicle is.
@@ -97,6 +99,7 @@ from sim.sumo.launch import (
     sumo_command,
 )
 from sim.sumo.net import SumoNetwork
+from sim.sumo.planning import SumoPlanning
 from sim.sumo.routes import RoutePlan, Router
 from sim.sumo.vehicles import Vehicle, Vehicles
 
@@ -229,6 +232,7 @@ class SumoWorld:
         chargers = [self.lanes.nearest(c.x, c.y, c.theta) for c in self.params.chargers]
         self._vehicles = Vehicles(self._ls, self.lanes, self.length, self.park_idle)
         self._router = Router(self._ls, self.lanes, self._vehicles, self.params)
+        self._planning = SumoPlanning(self._ls, self.lanes, self.max_snap_m)
         self._contacts = Contacts(self._ls)
         self._charging = Chargers(chargers, self.params.charger_radius + self.length, self.params.battery)
         self._robots: dict[str, Vehicle] = {}
@@ -243,8 +247,7 @@ class SumoWorld:
             self.add_robot(spec)
 
     def add_robot(self, spec: RobotSpec) -> None:
-        """Add ``spec`` as a vehicle parked at the lane point nearest its start pose (however
-        far). Raises :class:`BackendError` for a duplicate namespace."""
+        """Add ``spec`` parked at the lane point nearest its start (BackendError if a duplicate)."""
         if spec.namespace in self._robots:
             raise BackendError(f"robot namespace {spec.namespace} is already in the SUMO world")
         v = self._vehicles.insert(spec, self.clock.now())
@@ -338,6 +341,8 @@ class SumoWorld:
             raise BackendError("the SUMO world is closed")
         v = self._robot(namespace)
         record = self._goals.open(namespace, goal)
+        if self._planning.take(record, lambda: self.robot_state(namespace).pose):
+            return record.goal_id
         now = self.clock.now()
         g = _Goal(record, now)
         old = self._active.get(namespace)
@@ -448,8 +453,7 @@ class SumoWorld:
         )
 
     def run_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
-        """Step until ``predicate()`` is true (checked before each step) or ``timeout_s``
-        simulated seconds have passed. Returns whether the predicate became true."""
+        """Step until ``predicate()`` holds (checked before each step) or ``timeout_s`` pass."""
         return step_until(self.clock, self.step, predicate, timeout_s)
 
     # -- stepping ---------------------------------------------------------------------
@@ -484,8 +488,7 @@ class SumoWorld:
             self._vehicles.rest(self._robots[ns], park)
 
     def _teleported(self, v: Vehicle) -> None:
-        """SUMO started teleporting ``v`` (a deadlock signal): count it, report the robot stuck
-        and abort its navigation goal."""
+        """SUMO teleports ``v`` (a deadlock): count it, mark it stuck, abort its navigation."""
         self.teleports += 1
         v.teleports += 1
         v.stuck = True
@@ -520,8 +523,7 @@ class SumoWorld:
     # -- internals ----------------------------------------------------------------------
 
     def _finish(self, g: _Goal, status: GoalStatus, code: int, msg: str) -> None:
-        """End the executing goal ``g`` with ``status`` (its feedback frozen) and bring the
-        vehicle to rest."""
+        """End the executing goal ``g`` with ``status`` (feedback frozen); the vehicle rests."""
         v = self._robots[g.record.namespace]
         if not self._closed:
             g.record.feedback = self._feedback(v, g)
@@ -529,8 +531,7 @@ class SumoWorld:
         self._release(g, settle=True)
 
     def _release(self, g: _Goal, settle: bool) -> None:
-        """``g`` ended: it is no longer the robot's goal; with ``settle`` the vehicle is brought
-        to rest."""
+        """``g`` ended: it is no longer the robot's goal; ``settle`` brings the vehicle to rest."""
         self._vehicles.epoch += 1
         g.cached = None
         ns = g.record.namespace

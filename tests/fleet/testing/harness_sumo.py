@@ -42,6 +42,8 @@ SUMO_LACKS: dict[str, str] = {
     "occupancy_map": "SUMO has no occupancy map: a pose inside an obstacle is snapped onto the nearest lane",
     "spin_in_place": "SUMO vehicles cannot turn on the spot: Spin is a timed no-op",
     "reverse": "SUMO vehicles cannot reverse: BackUp is a timed no-op",
+    "path_following": "SUMO vehicles drive their lanes: FollowPath is rejected",
+    "costmaps": "SUMO keeps no costmaps: ClearCostmaps is rejected",
 }
 
 SUMO_PARAMS = replace(SimParams(), step_s=0.1)
