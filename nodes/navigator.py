@@ -139,6 +139,7 @@ class BtNavigator:
         self._ids = itertools.count(1)
         self._active: _NavGoal | None = None
         self._tree: XmlTree | None = None
+        self._last_error: object = ""
         #: Ticks of navigator trees so far.
         self.ticks = 0
 
@@ -186,7 +187,10 @@ class BtNavigator:
         self._clean()
         Blackboard.storage[f"{self.prefix}/{self._params.recoveries_key}"] = 0
         Blackboard.storage[f"{self.prefix}/initial_pose_received"] = True
+        Blackboard.storage[f"{self.prefix}/path"] = ()  # no stale path for the feedback
+        self._last_error = Blackboard.storage.get(key_path(self._ns, "last_error"), "")
         self._set_goal(goal)
+        rec.feedback = self._feedback(rec)
         return gid
 
     def goal_state(self, goal_id: str) -> GoalState:
@@ -226,7 +230,8 @@ class BtNavigator:
         elif status == Status.FAILURE:
             code = self._error_code()
             name = _code_name(code)
-            last = str(Blackboard.storage.get(key_path(self._ns, "last_error"), "") or "")
+            last = Blackboard.storage.get(key_path(self._ns, "last_error"), "")
+            last = str(last) if last and last != self._last_error else ""
             msg = f"The navigator tree {Path(rec.tree_file).name} failed" + (f" ({name})" if code else "")
             self._end(GoalStatus.ABORTED, code, f"{msg}: {last}" if last else msg + ".")
 

@@ -59,7 +59,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
         "nodes",
         "sim",
     ),
-    "fleet.ros": ("fleet.roadmap", "fleet.config", "fleet.runtime", "fleet.bus", "sim"),
+    "fleet.ros": ("fleet.roadmap", "fleet.config", "fleet.runtime", "fleet.bus", "nodes", "sim"),
     "fleet.loadtest": (
         "fleet.roadmap",
         "fleet.config",

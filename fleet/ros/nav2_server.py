@@ -51,6 +51,7 @@ from fleet.navigation import Clock  # noqa: E402
 from fleet.ros.conversions import seconds_to_time  # noqa: E402
 from fleet.ros.nav2_facade import Profile, RobotFacade  # noqa: E402
 from fleet.ros.nav2_services import LIFECYCLE_NODES, costmap_from_grid  # noqa: E402
+from nodes.bt_xml import parse_file  # noqa: E402
 
 if TYPE_CHECKING:
     from sim.simulator import Simulator
@@ -80,6 +81,8 @@ class Nav2SimServer:
         domain_id: ROS domain of the context it creates (default: ``ROS_DOMAIN_ID``).
         wall: the wall clock the simulator is paced against (default
             :class:`~fleet.clock.WallClock`; tests pass their own).
+        nav_to_pose_xml, nav_through_poses_xml: the navigator trees of goals with an empty
+            ``behavior_tree`` (default: the project's, ``nodes/trees/``).
 
     Call :meth:`spin` (blocks until :meth:`request_stop`, e.g. from a signal handler) or
     :meth:`spin_once` in your own loop, then :meth:`close`.
@@ -98,6 +101,8 @@ class Nav2SimServer:
         context: Context | None = None,
         domain_id: int | None = None,
         wall: Clock | None = None,
+        nav_to_pose_xml: str | None = None,
+        nav_through_poses_xml: str | None = None,
     ) -> None:
         profile = Profile.parse(profile)
         if not speed >= 0 or speed == float("inf"):
@@ -130,6 +135,8 @@ class Nav2SimServer:
                 feedback_period=feedback_period,
                 wall=self.wall,
             )
+        for r in self.robots.values():
+            r.actions.set_default_trees(nav_to_pose_xml, nav_through_poses_xml)
         #: Wall seconds it took to create every robot's interfaces.
         self.create_time_s = self.wall.now() - t_create
         self.executor.add_node(self.world)
@@ -261,6 +268,19 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: the environment's)")
     ap.add_argument("--ready-file", default=None, help="write a JSON line here once every server exists")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many wall seconds")
+    ap.add_argument(
+        "--nav-to-pose-xml",
+        default=None,
+        metavar="FILE",
+        help="navigator tree (BehaviorTree.CPP XML) of NavigateToPose goals with an empty behavior_tree "
+        "(default: the project's nodes/trees/navigate_to_pose.xml; Nav2's own trees load too)",
+    )
+    ap.add_argument(
+        "--nav-through-poses-xml",
+        default=None,
+        metavar="FILE",
+        help="navigator tree of NavigateThroughPoses goals with an empty behavior_tree",
+    )
     return ap
 
 
@@ -272,6 +292,9 @@ def main(argv: list[str] | None = None) -> int:
         apply_ros_env_defaults(args.domain_id)
     try:
         sim = build_simulator(args.config, args.robots)
+        for tree in (args.nav_to_pose_xml, args.nav_through_poses_xml):
+            if tree is not None:
+                parse_file(tree)  # a default tree that cannot load is an error at start, as in Nav2
     except FleetError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -285,6 +308,8 @@ def main(argv: list[str] | None = None) -> int:
         domain_id=args.domain_id,
         ready_file=args.ready_file,
         duration_s=args.duration,
+        nav_to_pose_xml=args.nav_to_pose_xml,
+        nav_through_poses_xml=args.nav_through_poses_xml,
     )
 
 
@@ -299,6 +324,8 @@ def serve(
     amcl_hz: float = 1.0,
     profile: Profile | str = Profile.FULL,
     domain_id: int | None = None,
+    nav_to_pose_xml: str | None = None,
+    nav_through_poses_xml: str | None = None,
 ) -> int:
     """Serve ``sim`` (the other arguments are :class:`Nav2SimServer`'s) until SIGINT/SIGTERM
     or ``duration_s`` wall seconds. Writes ``ready_file`` (JSON: pid, robots, create_s,
@@ -313,6 +340,8 @@ def serve(
         amcl_hz=amcl_hz,
         profile=profile,
         domain_id=domain_id,
+        nav_to_pose_xml=nav_to_pose_xml,
+        nav_through_poses_xml=nav_through_poses_xml,
     )
 
     def _stop(_sig: int, _frame: FrameType | None) -> None:
