@@ -28,6 +28,7 @@ import difflib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NoReturn
 
 from py_trees.behaviour import Behaviour
 
@@ -35,7 +36,7 @@ from fleet.errors import TreeError
 from fleet.navigation import Clock, NavigationBackend
 from fleet.robots import BatteryModel
 from fleet.types import TreeKind
-from nodes.blackboard import normalize_namespace, robot_blackboard
+from nodes.blackboard import clear_robot_blackboard, normalize_namespace, robot_blackboard
 from nodes.bt_xml import GENERIC_TAGS, BtDocument, BtTree, XmlElement, parse_file, parse_text
 from nodes.catalog import default_registry
 from nodes.ports import Binding, Direction, Literal, Port, Ports, Scope, reference
@@ -55,6 +56,8 @@ SCRIPT_ATTRS = (
     "_post",
 )
 SUBTREE_TAGS = ("SubTree", "SubTreePlus")
+#: The namespace of the robot :func:`check_tree_file` builds a tree for.
+CHECK_NAMESPACE = "/_tree_check"
 
 
 @dataclass
@@ -113,6 +116,29 @@ def load_tree(
     top = Scope(blackboard or ns)
     root = builder.tree(doc.main_tree, top, ())
     return XmlTree(root, doc, builder.keys)
+
+
+class _Unbound:
+    """The backend of a tree built only to be checked: it is never driven."""
+
+    namespace = CHECK_NAMESPACE
+
+    def _fail(self, *_args: object) -> NoReturn:
+        raise TreeError("<check>", 0, "", "a tree built by check_tree_file cannot drive a robot")
+
+    send_goal = goal_state = cancel_goal = robot_state = _fail
+
+
+def check_tree_file(path: str | Path, battery: BatteryModel | None = None) -> XmlTree:
+    """Build the main tree of ``path`` once for a robot that is never driven, so a bad file is
+    a :class:`~fleet.errors.TreeError` before any robot runs; the result tells which orders
+    the tree works on (:attr:`XmlTree.task_kind`). The check's blackboard keys are removed."""
+    from fleet.clock import SimClock
+
+    try:
+        return load_tree(path, CHECK_NAMESPACE, _Unbound(), SimClock(), battery)
+    finally:
+        clear_robot_blackboard(CHECK_NAMESPACE)
 
 
 def suggest(name: str, known: Iterable[str]) -> str:

@@ -17,7 +17,7 @@ from rich.console import Console
 
 from fleet.cli.argtypes import positive_int
 from fleet.cli.logs import add_log_level
-from fleet.errors import BackendError, BusError, ConfigError
+from fleet.errors import BackendError, BusError, ConfigError, TreeError
 
 if TYPE_CHECKING:
     from fleet.config.model import FleetConfig
@@ -124,7 +124,7 @@ def guard(fn: Callable[[], int]) -> int:
     old = _sigterm_as_interrupt()
     try:
         return int(fn())
-    except (ConfigError, BusError, BackendError) as e:
+    except (ConfigError, BusError, BackendError, TreeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:

@@ -28,6 +28,8 @@ examples:
       (robots of a `fleet sim` in another process; the other robots run `fleet agent`)
   fleet run configs/warehouse_picking.yaml --tree picking --speed 0 --duration 300
       (picking trees: the coordinator hands out the config's tasks instead of its routes)
+  fleet run configs/warehouse_patrol.yaml --tree nodes/trees/patrol.xml --speed 0 --duration 300
+      (every robot runs the BehaviorTree.CPP XML tree; a tree that uses {pick} gets tasks)
 
 --duration and --speed are in simulated seconds; --speed 0 runs as fast as the CPU allows.
 """
@@ -75,12 +77,22 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
     p.add_argument("--no-coordinator", action="store_true", help="do not run the coordinator in this process")
     p.add_argument(
         "--tree",
-        choices=tuple(TreeKind),
+        type=tree_choice,
         default=TreeKind.PATROL,
+        metavar="{patrol,picking,FILE.xml}",
         help="behavior tree of every robot: patrol (the coordinator assigns the config's routes; "
-        "default) or picking (it assigns the config's tasks, each done once; not with --traffic)",
+        "default), picking (it assigns the config's tasks, each done once; not with --traffic), or "
+        "a BehaviorTree.CPP v4 XML file (see docs/behavior_trees.md; nodes/trees/patrol.xml and "
+        "picking.xml are the built-in trees as XML)",
     )
     return p
+
+
+def tree_choice(text: str) -> str:
+    """``--tree``: a :class:`TreeKind` name or a path ending in ``.xml``."""
+    if text in tuple(TreeKind) or text.lower().endswith(".xml"):
+        return text
+    raise argparse.ArgumentTypeError(f"expected patrol, picking or a FILE.xml, got {text!r}")
 
 
 def handle(args: argparse.Namespace) -> int:
@@ -89,6 +101,7 @@ def handle(args: argparse.Namespace) -> int:
     from fleet.runtime.runner import FleetRunner
 
     config = load(args)
+    is_xml = str(args.tree).lower().endswith(".xml")
     agents: str | list[str] = "all" if args.agents == "all" else robot_list(args.agents)
     runner = FleetRunner(
         config,
@@ -99,7 +112,8 @@ def handle(args: argparse.Namespace) -> int:
         agents=agents,
         coordinator=not args.no_coordinator,
         live=False if args.no_live else None,
-        tree_kind=args.tree,
+        tree_kind=TreeKind.PATROL if is_xml else args.tree,
+        tree_file=args.tree if is_xml else None,
         traffic=args.traffic,
     )
     announce(runner, f"{len(runner.agent_names)} agents" + ("" if args.no_coordinator else " + coordinator"))

@@ -69,7 +69,12 @@ class RobotAgent:
         clock: the fleet clock (simulated seconds); status timestamps come from it.
         bus: a :class:`~fleet.bus.status_bus.StatusBus` (any :class:`AgentBus`), or ``None``
             for an agent without a network (orders then come only through :meth:`deliver`).
-        tree_kind: ``"patrol"`` or ``"picking"`` (see :func:`nodes.build_tree`).
+        tree_kind: ``"patrol"`` or ``"picking"`` (see :func:`nodes.build_tree`): the orders the
+            robot works on.
+        tree_file: a BehaviorTree.CPP XML file to run instead of the built-in tree of
+            ``tree_kind`` (:func:`nodes.xml_tree.load_tree`; ``tree_kind`` should be the file's
+            :attr:`~nodes.xml_tree.XmlTree.task_kind`). A bad file raises
+            :class:`~fleet.errors.TreeError`.
         battery_model: the battery thresholds the tree's battery guard uses.
         tick_hz: how often the runner should call :meth:`tick` (simulated Hz).
         on_status: called with every tick's status record (e.g. to feed an in-process
@@ -94,6 +99,7 @@ class RobotAgent:
         on_status: Callable[[StatusRecord], None] | None = None,
         traffic: bool = False,
         status_hz: float | None = None,
+        tree_file: str | None = None,
     ) -> None:
         from fleet.robots import BatteryModel
         from nodes import build_tree
@@ -118,9 +124,17 @@ class RobotAgent:
         clear_robot_blackboard(self.namespace)
         self.bb = robot_blackboard(self.namespace, name=f"agent{self.namespace}")
         self.traffic = traffic
-        self.root = build_tree(
-            tree_kind, self.namespace, backend, clock, battery_model or BatteryModel(), traffic=traffic
-        )
+        self.tree_file = tree_file
+        if tree_file is not None:
+            from nodes.xml_tree import load_tree
+
+            self.root = load_tree(
+                tree_file, self.namespace, backend, clock, battery_model or BatteryModel()
+            ).root
+        else:
+            self.root = build_tree(
+                tree_kind, self.namespace, backend, clock, battery_model or BatteryModel(), traffic=traffic
+            )
         self.seq = 0
         self.ticks = 0
         self.charges = 0

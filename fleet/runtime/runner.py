@@ -93,6 +93,9 @@ class FleetRunner:
         coordinator: whether this process runs the coordinator.
         live: show the live table (default: when ``out`` is a TTY); ignored with ``display``.
         tree_kind: the behavior tree of every local agent (``patrol`` or ``picking``).
+        tree_file: a BehaviorTree.CPP XML tree every local agent runs instead (checked now: a
+            bad file raises :class:`~fleet.errors.TreeError`); the orders it works on
+            (``tree_kind``) are the file's.
         out: where the default display draws (default ``sys.stdout``).
         listen: listen on the endpoint (router) instead of connecting; default: listen for
             in-process worlds, connect for remote ones.
@@ -121,7 +124,13 @@ class FleetRunner:
         listen: bool | None = None,
         traffic: bool | None = None,
         display: FleetDisplay | None = None,
+        tree_file: str | None = None,
     ) -> None:
+        if tree_file is not None:
+            from nodes.xml_tree import check_tree_file
+
+            tree_kind = check_tree_file(tree_file, config.sim.battery).task_kind
+        self.tree_file = tree_file
         self.agent_names = _check_args(config, backend, speed, duration, agents)
         self.config = config
         self.duration = duration
@@ -137,6 +146,12 @@ class FleetRunner:
         if self.traffic and tree_kind != TreeKind.PATROL:
             raise ConfigError(
                 str(config.path), "traffic", f"traffic management drives patrol trees only, not {tree_kind!r}"
+            )
+        if self.traffic and tree_file is not None:
+            raise ConfigError(
+                str(config.path),
+                "traffic",
+                "traffic management drives the built-in patrol tree only, not an XML tree",
             )
         self.display = display
         #: The traffic policy when traffic management is on (set up by :meth:`run`).
@@ -251,6 +266,7 @@ class FleetRunner:
             on_status=self.coordinator.feed_local if self.coordinator is not None else None,
             traffic=self.traffic,
             status_hz=self.config.status_hz,
+            tree_file=self.tree_file,
         )
 
     def _loop(self, world: World) -> None:
