@@ -27,7 +27,14 @@ JSON fields (``RunReport.to_dict``), units in the names:
   stopped after no progress);
 * ``per_robot``: one entry per robot: ``name``, ``namespace``, ``distance_m``, ``laps``,
   ``battery_final``, ``final_state`` (the tree's mode at the end, or ``dead`` / ``unknown``),
-  ``leaf``, ``task_id``, ``collisions``, ``charges`` (times it went to charge).
+  ``leaf``, ``task_id``, ``collisions``, ``charges`` (times it went to charge), ``goals``
+  (that robot's goal metrics, as below; robots of other processes: empty);
+* ``goals``: goal-level metrics of the fleet's navigation goals (:mod:`fleet.runtime.goal_log`):
+  ``sent``, ``succeeded``, ``failed``, ``canceled``, ``failed_by_code`` (``{code name:
+  goals}``), ``success_rate`` (succeeded / (succeeded + failed)), ``recoveries``,
+  ``recoveries_per_goal``, ``max_recoveries``, ``time_over_straight`` and
+  ``time_over_roadmap`` (time taken by succeeded goals over the time of the straight-line /
+  roadmap optimum at top speed).
 
 Trajectories (for :mod:`fleet.viz.plot`) are kept on the object but not written to JSON:
 the world's own (the simulator and SUMO sample every robot every 0.5 s) for the robots of
@@ -52,6 +59,7 @@ from fleet.messages import StatusRecord
 if TYPE_CHECKING:
     from fleet.config.model import FleetConfig
     from fleet.coordination.coordinator import Assignment, CoordinatorState, Reassignment
+    from fleet.runtime.goal_log import GoalMetrics
     from fleet.runtime.worlds import World
     from fleet.traffic.policy import ReservationTraffic
 
@@ -84,6 +92,7 @@ class RobotReport:
     task_id: str | None = None
     collisions: int = 0
     charges: int = 0
+    goals: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -113,6 +122,7 @@ class RunReport:
     traffic: dict[str, Any] | None = None
     picks_assigned: int = 0
     picks_completed: int = 0
+    goals: dict[str, Any] = field(default_factory=dict)
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -172,15 +182,24 @@ class ReportBuilder:
         state: CoordinatorState | None = None,
         traffic: ReservationTraffic | None = None,
         charges: Mapping[str, int] | None = None,
+        goals: Mapping[str, GoalMetrics] | None = None,
         bus_trajectory: Callable[[str], list[tuple[float, float, float]]] = lambda name: [],
         malformed: int = 0,
     ) -> RunReport:
         """The report: ``records`` are the latest status per robot; ``state`` the coordinator's
         (``None`` without a coordinator: laps come from the records); ``traffic`` the traffic
         policy when traffic management was on; ``charges`` times each local robot went to
-        charge; ``malformed`` bus payloads dropped."""
+        charge; ``goals`` each local robot's goal metrics; ``malformed`` bus payloads dropped."""
+        from fleet.runtime.goal_log import GoalMetrics
+
         names = [r.name for r in self.config.robots if r.name in records or r.name in self.local]
         rows = [self._row(n, records.get(n), state, charges or {}) for n in names]
+        fleet_goals = GoalMetrics()
+        for row in rows:
+            m = (goals or {}).get(row.name)
+            if m is not None:
+                row.goals = m.to_dict()
+                fleet_goals.add(m)
         trajectories = {n: self._trajectory(world, n, bus_trajectory) for n in names}
         collisions = world.collisions()
         if collisions is None:  # a blind world: every robot reports its own contacts
@@ -218,6 +237,7 @@ class ReportBuilder:
             traffic=traffic_dict(traffic, now) if traffic is not None else None,
             picks_assigned=len(state.pick_assignments) if state is not None else 0,
             picks_completed=state.picks_completed() if state is not None else 0,
+            goals=fleet_goals.to_dict() if goals else {},
         )
 
     def _row(

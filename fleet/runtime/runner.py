@@ -50,6 +50,7 @@ if TYPE_CHECKING:
     from fleet.bus.status_bus import StatusBus
     from fleet.coordination.coordinator import Coordinator
     from fleet.runtime.agent import RobotAgent
+    from fleet.runtime.goal_log import GoalLog
     from fleet.traffic.policy import ReservationTraffic
 
 logger = logging.getLogger(__name__)
@@ -162,6 +163,8 @@ class FleetRunner:
         self._wall0 = 0.0
         self.world: World | None = None
         self.agents: list[RobotAgent] = []
+        #: Goal metrics of each local robot (by name), see :mod:`fleet.runtime.goal_log`.
+        self.goal_logs: dict[str, GoalLog] = {}
         self.coordinator: Coordinator | None = None
         self.bus: StatusBus | None = None
         #: What this process saw of the fleet on the bus (latest statuses, bounded trajectories).
@@ -254,10 +257,15 @@ class FleetRunner:
 
     def _make_agent(self, namespace: str, world: World, bus: StatusBus) -> RobotAgent:
         from fleet.runtime.agent import RobotAgent
+        from fleet.runtime.goal_log import GoalLog
 
+        log = GoalLog(
+            world.backend(namespace), world.clock, self.config.sim.model.max_linear_speed, self.config.roadmap
+        )
+        self.goal_logs[namespace.strip("/")] = log
         return RobotAgent(
             namespace,
-            world.backend(namespace),
+            log,
             world.clock,
             bus,
             tree_kind=self.tree_kind,
@@ -333,6 +341,8 @@ class FleetRunner:
         )
 
     def _report(self, world: World, wall_s: float, interrupted: bool) -> RunReport:
+        for log in self.goal_logs.values():
+            log.close()
         builder = ReportBuilder(self.config, self.backend_name, self.speed, self.agent_names, t0=self._t0)
         return builder.build(
             world,
@@ -342,6 +352,7 @@ class FleetRunner:
             state=self.coordinator.state if self.coordinator is not None else None,
             traffic=self.traffic_policy,
             charges={a.name: a.charges for a in self.agents},
+            goals={name: log.metrics for name, log in self.goal_logs.items()},
             bus_trajectory=self.bus_view.trajectory,
             malformed=self.bus.malformed if self.bus is not None else 0,
         )

@@ -2,10 +2,11 @@
 (``RunReport.to_dict()``, see ``docs/cli.md``).
 
 Lines: ``finished`` (or ``interrupted``) with robots and simulated / wall seconds; patrols and
-laps per route; picks (picking trees); collisions, deadlocks, reassignments and throughput;
+laps per route; picks (picking trees); goals (sent, succeeded, success rate, failures by
+code, recoveries per goal, time over the straight-line / roadmap optimum); collisions, deadlocks, reassignments and throughput;
 the traffic line (traffic management); the reassignments (at most
 :data:`MAX_EVENTS_SHOWN`, the report has them all); then one row per robot: distance, laps,
-battery and final state. :func:`summary_text` is the same as plain text.
+battery, goals succeeded / sent and final state. :func:`summary_text` is the same as plain text.
 """
 
 from __future__ import annotations
@@ -42,6 +43,9 @@ def _counts(r: Mapping[str, Any]) -> list[Text]:
     ]
     if r.get("picks_assigned"):
         lines.append(Text(f"picks: {r['picks_assigned']} assigned, {r['picks_completed']} completed"))
+    g = r.get("goals") or {}
+    if g.get("sent"):
+        lines.append(_goals_line(g))
     line = Text("collisions: ")
     line.append(str(r["collisions"]), style="bold red" if r["collisions"] else "")
     line.append(f"   deadlocks: {r['deadlocks']}   reassignments: {r['reassignments']}")
@@ -57,6 +61,25 @@ def _counts(r: Mapping[str, Any]) -> list[Text]:
             )
         )
     return lines
+
+
+def _goals_line(g: Mapping[str, Any]) -> Text:
+    rate = g.get("success_rate")
+    t = Text(f"goals: {g['sent']} sent, {g['succeeded']} succeeded")
+    if rate is not None:
+        t.append(f" ({rate:.1%})", style="bold red" if rate < 0.9 else "")
+    failed = g.get("failed_by_code") or {}
+    if failed:
+        t.append(", failed: " + ", ".join(f"{k} {v}" for k, v in failed.items()), style="red")
+    if g.get("canceled"):
+        t.append(f", {g['canceled']} canceled")
+    per_goal = g.get("recoveries_per_goal")
+    if per_goal is not None:
+        t.append(f"   recoveries/goal: {per_goal:.2f} (max {g['max_recoveries']})")
+    straight, roadmap = g.get("time_over_straight"), g.get("time_over_roadmap")
+    if straight is not None and roadmap is not None:
+        t.append(f"   time/optimum: {straight:.2f}x straight line, {roadmap:.2f}x roadmap")
+    return t
 
 
 def _events(r: Mapping[str, Any]) -> list[Text]:
@@ -78,6 +101,7 @@ def _robots(r: Mapping[str, Any]) -> Table:
     t.add_column("dist m", justify="right")
     t.add_column("laps", justify="right")
     t.add_column("battery", justify="right")
+    t.add_column("goals", justify="right")
     t.add_column("state", no_wrap=True)
     for row in r.get("per_robot") or []:
         state = str(row["final_state"])
@@ -86,6 +110,7 @@ def _robots(r: Mapping[str, Any]) -> Table:
             f"{float(row['distance_m']):.1f}",
             str(row["laps"]),
             f"{float(row['battery_final']):.0%}",
+            f"{g['succeeded']}/{g['sent']}" if (g := row.get("goals") or {}).get("sent") else "-",
             Text(state, style="bold red" if state == "dead" else ""),
         )
     return t
