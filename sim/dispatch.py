@@ -40,9 +40,10 @@ class GoalDispatch:
     """The robots, their goals and their tasks (see the module docstring).
 
     ``obstacles`` returns the dynamic obstacles as rows ``(x, y, radius)`` (for
-    :meth:`free_distance`). ``costmaps``: the owner of the robots' costmaps, if the world
-    keeps any (ClearCostmaps goals clear them through it; without one they have nothing to
-    clear). Computation goals (:mod:`sim.computations`) run through :meth:`plan_path`,
+    :meth:`free_distance`). ``costmap_owner``: the world that keeps the robots' costmaps, if
+    any (ClearCostmaps goals clear them through its ``clear_costmaps(namespace, which)``, as
+    :meth:`sim.simulator.Simulator.clear_costmaps`; without one they have nothing to clear).
+    Computation goals (:mod:`sim.computations`) run through :meth:`plan_path`,
     :meth:`segment_free` and :meth:`clear_costmaps`."""
 
     def __init__(
@@ -67,8 +68,8 @@ class GoalDispatch:
         self.tasks: dict[int, Task] = {}
         #: robots whose task gets :meth:`Task.control` calls (not following a path), by index
         self._py: dict[int, Robot] = {}
-        #: the owner of the robots' costmaps (``None``: the world keeps none)
-        self.costmaps: CostmapOwner | None = None
+        #: the world that keeps the robots' costmaps (``None``: none is kept)
+        self.costmap_owner: CostmapOwner | None = None
 
     def add(self, robot: Robot) -> None:
         """Register ``robot`` (its index is the next row of the state)."""
@@ -211,10 +212,10 @@ class GoalDispatch:
         return self.planner.segment_free(a, b, self.planner.footprint)
 
     def clear_costmaps(self, namespace: str, which: Costmap) -> None:
-        """Clear the robot's ``which`` costmaps through :attr:`costmaps` (nothing to clear
-        without one)."""
-        if self.costmaps is not None:
-            self.costmaps.clear_costmaps(namespace, str(which))
+        """Clear the robot's ``which`` costmaps through :attr:`costmap_owner` (nothing to
+        clear without one)."""
+        if self.costmap_owner is not None:
+            self.costmap_owner.clear_costmaps(namespace, str(which))
 
     # -- the World of the tasks -----------------------------------------------------------
 
