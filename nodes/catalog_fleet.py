@@ -5,6 +5,8 @@ patrol and picking trees are built from (:mod:`nodes.leaves`, :mod:`nodes.condit
 * ``FollowRoute`` (``tolerance``): one lap of the blackboard ``route`` (:class:`nodes.trees.FollowRoute`).
 * ``Charge`` (``resume``, ``grace_s``): stand on the charger until the battery is at ``resume``
   (default: the robot's battery model).
+* ``NextWaypoint`` (``waypoint`` out, ``tolerance``): the next pose of the blackboard
+  ``route`` to visit (:class:`nodes.leaves.NextWaypoint`), for trees acting at each waypoint.
 * ``Idle``, ``CompletePick``.
 * ``BatteryLow`` (``low``, ``resume``; default: the battery model): the latched low-battery
   condition. ``HasAssignment`` (``key``): the blackboard key holds something.
@@ -21,7 +23,7 @@ from py_trees.blackboard import Blackboard
 
 from fleet.types import Mode
 from nodes.conditions import BatteryLow, HasAssignment, IsLocalized, NearPose
-from nodes.leaves import Charge, CompletePick, Idle
+from nodes.leaves import Charge, CompletePick, Idle, NextWaypoint
 from nodes.nav2_leaves import PortedAction, make_follow_waypoints
 from nodes.ports import Literal, PortType, in_port, out_port
 from nodes.recovery import RestartOnChange
@@ -75,6 +77,18 @@ FLEET_SPECS: tuple[NodeSpec, ...] = (
         ),
         (in_port("resume", _F), in_port("grace_s", _F, "3.0")),
         "stand on the charger until the battery reaches resume",
+    ),
+    leaf(
+        "NextWaypoint",
+        Category.ACTION,
+        lambda a: NextWaypoint(
+            a.ctx.backend,
+            lambda pose: a.ports.set("waypoint", pose),
+            tolerance_m=a.ports.get_float("tolerance", 0.5),
+            name=a.name,
+        ),
+        (out_port("waypoint", PortType.POSE, "{waypoint}"), in_port("tolerance", _F, "0.5")),
+        "the next waypoint of the route (advances once the robot stands on the current one)",
     ),
     leaf(
         "Idle", Category.ACTION, lambda a: Idle(a.ctx.namespace, name=a.name), (), "always RUNNING, mode idle"

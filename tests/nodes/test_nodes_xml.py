@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -16,6 +17,7 @@ from fleet.clock import SimClock
 from fleet.config.loader import load_config
 from fleet.errors import TreeError
 from fleet.types import GoalStatus, NavigateThroughPoses, NavigateToPose, Pose2D
+from nodes.blackboard import robot_blackboard
 from nodes.catalog import default_registry
 from nodes.navigator import DEFAULT_NAV_THROUGH_POSES_XML, DEFAULT_NAV_TO_POSE_XML, BtNavigator
 from nodes.xml_tree import load_tree
@@ -191,3 +193,49 @@ def test_bad_xml_is_an_error_naming_file_line_and_node(case: str, tmp_path: Path
     msg = str(err.value)
     assert msg.startswith(f"{f}:{line}:"), msg
     assert node in msg and reason in msg, msg
+
+
+class _Recorder:
+    """The robot's backend, recording the kind of every goal sent (a real simulator inside)."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+        self.sent: list[Any] = []
+        self.namespace = inner.namespace
+
+    def send_goal(self, goal: Any) -> str:
+        self.sent.append(goal)
+        return str(self.inner.send_goal(goal))
+
+    def goal_state(self, goal_id: str) -> Any:
+        return self.inner.goal_state(goal_id)
+
+    def cancel_goal(self, goal_id: str) -> None:
+        self.inner.cancel_goal(goal_id)
+
+    def robot_state(self) -> Any:
+        return self.inner.robot_state()
+
+
+def test_inspection_tree_acts_at_every_waypoint_of_the_route() -> None:
+    sim, ns, rm = _world()
+    backend = _Recorder(sim.backend(ns))
+    tree = load_tree(ROOT / "nodes" / "trees" / "inspection.xml", ns, backend, sim.clock, None)
+    bb = robot_blackboard(ns, name="test")
+    route = rm.poses_for(["w_1", "w_2", "a1_2", "a1_1"])  # type: ignore[attr-defined]
+    bb.route, bb.task_id, bb.charger = route, "t-1", Pose2D(1.0, 7.0)
+    ticks = 0
+    while int(bb.laps) < 1 and ticks < 6000:  # 600 s of 10 Hz ticks: a hang guard
+        for _ in range(2):
+            sim.step()
+        tree.root.tick_once()
+        ticks += 1
+    assert int(bb.laps) == 1
+    kinds = [g.kind for g in backend.sent]
+    visits = [i for i, k in enumerate(kinds) if k == "navigate_to_pose"]
+    assert len(visits) >= len(route)
+    for i in visits[: len(route)]:  # drive there, turn a full circle, hold still
+        assert kinds[i + 1 : i + 3] == ["spin", "wait"], kinds
+        assert backend.sent[i + 1].target_yaw == pytest.approx(6.2832)
+    goals = {(round(backend.sent[i].pose.x, 1), round(backend.sent[i].pose.y, 1)) for i in visits}
+    assert goals == {(round(p.x, 1), round(p.y, 1)) for p in route}
