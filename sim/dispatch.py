@@ -18,8 +18,9 @@ import numpy as np
 
 from fleet.robots import SimParams
 from fleet.types import GoalState, GoalStatus
+from sim.costmap import Costmaps
 from sim.goals import GoalBook, preempt, reject_if_invalid
-from sim.planner import GridPlanner
+from sim.planner import GridPlanner, PlanResult
 from sim.robot import Robot
 from sim.safety import Safety
 from sim.state import FleetState
@@ -42,8 +43,10 @@ class GoalDispatch:
         planner: GridPlanner,
         clock: SimClock,
         safety: Safety,
+        costmaps: Costmaps,
     ) -> None:
         self.state = state
+        self.costmaps = costmaps
         self.params = params
         self.planner = planner
         self.clock = clock
@@ -183,7 +186,34 @@ class GoalDispatch:
             task.on_stuck()
             self._task_changed(robot)
 
+    def abort_running(self, robot: Robot, code: int, msg: str) -> str | None:
+        """End ``robot``'s running goal ABORTED with ``code`` / ``msg`` (the robot stops being
+        driven by it); returns its id, ``None`` when it runs none."""
+        task = self.tasks.get(robot.index)
+        if task is None or task.done:
+            return None
+        task.abort(code, msg)
+        self._set_task(robot, None)
+        return task.record.goal_id
+
+    def running_kind(self, robot: Robot) -> str | None:
+        """The kind of ``robot``'s running goal (``None``: none)."""
+        task = self.tasks.get(robot.index)
+        return None if task is None or task.done else task.record.kind
+
     # -- the World of the tasks -----------------------------------------------------------
+
+    def plan(
+        self, robot: Robot, start: tuple[float, float], goal: tuple[float, float], strict: bool = False
+    ) -> PlanResult:
+        """See :meth:`sim.tasks.World.plan`; with ``strict``, a way closed by learned obstacles
+        is ``NO_VALID_PATH`` instead of the static plan."""
+        static = self.planner.plan(start, goal)
+        discs = self.costmaps.discs(robot.index)
+        if not discs or not static.ok:
+            return static
+        res = self.planner.plan_avoiding(start, goal, discs)
+        return res if res.ok or strict else static
 
     def free_distance(
         self, robot: Robot, direction: float, lookahead: float, static: bool, heading: float | None = None
