@@ -195,7 +195,7 @@ class ReportBuilder:
             config=str(self.config.path),
             backend=self.backend,
             robots=len(rows),
-            sim_time_s=float(now),
+            sim_time_s=float(now - self.t0),  # the run's own time, not the robots' clock
             wall_time_s=float(wall_s),
             speed=self.speed,
             patrols_assigned=len(state.assignments) if state is not None else 0,

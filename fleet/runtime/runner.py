@@ -307,7 +307,7 @@ class FleetRunner:
         recs = self.records()
         st = self.coordinator.state if self.coordinator is not None else None
         return FleetSnapshot(
-            sim_time_s=world.clock.now() if world is not None else 0.0,
+            sim_time_s=world.clock.now() - self._t0 if world is not None else 0.0,
             wall_s=self._wall.now() - self._wall0,
             records=recs,
             alive=self.bus.alive() if self.coordinator is not None and self.bus is not None else None,
