@@ -68,13 +68,15 @@ class LocalizationState:
     ``odom``: ``odom -> base_link``; ``map_to_odom``: the estimated ``map -> odom``;
     ``pose``: the estimated map pose (``map_to_odom ∘ odom``); ``updated``: when the
     estimate was last confirmed (simulated s); ``localized`` / ``reason`` as in
-    :class:`Estimate`; ``error_m``: distance of the estimate from the true position."""
+    :class:`Estimate`; ``lost``: the loss fault is injected (no estimate is published);
+    ``error_m``: distance of the estimate from the true position."""
 
     odom: Pose2D
     map_to_odom: Pose2D
     pose: Pose2D
     updated: float
     localized: bool
+    lost: bool
     reason: str
     error_m: float
 
@@ -153,6 +155,7 @@ class Localization:
             pose=pose,
             updated=self.confirmed(i, now),
             localized=e.localized,
+            lost=e.lost,
             reason=e.reason,
             error_m=pose.distance_to(truth),
         )

@@ -230,6 +230,20 @@ class Simulator:
         )
         return state
 
+    def true_pose(self, namespace: str) -> Pose2D:
+        """Where the robot truly is (``map``), whatever its localization believes."""
+        return self._robot(namespace).pose
+
+    def followed_path(self, namespace: str) -> tuple[tuple[float, float], ...] | None:
+        """The path (``map``, m) the robot's navigation goal is following now: the planned
+        path from where the goal started through its poses; ``None`` when it follows none."""
+        i = self._robot(namespace).index
+        s = self.state
+        if not s.fol[i]:
+            return None
+        o, k = int(s.f_off[i]), int(s.f_len[i])
+        return tuple(zip(s.pts_x[o : o + k].tolist(), s.pts_y[o : o + k].tolist(), strict=True))
+
     def localization_state(self, namespace: str) -> LocalizationState:
         """The robot's odometry, estimated ``map -> odom`` and estimate now
         (:class:`sim.localization.LocalizationState`)."""

@@ -68,6 +68,8 @@ say "interfaces ready in $(elapsed "$t") s"
 "$PY" - <<'PYEOF'
 from nav2_msgs.action import NavigateThroughPoses, NavigateToPose
 from geographic_msgs.msg import GeoPose
+from tf2_msgs.msg import TFMessage
+from diagnostic_msgs.msg import DiagnosticArray
 print("[setup-ros] nav2_msgs OK:", NavigateThroughPoses.__module__)
 PYEOF
 say "done in $(elapsed "$T0") s; venv size $(du -sh "$VENV" | cut -f1)"
