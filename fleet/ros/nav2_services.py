@@ -1,15 +1,11 @@
-"""The Nav2 services of one simulated robot: lifecycle and costmaps.
+"""The costmap services of one simulated robot (its lifecycle is :mod:`fleet.ros.lifecycle`).
 
-* :class:`LifecycleServices`: ``<node>/get_state`` for each of :data:`LIFECYCLE_NODES`
-  (answering ``active``: the simulator is always up) and
-  ``lifecycle_manager_navigation/manage_nodes`` (every command succeeds). This is what
-  ``BasicNavigator.waitUntilNav2Active()`` / ``lifecycleStartup()`` call.
 * :class:`CostmapServices`: the clear services of Nav2's two costmaps, which really clear the
   robot's learned obstacles in the simulator (:mod:`sim.costmap`), and
   ``{global,local}_costmap/get_costmap``, which answer the live costmap.
 
 Service names are relative, so they resolve under the robot's namespace
-(``/robot1/amcl/get_state``). Callbacks run on the server's one executor thread.
+(``/robot1/global_costmap/get_costmap``). Callbacks run on the server's one executor thread.
 """
 
 from __future__ import annotations
@@ -18,8 +14,6 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
 from builtin_interfaces.msg import Time
-from lifecycle_msgs.msg import State
-from lifecycle_msgs.srv import GetState
 from nav2_msgs.msg import Costmap
 from nav2_msgs.srv import (
     ClearCostmapAroundPose,
@@ -27,7 +21,6 @@ from nav2_msgs.srv import (
     ClearCostmapExceptRegion,
     ClearEntireCostmap,
     GetCostmap,
-    ManageLifecycleNodes,
 )
 from rclpy.node import Node
 
@@ -38,47 +31,8 @@ if TYPE_CHECKING:
     from sim.costmap import CostmapRaster
     from sim.simulator import Simulator
 
-#: Nav2 nodes whose lifecycle state a client may ask (``<name>/get_state``).
-LIFECYCLE_NODES = (
-    "bt_navigator",
-    "amcl",
-    "planner_server",
-    "controller_server",
-    "behavior_server",
-    "map_server",
-)
-#: Nav2's lifecycle manager of the navigation nodes.
-LIFECYCLE_MANAGER = "lifecycle_manager_navigation"
-
 #: The costmaps ``get_costmap`` is served for.
 COSTMAPS = ("global_costmap", "local_costmap")
-
-
-class LifecycleServices:
-    """Lifecycle services of one robot's Nav2 nodes, served on ``node``.
-
-    Every node of :data:`LIFECYCLE_NODES` reports ``active``; ``manage_nodes`` accepts every
-    command (startup, shutdown, pause, resume, reset) and reports success without changing
-    anything.
-    """
-
-    def __init__(self, node: Node) -> None:
-        self.services = [
-            node.create_service(GetState, f"{name}/get_state", self._get_state) for name in LIFECYCLE_NODES
-        ]
-        self.services.append(
-            node.create_service(ManageLifecycleNodes, f"{LIFECYCLE_MANAGER}/manage_nodes", self._manage)
-        )
-
-    def _get_state(self, _req: GetState.Request, resp: GetState.Response) -> GetState.Response:
-        resp.current_state = State(id=State.PRIMARY_STATE_ACTIVE, label="active")
-        return resp
-
-    def _manage(
-        self, _req: ManageLifecycleNodes.Request, resp: ManageLifecycleNodes.Response
-    ) -> ManageLifecycleNodes.Response:
-        resp.success = True
-        return resp
 
 
 class CostmapServices:

@@ -27,7 +27,10 @@ JSON fields (``RunReport.to_dict``), units in the names:
   stopped after no progress);
 * ``per_robot``: one entry per robot: ``name``, ``namespace``, ``distance_m``, ``laps``,
   ``battery_final``, ``final_state`` (the tree's mode at the end, or ``dead`` / ``unknown``),
-  ``leaf``, ``task_id``, ``collisions``, ``charges`` (times it went to charge).
+  ``leaf``, ``task_id``, ``collisions``, ``charges`` (times it went to charge),
+  ``safety_stops`` (times its safety watchdog stopped it: localization lost, navigation server
+  down; :mod:`fleet.diagnostics`);
+* ``safety_stops``: the robots' safety stops summed (robots of this process).
 
 Trajectories (for :mod:`fleet.viz.plot`) are kept on the object but not written to JSON:
 the world's own (the simulator and SUMO sample every robot every 0.5 s) for the robots of
@@ -84,6 +87,7 @@ class RobotReport:
     task_id: str | None = None
     collisions: int = 0
     charges: int = 0
+    safety_stops: int = 0
 
 
 @dataclass
@@ -113,6 +117,7 @@ class RunReport:
     traffic: dict[str, Any] | None = None
     picks_assigned: int = 0
     picks_completed: int = 0
+    safety_stops: int = 0
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -174,6 +179,7 @@ class ReportBuilder:
         charges: Mapping[str, int] | None = None,
         bus_trajectory: Callable[[str], list[tuple[float, float, float]]] = lambda name: [],
         malformed: int = 0,
+        safety_stops: Mapping[str, int] | None = None,
     ) -> RunReport:
         """The report: ``records`` are the latest status per robot; ``state`` the coordinator's
         (``None`` without a coordinator: laps come from the records); ``traffic`` the traffic
@@ -181,6 +187,8 @@ class ReportBuilder:
         charge; ``malformed`` bus payloads dropped."""
         names = [r.name for r in self.config.robots if r.name in records or r.name in self.local]
         rows = [self._row(n, records.get(n), state, charges or {}) for n in names]
+        for row in rows:
+            row.safety_stops = (safety_stops or {}).get(row.name, 0)
         trajectories = {n: self._trajectory(world, n, bus_trajectory) for n in names}
         collisions = world.collisions()
         if collisions is None:  # a blind world: every robot reports its own contacts
@@ -218,6 +226,7 @@ class ReportBuilder:
             traffic=traffic_dict(traffic, now) if traffic is not None else None,
             picks_assigned=len(state.pick_assignments) if state is not None else 0,
             picks_completed=state.picks_completed() if state is not None else 0,
+            safety_stops=sum(r.safety_stops for r in rows),
         )
 
     def _row(

@@ -326,6 +326,7 @@ class FleetRunner:
             state=self.coordinator.state if self.coordinator is not None else None,
             traffic=self.traffic_policy,
             charges={a.name: a.charges for a in self.agents},
+            safety_stops={a.name: a.watchdog.trips for a in self.agents},
             bus_trajectory=self.bus_view.trajectory,
             malformed=self.bus.malformed if self.bus is not None else 0,
         )
