@@ -142,6 +142,8 @@ class Nav2SimServer:
         self._stop = False
         #: Why the server stopped: ``"signal"``, ``"duration"`` (set by :func:`serve`), or ``""``.
         self.stopped_by = ""
+        #: Simulated time the world does not step beyond (``serve``'s ``duration_s``).
+        self.end_time: float | None = None
         t_create = self.wall.now()
         self.world = Node("fleet_sim", context=context, start_parameter_services=False, enable_rosout=False)
         self.robots: dict[str, RobotFacade] = {}
@@ -195,6 +197,8 @@ class Nav2SimServer:
             n = 0
             # simulated seconds owed: the pacer's lag times the speed
             while -self.pacer.ahead() * self.speed >= step - 1e-9:
+                if self.end_time is not None and self.sim.clock.now() >= self.end_time - 1e-9:
+                    break  # the run's --duration is reached: the world stops there
                 if n == MAX_CATCH_UP_STEPS:
                     self.pacer.start()  # cannot keep up: drop the backlog rather than spiral
                     break
@@ -477,6 +481,8 @@ def serve(
         tmp.write_text(json.dumps(info) + "\n")
         tmp.replace(ready_file)
     sim_t0 = sim.clock.now()
+    if duration_s is not None:
+        server.end_time = sim_t0 + duration_s
     try:
         while server.running:
             if duration_s is not None and sim.clock.now() - sim_t0 >= duration_s - 1e-9:
