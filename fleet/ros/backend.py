@@ -81,6 +81,8 @@ BACKEND_KINDS = NAVIGATION_ACTIONS
 #: A robot whose odometry lags the newest stamp by more than this (s) does not hold the
 #: fleet's clock back (:meth:`RosBackends.fleet_time`).
 CLOCK_LAG_S = 2.0
+#: Wall seconds :meth:`RosBackends.close` waits for queued requests and cancel answers.
+CLOSE_FLUSH_S = 3.0
 #: Goals kept for ``goal_state`` (the oldest beyond are forgotten: ``KeyError``).
 KEEP_GOALS = 4096
 #: Goal kinds that move the robot along the floor (for the progress checker).
@@ -262,7 +264,7 @@ class RosNavigationBackend:
             # preempted or canceled before the server answered: cancel it there too
             cancel = rec.cancel_wanted or rec.status.terminal
         if cancel:
-            handle.cancel_goal_async()
+            self._owner.track_cancel(handle.cancel_goal_async())
         handle.get_result_async().add_done_callback(lambda f: self._on_result(rec, f))
 
     def _on_feedback(self, rec: _Goal, msg: _FeedbackMessage) -> None:
@@ -302,7 +304,7 @@ class RosNavigationBackend:
                     rec.finish(GoalStatus.CANCELED, 0, "")
             return
         if isinstance(handle, ClientGoalHandle):
-            handle.cancel_goal_async()
+            self._owner.track_cancel(handle.cancel_goal_async())
         # else the request is in flight: _on_goal_response cancels it once accepted
 
     def _watchdog(self, now: float) -> None:
@@ -374,6 +376,7 @@ class RosBackends:
         namespaces = list(namespaces)
         #: Each robot's newest odometry stamp (s), by the order of ``namespaces``.
         self._odom_t = np.zeros(len(namespaces))
+        self._cancels: set[Future] = set()
         self._fleet_t = 0.0
         self.backends: dict[str, RosNavigationBackend] = {}
         try:
@@ -482,10 +485,21 @@ class RosBackends:
                     break
                 raise
 
+    def track_cancel(self, fut: Future) -> None:
+        """Remember a cancel request until it is answered (:meth:`close` waits for it)."""
+        self._cancels.add(fut)
+        fut.add_done_callback(self._cancels.discard)
+
     def close(self) -> None:
-        """Stop the executor thread, destroy the nodes, shut the context down."""
+        """Send what is queued (the cancels of goals the agents canceled as they closed: a
+        robot must not drive on after the run) and wait up to :data:`CLOSE_FLUSH_S` for their
+        answers; then stop the executor thread, destroy the nodes, shut the context down."""
         if self._closed:
             return
+        deadline = time.monotonic() + CLOSE_FLUSH_S
+        self._guard.trigger()
+        while (self._queue or self._cancels) and time.monotonic() < deadline and self._thread.is_alive():
+            time.sleep(0.01)
         self._closed = True
         self._thread.join(timeout=5.0)
         for b in self.backends.values():

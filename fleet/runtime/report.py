@@ -159,6 +159,7 @@ class ReportBuilder:
         local: the robots whose agents ran in this process (their trajectories come from the
             world; the others' from ``bus_trajectory``).
         t0: the simulated time the loop started at (for the throughput).
+        t_end: the simulated time the loop ended at (default: the world's clock now).
     """
 
     config: FleetConfig
@@ -166,6 +167,7 @@ class ReportBuilder:
     speed: float
     local: Sequence[str]
     t0: float = 0.0
+    t_end: float | None = None
 
     def build(
         self,
@@ -193,7 +195,7 @@ class ReportBuilder:
         collisions = world.collisions()
         if collisions is None:  # a blind world: every robot reports its own contacts
             collisions = sum(r.collisions for r in rows) // 2
-        now = world.clock.now()
+        now = world.clock.now() if self.t_end is None else self.t_end
         laps = state.laps_completed() if state is not None else sum(r.laps for r in rows)
         robot_hours = len(rows) * max(0.0, now - self.t0) / 3600.0
         deadlocks = (

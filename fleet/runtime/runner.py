@@ -143,6 +143,7 @@ class FleetRunner:
         self.traffic_policy: ReservationTraffic | None = None
         self.stop_event = threading.Event()
         self._t0 = 0.0
+        self._t_end: float | None = None
         self._wall = WallClock()
         self._wall0 = 0.0
         self.world: World | None = None
@@ -274,6 +275,7 @@ class FleetRunner:
                     display.show(self.snapshot())
                     next_show = w + display.interval_s
         finally:
+            self._t_end = clock.now()  # a remote world's clock runs on while the run closes
             display.close(self.snapshot())
 
     def _sleep(self, seconds: float) -> None:
@@ -317,7 +319,9 @@ class FleetRunner:
         )
 
     def _report(self, world: World, wall_s: float, interrupted: bool) -> RunReport:
-        builder = ReportBuilder(self.config, self.backend_name, self.speed, self.agent_names, t0=self._t0)
+        builder = ReportBuilder(
+            self.config, self.backend_name, self.speed, self.agent_names, t0=self._t0, t_end=self._t_end
+        )
         return builder.build(
             world,
             {r.robot: r for r in self.records()},
