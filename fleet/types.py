@@ -226,6 +226,8 @@ class Mode(enum.StrEnum):
     PICKING = "picking"
     CHARGING = "charging"
     RECOVERY = "recovery"
+    #: The safety watchdog stopped the robot (localization lost, navigation server down).
+    SAFETY_STOP = "safety_stop"
 
 
 #: Modes in which a robot is expected to drive (the coordinator's stuck check).
@@ -334,6 +336,9 @@ class ErrorCode(enum.IntEnum):
     DRIVE_TIMEOUT = 721
     DRIVE_COLLISION_AHEAD = 723
     DRIVE_INVALID_INPUT = 724
+    # Fleet-level codes (not Nav2's): the safety watchdog stopped the robot (its localization
+    # was lost or its navigation server went down), and the goal ended with it.
+    SAFETY_STOPPED = 9998
     # Navigator-level (NavigateToPose UNKNOWN in Nav2 Jazzy is reported as 0 + error_msg);
     # used when the server itself vanished or a goal could not be delivered.
     SERVER_UNAVAILABLE = 9999
@@ -395,9 +400,18 @@ class GoalState:
 class RobotState:
     """What a backend knows about its robot right now.
 
-    ``pose`` is ``None`` until the robot is localized. ``battery`` is a fraction in [0, 1].
-    ``stuck`` is true when the robot has made no progress for the backend's stuck time while
-    it was trying to move. ``charging`` is true while the robot stands on a charger.
+    ``pose`` is ``None`` until the robot is localized (the map pose estimate). ``battery`` is a
+    fraction in [0, 1]. ``stuck`` is true when the robot has made no progress for the
+    backend's stuck time while it was trying to move. ``charging`` is true while the robot
+    stands on a charger.
+
+    Health (what :mod:`fleet.health` turns into diagnostics and the safety watchdog reads):
+    ``localized`` is false while the localizer has no converged estimate (lost, or an initial
+    pose it could not match); ``pose_age_s`` is how old the pose estimate is (seconds of the
+    backend's clock since the localizer last confirmed it); ``battery_known`` is false when
+    no battery sensor reports (``battery`` is then an assumption); ``navigation_ready`` is
+    false while the robot's navigation server is down, unreachable or not active;
+    ``safety_stop`` names why the robot's own watchdog stopped it (``""``: not stopped).
     """
 
     pose: Pose2D | None
@@ -408,3 +422,8 @@ class RobotState:
     stuck: bool = False
     distance_m: float = 0.0
     collisions: int = 0
+    localized: bool = True
+    pose_age_s: float = 0.0
+    battery_known: bool = True
+    navigation_ready: bool = True
+    safety_stop: str = ""

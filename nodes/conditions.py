@@ -55,14 +55,22 @@ class IsStuck(py_trees.behaviour.Behaviour):
 
 
 class IsLocalized(py_trees.behaviour.Behaviour):
-    """SUCCESS when the robot's pose is known (``robot_state().pose is not None``)."""
+    """SUCCESS while the robot is localized: its pose is known, its localizer says it has
+    converged (``robot_state().localized``) and the estimate is fresh (``pose_age_s``, the age
+    of the last localization update in simulated seconds, at most ``timeout_s``); FAILURE
+    otherwise (lost, never localized, or stale)."""
 
-    def __init__(self, backend: NavigationBackend, *, name: str = "IsLocalized") -> None:
+    def __init__(
+        self, backend: NavigationBackend, *, timeout_s: float = 5.0, name: str = "IsLocalized"
+    ) -> None:
         super().__init__(name=name)
         self.backend = backend
+        self.timeout_s = timeout_s
 
     def update(self) -> Status:
-        return Status.SUCCESS if self.backend.robot_state().pose is not None else Status.FAILURE
+        st = self.backend.robot_state()
+        ok = st.pose is not None and st.localized and st.pose_age_s <= self.timeout_s
+        return Status.SUCCESS if ok else Status.FAILURE
 
 
 class NearPose(py_trees.behaviour.Behaviour):

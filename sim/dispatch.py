@@ -12,13 +12,14 @@ see.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from fleet.robots import SimParams
 from fleet.types import Costmap, GoalState, GoalStatus
 from sim.computations import Point, compute
+from sim.costmap import Costmaps
 from sim.goals import GoalBook, is_computation, preempt, reject_if_invalid
 from sim.planner import GridPlanner, PlanResult
 from sim.robot import Robot
@@ -30,19 +31,11 @@ if TYPE_CHECKING:
     from fleet.clock import SimClock
 
 
-class CostmapOwner(Protocol):
-    """A world that keeps per-robot costmaps and can clear them."""
-
-    def clear_costmaps(self, namespace: str, which: str) -> None: ...
-
-
 class GoalDispatch:
     """The robots, their goals and their tasks (see the module docstring).
 
     ``obstacles`` returns the dynamic obstacles as rows ``(x, y, radius)`` (for
-    :meth:`free_distance`). ``costmap_owner``: the world that keeps the robots' costmaps, if
-    any (ClearCostmaps goals clear them through its ``clear_costmaps(namespace, which)``, as
-    :meth:`sim.simulator.Simulator.clear_costmaps`; without one they have nothing to clear).
+    :meth:`free_distance`); ``costmaps`` the robots' live costmaps (:mod:`sim.costmap`).
     Computation goals (:mod:`sim.computations`) run through :meth:`plan_path`,
     :meth:`segment_free` and :meth:`clear_costmaps`."""
 
@@ -53,8 +46,10 @@ class GoalDispatch:
         planner: GridPlanner,
         clock: SimClock,
         safety: Safety,
+        costmaps: Costmaps,
     ) -> None:
         self.state = state
+        self.costmaps = costmaps
         self.params = params
         self.planner = planner
         self.clock = clock
@@ -68,8 +63,6 @@ class GoalDispatch:
         self.tasks: dict[int, Task] = {}
         #: robots whose task gets :meth:`Task.control` calls (not following a path), by index
         self._py: dict[int, Robot] = {}
-        #: the world that keeps the robots' costmaps (``None``: none is kept)
-        self.costmap_owner: CostmapOwner | None = None
 
     def add(self, robot: Robot) -> None:
         """Register ``robot`` (its index is the next row of the state)."""
@@ -204,20 +197,46 @@ class GoalDispatch:
     # -- the Planner of the computation goals --------------------------------------------
 
     def plan_path(self, namespace: str, start: Point, goal: Point) -> PlanResult:
-        """The simulator's plan from ``start`` to ``goal`` (see :mod:`sim.planner`)."""
-        return self.planner.plan(start, goal)
+        """The robot's plan from ``start`` to ``goal`` on its global costmap, strict as Nav2's
+        planner server (learned obstacles closing every way: ``NO_VALID_PATH``)."""
+        return self.plan(self.robots[namespace], start, goal, strict=True)
 
     def segment_free(self, namespace: str, a: Point, b: Point) -> bool:
         """Whether the robot's footprint stays off static obstacles from ``a`` to ``b``."""
         return self.planner.segment_free(a, b, self.planner.footprint)
 
     def clear_costmaps(self, namespace: str, which: Costmap) -> None:
-        """Clear the robot's ``which`` costmaps through :attr:`costmap_owner` (nothing to
-        clear without one)."""
-        if self.costmap_owner is not None:
-            self.costmap_owner.clear_costmaps(namespace, str(which))
+        """Clear the robot's learned obstacles in its ``which`` costmaps (the static map stays)."""
+        self.costmaps.clear(self.robots[namespace].index, str(which))
+
+    def abort_running(self, robot: Robot, code: int, msg: str) -> str | None:
+        """End ``robot``'s running goal ABORTED with ``code`` / ``msg`` (the robot stops being
+        driven by it); returns its id, ``None`` when it runs none."""
+        task = self.tasks.get(robot.index)
+        if task is None or task.done:
+            return None
+        task.abort(code, msg)
+        self._set_task(robot, None)
+        return task.record.goal_id
+
+    def running_kind(self, robot: Robot) -> str | None:
+        """The kind of ``robot``'s running goal (``None``: none)."""
+        task = self.tasks.get(robot.index)
+        return None if task is None or task.done else task.record.kind
 
     # -- the World of the tasks -----------------------------------------------------------
+
+    def plan(
+        self, robot: Robot, start: tuple[float, float], goal: tuple[float, float], strict: bool = False
+    ) -> PlanResult:
+        """See :meth:`sim.tasks.World.plan`; with ``strict``, a way closed by learned obstacles
+        is ``NO_VALID_PATH`` instead of the static plan."""
+        static = self.planner.plan(start, goal)
+        discs = self.costmaps.discs(robot.index)
+        if not discs or not static.ok:
+            return static
+        res = self.planner.plan_avoiding(start, goal, discs)
+        return res if res.ok or strict else static
 
     def free_distance(
         self, robot: Robot, direction: float, lookahead: float, static: bool, heading: float | None = None

@@ -23,6 +23,13 @@ crossed there); a path that fails the check is ``NO_VALID_PATH``. A* results are
 ``(start cell, goal cell)``. On a 40 x 30 m map at
 0.1 m a plan takes a few milliseconds (about 20 ms in the worst case measured).
 
+Learned obstacles (:meth:`GridPlanner.plan_avoiding`): a robot's costmap adds round obstacles
+it has seen (:mod:`sim.costmap`). The static plan is kept when no such disc comes within the
+robot radius + :data:`PLAN_MARGIN_M` of it; otherwise the coarse A* runs again (uncached) with
+the cells near the discs blocked, and the shortened path keeps the same clearance from them.
+A disc that covers the start or the goal is ignored (the robot would otherwise fail to leave
+or reach a pose a robot stands on; the reactive safety layer handles that case).
+
 Frame ``map``, units meters.
 """
 
@@ -30,6 +37,7 @@ from __future__ import annotations
 
 import heapq
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,6 +46,8 @@ from fleet.maps import FREE, OccupancyGrid
 from fleet.types import ErrorCode
 
 Point = tuple[float, float]
+#: A learned round obstacle: ``(x, y, radius)`` in meters, ``map`` frame.
+Disc = tuple[float, float, float]
 
 #: Target size of a coarse A* cell in meters (the fine grid is downsampled to about this).
 COARSE_CELL_M = 0.3
@@ -231,6 +241,70 @@ class GridPlanner:
                 )
         return PlanResult(tuple(path))
 
+    def plan_avoiding(self, start: Point, goal: Point, discs: Sequence[Disc]) -> PlanResult:
+        """:meth:`plan` from ``start`` to ``goal`` around the learned round obstacles
+        ``discs`` (see the module docstring). ``NO_VALID_PATH`` when they close every way."""
+        res = self.plan(start, goal)
+        if not res.ok or not discs:
+            return res
+        clear = self.radius + self.margin
+        keep = [
+            d
+            for d in discs
+            if math.hypot(start[0] - d[0], start[1] - d[1]) >= d[2] + self.radius
+            and math.hypot(goal[0] - d[0], goal[1] - d[1]) >= d[2] + self.radius
+        ]
+        if not any(_segment_hits(a, b, keep, clear) for a, b in zip(res.path, res.path[1:], strict=False)):
+            return res
+        free = self._free_without(keep, clear)
+        sc = self._coarse_cell(*start)
+        gc = self._coarse_cell(*goal)
+        w = self._cw + 2
+        for c in (sc, gc):  # the ends stay open (a disc near them is checked on the path)
+            free[(c[1] + 1) * w + c[0] + 1] = self._free_flat[(c[1] + 1) * w + c[0] + 1]
+        cells = self._astar(sc, gc, free)
+        sx, sy = start
+        gx, gy = goal
+        blocked = PlanResult(
+            (),
+            ErrorCode.NO_VALID_PATH,
+            f"No valid path from ({sx:.2f}, {sy:.2f}) to goal ({gx:.2f}, {gy:.2f}): obstacles in the costmap "
+            "block every way.",
+        )
+        if cells is None:
+            return blocked
+        g = self.grid
+        k = self._k
+        half = 0.5 * k * g.resolution
+        pts: list[Point] = [start]
+        for cx, cy in cells[1:-1]:
+            pts.append((g.origin_x + cx * k * g.resolution + half, g.origin_y + cy * k * g.resolution + half))
+        pts.append(goal)
+        path = self._shorten(pts, keep)
+        for a, b in zip(path, path[1:], strict=False):
+            if not self.segment_free(a, b, self.footprint) or _segment_hits(a, b, keep, self.radius):
+                return blocked
+        return PlanResult(tuple(path))
+
+    def _free_without(self, discs: Sequence[Disc], clearance: float) -> list[bool]:
+        """The padded coarse free-cell list with the cells within ``r + clearance`` of a disc
+        center blocked."""
+        g = self.grid
+        size = self._k * g.resolution
+        free = np.array(self._free_flat, dtype=bool).reshape(self._ch + 2, self._cw + 2)
+        cx = g.origin_x + (np.arange(self._cw) + 0.5) * size
+        cy = g.origin_y + (np.arange(self._ch) + 0.5) * size
+        for x, y, r in discs:
+            reach = r + clearance + 0.5 * size
+            near_x = np.flatnonzero(np.abs(cx - x) <= reach)
+            near_y = np.flatnonzero(np.abs(cy - y) <= reach)
+            if near_x.size and near_y.size:
+                d = np.hypot(cx[near_x][None, :] - x, cy[near_y][:, None] - y)
+                yy, xx = np.nonzero(d <= reach)
+                free[near_y[yy] + 1, near_x[xx] + 1] = False
+        out: list[bool] = free.ravel().tolist()
+        return out
+
     def _coarse_cell(self, x: float, y: float) -> tuple[int, int]:
         """The free coarse cell nearest to ``(x, y)`` (the cell itself if it is free)."""
         g = self.grid
@@ -256,9 +330,12 @@ class GridPlanner:
                 return best[1]
         return (cx, cy)
 
-    def _astar(self, start: tuple[int, int], goal: tuple[int, int]) -> tuple[tuple[int, int], ...] | None:
-        """8-connected A* over the coarse grid (no corner cutting), octile heuristic."""
-        free = self._free_flat
+    def _astar(
+        self, start: tuple[int, int], goal: tuple[int, int], free: list[bool] | None = None
+    ) -> tuple[tuple[int, int], ...] | None:
+        """8-connected A* over the coarse grid (no corner cutting), octile heuristic; ``free``
+        replaces the padded coarse free-cell list (learned obstacles)."""
+        free = self._free_flat if free is None else free
         W = self._cw + 2
         s = (start[1] + 1) * W + start[0] + 1
         g = (goal[1] + 1) * W + goal[0] + 1
@@ -313,15 +390,34 @@ class GridPlanner:
                         push(heap, (ng + 1.001 * (dx + dy + k * (dx if dx < dy else dy)), n))
         return None
 
-    def _shorten(self, pts: list[Point]) -> list[Point]:
-        """Greedy string pulling: from each kept point, jump to the farthest point still in sight."""
+    def _shorten(self, pts: list[Point], discs: Sequence[Disc] = ()) -> list[Point]:
+        """Greedy string pulling: from each kept point, jump to the farthest point still in
+        sight (and clear of ``discs`` by the planning clearance)."""
         out = [pts[0]]
         i = 0
         n = len(pts)
+        clear = self.radius + self.margin
         while i < n - 1:
             j = i + 1
-            while j + 1 < n and self.segment_free(pts[i], pts[j + 1]):
+            while (
+                j + 1 < n
+                and self.segment_free(pts[i], pts[j + 1])
+                and not _segment_hits(pts[i], pts[j + 1], discs, clear)
+            ):
                 j += 1
             out.append(pts[j])
             i = j
         return out
+
+
+def _segment_hits(a: Point, b: Point, discs: Sequence[Disc], clearance: float) -> bool:
+    """True if segment ``a``-``b`` passes closer than ``r + clearance`` to the center of any
+    disc ``(x, y, r)`` of ``discs``."""
+    ax, ay = a
+    ex, ey = b[0] - ax, b[1] - ay
+    den = ex * ex + ey * ey
+    for x, y, r in discs:
+        t = 0.0 if den <= 1e-18 else min(1.0, max(0.0, ((x - ax) * ex + (y - ay) * ey) / den))
+        if math.hypot(ax + t * ex - x, ay + t * ey - y) < r + clearance:
+            return True
+    return False

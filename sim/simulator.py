@@ -47,14 +47,16 @@ from fleet.clock import SimClock, step_until
 from fleet.errors import BackendError
 from fleet.maps import OccupancyGrid
 from fleet.robots import RobotSpec, SimParams
-from fleet.types import GoalState, Pose2D, RobotState, normalize_angle
+from fleet.types import ErrorCode, GoalState, Pose2D, RobotState, normalize_angle
 from sim.avoidance import AVOID_CLEAR_M, AVOID_LOOKAHEAD_M, CORRIDOR_MARGIN_M, Avoidance
 from sim.backend import NamespacedBackend
+from sim.costmap import CostmapRaster, Costmaps, Layer, Mark
 from sim.dispatch import GoalDispatch
 from sim.follower import PathFollower
 from sim.footprint import FootprintGrid
-from sim.history import TRAJECTORY_KEEP_S, trim_oldest
-from sim.planner import GridPlanner
+from sim.history import EVENTS_KEPT, TRAJECTORY_KEEP_S, trim_oldest
+from sim.localization import Localization, LocalizationState
+from sim.planner import GridPlanner, PlanResult
 from sim.robot import Robot
 from sim.safety import STOP_GAP_M, Contacts, Safety
 from sim.snapshots import make_robot_state
@@ -66,7 +68,13 @@ PROGRESS_RADIUS_M = 0.1
 #: Trajectories are sampled every this many simulated seconds.
 TRAJECTORY_PERIOD_S = 0.5
 #: Fault names accepted by :meth:`Simulator.set_fault`.
-FAULTS = ("stalled",)
+FAULTS = ("stalled", "localization_lost", "navigation_down")
+#: Why the safety watchdog stops a robot, by cause.
+SAFETY_REASONS = {
+    "localization_lost": "localization lost",
+    "navigation_down": "navigation server down",
+    "mislocalized": "not localized",
+}
 
 
 def pair_radii(params: SimParams) -> tuple[float, float]:
@@ -127,7 +135,13 @@ class Simulator:
         self._follower = PathFollower(self.state, params, avoidance)
         self._safety = Safety(self.state, params, avoidance, footprints, self.planner)
         self._contacts = Contacts(self.state, params, self._pairs)
-        self._dispatch = GoalDispatch(self.state, params, self.planner, clock, self._safety)
+        self.costmaps = Costmaps(grid, params.model.radius)
+        self.localization = Localization()
+        self._dispatch = GoalDispatch(self.state, params, self.planner, clock, self._safety, self.costmaps)
+        #: Why each robot is stopped by the safety watchdog (absent: it is not).
+        self.safety_stops: dict[str, str] = {}
+        #: ``(t, namespace, reason)`` of every safety stop, the last :data:`sim.history.EVENTS_KEPT`.
+        self.safety_events: list[tuple[float, str, str]] = []
 
     # -- robots -----------------------------------------------------------------------
 
@@ -167,6 +181,8 @@ class Simulator:
         battery = min(1.0, max(0.0, float(spec.battery)))
         i = self.state.add(float(p.x), float(p.y), normalize_angle(float(p.theta)), battery, now)
         self._dispatch.add(Robot(spec.name, ns, i, self.state))
+        self.localization.add(Pose2D(float(p.x), float(p.y), normalize_angle(float(p.theta))), now)
+        self.costmaps.add(ns, float(p.x), float(p.y), now)
         self._traj_start.append((now, float(p.x), float(p.y), self._samples_dropped + len(self._samples_t)))
 
     def _robot(self, namespace: str) -> Robot:
@@ -176,12 +192,32 @@ class Simulator:
             raise BackendError(f"no robot with namespace {namespace!r} in the simulator") from None
 
     def robot_state(self, namespace: str) -> RobotState:
-        """Current state of the robot ``namespace`` (pose always known in the sim)."""
-        x, y, th, v, w, battery, charging, stuck, dist, collisions = self.state.row(
-            self._robot(namespace).index
-        )[:10]
+        """Current state of the robot ``namespace``: ``pose`` is its localization estimate (the
+        true pose while it is localized); ``localized``, ``pose_age_s``, ``navigation_ready``
+        and ``safety_stop`` come from :mod:`sim.localization` and the faults."""
+        r = self._robot(namespace)
+        x, y, th, v, w, battery, charging, stuck, dist, collisions = self.state.row(r.index)[:10]
+        est = self.localization.robots[r.index]
+        pose = Pose2D(x, y, th)
+        if not est.localized or est.lost:
+            loc = self.localization.state(r.index, pose, self.clock.now())
+            state_loc: RobotState = make_robot_state(
+                pose=loc.pose,
+                linear_velocity=v,
+                angular_velocity=w,
+                battery=battery,
+                charging=bool(charging),
+                stuck=bool(stuck),
+                distance_m=dist,
+                collisions=int(collisions),
+                localized=False,
+                pose_age_s=max(0.0, self.clock.now() - loc.updated),
+                navigation_ready=r.fault != "navigation_down",
+                safety_stop=self.safety_stops.get(namespace, ""),
+            )
+            return state_loc
         state: RobotState = make_robot_state(
-            pose=Pose2D(x, y, th),
+            pose=pose,
             linear_velocity=v,
             angular_velocity=w,
             battery=battery,
@@ -189,8 +225,40 @@ class Simulator:
             stuck=bool(stuck),
             distance_m=dist,
             collisions=int(collisions),
+            navigation_ready=r.fault != "navigation_down",
+            safety_stop=self.safety_stops.get(namespace, "") if self.safety_stops else "",
         )
         return state
+
+    def true_pose(self, namespace: str) -> Pose2D:
+        """Where the robot truly is (``map``), whatever its localization believes."""
+        return self._robot(namespace).pose
+
+    def followed_path(self, namespace: str) -> tuple[tuple[float, float], ...] | None:
+        """The path (``map``, m) the robot's navigation goal is following now: the planned
+        path from where the goal started through its poses; ``None`` when it follows none."""
+        i = self._robot(namespace).index
+        s = self.state
+        if not s.fol[i]:
+            return None
+        o, k = int(s.f_off[i]), int(s.f_len[i])
+        return tuple(zip(s.pts_x[o : o + k].tolist(), s.pts_y[o : o + k].tolist(), strict=True))
+
+    def localization_state(self, namespace: str) -> LocalizationState:
+        """The robot's odometry, estimated ``map -> odom`` and estimate now
+        (:class:`sim.localization.LocalizationState`)."""
+        r = self._robot(namespace)
+        return self.localization.state(r.index, r.pose, self.clock.now())
+
+    def set_initial_pose(self, namespace: str, pose: Pose2D) -> bool:
+        """An initial pose estimate for the robot (``initialpose``): returns whether the
+        localizer converged (the hint was within about 1 m and 0.6 rad of the true pose);
+        otherwise the hint becomes the robot's (wrong) estimate, it is not localized and the
+        safety watchdog stops it until it is localized again."""
+        r = self._robot(namespace)
+        ok = self.localization.initial_pose(r.index, pose, r.pose, self.clock.now())
+        self._update_safety(r)
+        return ok
 
     def trajectory(self, namespace: str) -> list[tuple[float, float, float]]:
         """``(t, x, y)`` samples of the robot, one at its addition and then every
@@ -206,13 +274,56 @@ class Simulator:
         return out
 
     def set_fault(self, namespace: str, fault: str | None) -> None:
-        """Inject a fault: ``"stalled"`` makes the wheels stop responding (the robot stops at
-        once and cannot move or turn); ``None`` clears it."""
+        """Inject a fault (one at a time; ``None`` clears it):
+
+        * ``"stalled"``: the wheels stop responding (the robot stops at once and cannot move
+          or turn);
+        * ``"localization_lost"``: the localizer stops confirming the robot's estimate
+          (``RobotState.localized`` false, ``pose_age_s`` grows); clearing it re-localizes;
+        * ``"navigation_down"``: the robot's navigation server is down
+          (``RobotState.navigation_ready`` false); new goals are aborted.
+
+        The last two trip the safety watchdog: the robot is commanded to stop at the next step
+        (one control period) and its running goal ends ABORTED with
+        ``ErrorCode.SAFETY_STOPPED``; it stays stopped until the fault is cleared.
+        """
         if fault is not None and fault not in FAULTS:
             raise BackendError(f"unknown fault {fault!r}; known faults: {', '.join(FAULTS)}")
         r = self._robot(namespace)
         r.fault = fault
         self.state.stalled[r.index] = fault == "stalled"
+        self.localization.set_lost(r.index, fault == "localization_lost", self.clock.now())
+        self._update_safety(r)
+
+    def _update_safety(self, r: Robot) -> None:
+        """The safety watchdog's verdict for ``r``: stop it (and abort its running goal) when
+        its localization is lost or not converged or its navigation server is down."""
+        est = self.localization.robots[r.index]
+        if r.fault == "navigation_down":
+            reason = SAFETY_REASONS["navigation_down"]
+        elif est.lost:
+            reason = SAFETY_REASONS["localization_lost"]
+        elif not est.localized:
+            reason = f"{SAFETY_REASONS['mislocalized']}: {est.reason}"
+        else:
+            reason = ""
+        ns = r.namespace
+        was = self.safety_stops.get(ns, "")
+        self.state.halt[r.index] = bool(reason)
+        if not reason:
+            self.safety_stops.pop(ns, None)
+            return
+        self.safety_stops[ns] = reason
+        if reason != was:
+            self.safety_events.append((self.clock.now(), ns, reason))
+            trim_oldest(self.safety_events, EVENTS_KEPT)
+        self._stop_goal(r, reason)
+
+    def _stop_goal(self, r: Robot, reason: str) -> None:
+        """Abort ``r``'s running goal (a Wait may go on: it does not move the robot)."""
+        if self._dispatch.running_kind(r) not in (None, "wait"):
+            code = ErrorCode.SERVER_UNAVAILABLE if r.fault == "navigation_down" else ErrorCode.SAFETY_STOPPED
+            self._dispatch.abort_running(r, code, f"Safety stop: {reason}.")
 
     def backend(self, namespace: str) -> NamespacedBackend:
         """A :class:`~fleet.navigation.NavigationBackend` for robot ``namespace``."""
@@ -241,6 +352,54 @@ class Simulator:
         self._obstacles.pop(obstacle_id, None)
         self._obstacles_changed()
 
+    # -- costmaps ----------------------------------------------------------------------
+
+    def plan(
+        self, namespace: str, start: tuple[float, float], goal: tuple[float, float], *, strict: bool = True
+    ) -> PlanResult:
+        """Plan ``start`` -> ``goal`` (m, ``map``) for the robot on its global costmap (the
+        static map and the obstacles it has learned; see :mod:`sim.costmap`). ``strict``
+        (default, what Nav2's planner server does): ``NO_VALID_PATH`` when learned obstacles
+        close every way; otherwise the static plan then (what the simulator's own navigation
+        goals drive)."""
+        return self._dispatch.plan(self._robot(namespace), start, goal, strict)
+
+    def clear_costmaps(self, namespace: str, which: Layer | str = Layer.BOTH) -> int:
+        """Clear the robot's learned obstacles in ``which`` costmap (``global``, ``local`` or
+        ``both``; the static map stays). Returns the marks removed. What Nav2's
+        ``clear_entirely_*`` services and the ClearCostmap recovery do."""
+        return self.costmaps.clear(self._robot(namespace).index, which)
+
+    def clear_costmap_region(
+        self,
+        namespace: str,
+        which: Layer | str,
+        reset_distance: float,
+        *,
+        center: Pose2D | None = None,
+        keep_inside: bool = False,
+    ) -> int:
+        """Clear the robot's learned obstacles in the square of side ``reset_distance`` (m)
+        around ``center`` (default: the robot), or, with ``keep_inside``, everywhere but
+        there (Nav2's ``clear_around_*``, ``clear_around_pose_*`` and ``clear_except_*``).
+        Returns the marks removed."""
+        r = self._robot(namespace)
+        c = center if center is not None else r.pose
+        return self.costmaps.clear_region(r.index, which, c.x, c.y, reset_distance, inside=not keep_inside)
+
+    def costmap_marks(self, namespace: str, which: Layer | str = Layer.GLOBAL) -> list[Mark]:
+        """The obstacles the robot has learned in ``which`` costmap (copies of the marks)."""
+        marks = self.costmaps.marks(self._robot(namespace).index, which)
+        return [Mark(m.x, m.y, m.r, m.seen, m.source) for m in marks]
+
+    def costmap(
+        self, namespace: str, which: Layer | str = Layer.GLOBAL, layer: str = "master"
+    ) -> CostmapRaster:
+        """The robot's ``which`` costmap (``global`` or ``local``) as Nav2 cost values
+        (:meth:`sim.costmap.Costmaps.raster`)."""
+        r = self._robot(namespace)
+        return self.costmaps.raster(r.index, which, r.x, r.y, layer)
+
     def _obstacles_changed(self) -> None:
         self._obst = np.array(list(self._obstacles.values()), dtype=float).reshape(-1, 3)
         self._dispatch.obstacles = self._obst
@@ -253,11 +412,18 @@ class Simulator:
         The goal is EXECUTING immediately, or already terminal if it was REJECTED (a
         NavigateThroughPoses without poses, a non-finite pose) or ABORTED at start (planning
         failure, an empty FollowWaypoints, invalid BackUp input, ...). A goal the robot was
-        executing ends ABORTED with an error message naming the preempting goal. Raises
+        executing ends ABORTED with an error message naming the preempting goal. While the
+        safety watchdog stops the robot (:meth:`set_fault`) a goal that moves it ends ABORTED
+        at once (``SAFETY_STOPPED``; ``SERVER_UNAVAILABLE`` with its navigation down). Raises
         :class:`BackendError` (changing nothing) for an unknown namespace or an object that is
         not a goal of :mod:`fleet.types`.
         """
-        return self._dispatch.send(self._robot(namespace), goal)
+        r = self._robot(namespace)
+        gid = self._dispatch.send(r, goal)
+        reason = self.safety_stops.get(namespace) if self.safety_stops else None
+        if reason is not None:
+            self._stop_goal(r, reason)
+        return gid
 
     def goal_state(self, goal_id: str) -> GoalState:
         """Snapshot of goal ``goal_id`` (pure read). Raises ``KeyError`` for an id never issued."""
@@ -320,6 +486,7 @@ class Simulator:
         # 5. contacts
         order = self._dispatch.order
         self._contacts.count(now, lambda i: order[i].namespace)
+        self.costmaps.sense(now, s.x[:n], s.y[:n], self._obstacles)
         self._sample(now)
 
     def _limits(self, vd: np.ndarray, wd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -340,7 +507,7 @@ class Simulator:
         np.minimum(w, w0 + dw, out=w)
         np.maximum(w, -m.max_angular_speed, out=w)
         np.minimum(w, m.max_angular_speed, out=w)
-        dead = s.stalled[:n] | (s.battery[:n] <= 0.0)
+        dead = s.stalled[:n] | s.halt[:n] | (s.battery[:n] <= 0.0)
         if dead.any():
             v[dead] = 0.0
             w[dead] = 0.0

@@ -36,7 +36,7 @@ _FLOAT = (
     "c_ax c_ay c_bx c_by c_ex c_ey c_den c_suf c_vx c_vy c_gx c_gy"
 ).split()
 _INT = ("collisions", "f_seg", "f_off", "f_len", "f_voff", "f_vn", "f_nv", "f_side", "c_vseg")
-_BOOL = ("charging", "stuck", "stalled", "has_task", "drives", "fol", "f_xy", "c_long", "c_vmore")
+_BOOL = ("charging", "stuck", "stalled", "halt", "has_task", "drives", "fol", "f_xy", "c_long", "c_vmore")
 #: The arrays of a :meth:`FleetState.row`, in order.
 ROW = (
     "x y th v w battery charging stuck dist collisions f_t c_ax c_ay c_bx c_by c_suf f_xy f_len f_nv f_vn"
@@ -110,6 +110,7 @@ class FleetState:
     charging: np.ndarray
     stuck: np.ndarray
     stalled: np.ndarray
+    halt: np.ndarray
     has_task: np.ndarray
     drives: np.ndarray
     fol: np.ndarray

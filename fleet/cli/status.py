@@ -34,7 +34,7 @@ from fleet.cli.logs import configure_logging, resolve_level
 from fleet.errors import BusError
 from fleet.messages import DEFAULT_ENDPOINT
 from fleet.viz.display import FleetSnapshot, LiveTable
-from fleet.viz.table import render_table, robot_sort_key
+from fleet.viz.table import SILENT_S, render_table, robot_sort_key
 
 EPILOG = """\
 examples:
@@ -100,12 +100,23 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def snapshot(bus: StatusBus) -> dict[str, Any]:
-    """``{"t": newest t, "robots": [record dicts by robot], "alive": [...], "malformed": n}``."""
+    """``{"t": newest t, "robots": [record dicts by robot], "alive": [...], "malformed": n}``;
+    each robot's dict has its diagnostics (``health``: worst level, ``diag``: the checks that
+    are not OK) and ``stale``: its record is more than :data:`~fleet.viz.table.SILENT_S` older
+    than the newest one."""
     latest = bus.latest()
     names = sorted(latest, key=robot_sort_key)
+    t = max((r.t for r in latest.values()), default=None)
+    robots = []
+    for n in names:
+        d = latest[n].to_dict()
+        d.setdefault("health", 0)
+        d.setdefault("diag", [])
+        d["stale"] = t is not None and t - latest[n].t > SILENT_S
+        robots.append(d)
     return {
-        "t": max((r.t for r in latest.values()), default=None),
-        "robots": [latest[n].to_dict() for n in names],
+        "t": t,
+        "robots": robots,
         "alive": sorted(bus.alive(), key=robot_sort_key),
         "malformed": bus.malformed,
     }

@@ -36,7 +36,8 @@ Rules (all times in seconds of the fleet clock):
   :data:`~fleet.coordination.health.PROGRESS_M` for ``stuck_reassign_s``, plus the task's
   stall grace, while it should be driving: its status carries the task's id and a mode of
   :data:`fleet.types.DRIVING_MODES`), or goes to charge (its status reports ``mode ==
-  "charging"``). A robot the traffic policy holds back is waiting, not stuck. The robot gets
+  "charging"``), or its safety watchdog stopped it (``mode == "safety_stop"``: localization
+  lost, navigation server down). A robot the traffic policy holds back is waiting, not stuck. The robot gets
   an idle order, the task goes to the best available idle robot. A robot that was taken off a
   task for being stuck is ranked after every other robot for ``stuck_reassign_s``; a charging
   robot becomes available again when it reports ``idle``.
@@ -50,7 +51,9 @@ Rules (all times in seconds of the fleet clock):
 * Reconciliation: if a robot reports a task id other than the one the coordinator last gave it
   (a lost, late or never-received order: Zenoh publications are not stored), the current order
   is sent again, at most once per :data:`RESEND_S`. A robot without a task that still reports
-  an id it was not last sent is told to idle.
+  an id it was not last sent is told to idle. A robot never sent an order that cannot take a
+  task (its battery is below ``battery_low`` + margin, say, left low by an earlier run) gets
+  an idle order, which tells it its charger: its battery guard then sends it to charge.
 * Idle robots standing on a charger are matched first (their cost is lowered by
   :data:`~fleet.coordination.matching.CHARGER_BONUS_M`), so that a charged spare leaves the
   charger to robots that need it.

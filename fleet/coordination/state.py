@@ -175,6 +175,8 @@ class CoordinatorState:
                 continue
             if health.charging(v):
                 out.append(self._release(v, now, Reason.CHARGING))
+            elif v.obs.mode == Mode.SAFETY_STOP:
+                out.append(self._release(v, now, Reason.SAFETY_STOP))
             elif self.traffic.waiting(v.name):
                 v.progress_t = now  # held back by traffic management: waiting, not stuck
             elif health.stalled(v, a, now, p.stuck_reassign_s + self.book.tasks[a.name].stall_grace_s):
@@ -198,6 +200,10 @@ class CoordinatorState:
                     out.append(last if last is not None and last.task_id == a.task_id else self._order(v, a))
             elif v.obs.task_id is not None and (last is None or v.obs.task_id != last.task_id):
                 out.append(last if last is not None and last.kind == TaskKind.IDLE else self._idle_order(v))
+            elif last is None and not self._eligible(v):
+                # never ordered and not about to get a task (a low battery, for one): an idle
+                # order tells it its charger, so its battery guard can send it to charge
+                out.append(self._idle_order(v))
         return out
 
     # -- queries -----------------------------------------------------------------------

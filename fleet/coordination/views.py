@@ -24,6 +24,8 @@ class Reason(enum.StrEnum):
     DEAD = "dead"
     STUCK = "stuck"
     CHARGING = "charging"
+    #: its safety watchdog stopped it (localization lost, navigation server down)
+    SAFETY_STOP = "safety_stop"
 
 
 REASON_DEAD = Reason.DEAD

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping
-from typing import Final, Protocol
+from typing import Annotated, Final, Protocol
 
 import msgspec
 from msgspec import Struct
@@ -49,14 +49,17 @@ def pose_tuple(p: Pose2D | tuple[float, float, float]) -> tuple[float, float, fl
     return (float(x), float(y), float(th))
 
 
-class StatusRecord(Struct, frozen=True, tag_field="v", tag=1):
+class StatusRecord(Struct, frozen=True, tag_field="v", tag=1, omit_defaults=True):
     """One robot's status (``fleet/<robot>/status``), also its wire form.
 
     ``t`` is simulated seconds; ``pose`` ``(x, y, theta)`` in the ``map`` frame or ``None``;
     ``battery`` a fraction; ``bt`` the root status name (``RUNNING``...); ``leaf`` the active
     leaf; ``mode`` a :class:`fleet.types.Mode` value; ``progress`` through the current lap in
     [0, 1]; ``seq`` increases per record; ``picks_done`` picks the robot completed since its
-    agent started (optional on the wire, ``0`` when absent). The JSON carries ``"v": 1``.
+    agent started (optional on the wire, ``0`` when absent). Diagnostics
+    (:mod:`fleet.diagnostics`): ``health`` the worst level of the robot's checks (0 OK, 1 WARN,
+    2 ERROR) and ``diag`` the checks that are not OK as ``[name, level, message]`` (both
+    optional on the wire: absent means all OK). The JSON carries ``"v": 1``.
     """
 
     robot: RobotName
@@ -76,6 +79,8 @@ class StatusRecord(Struct, frozen=True, tag_field="v", tag=1):
     collisions: Count
     seq: Count
     picks_done: Count = 0
+    health: Annotated[int, msgspec.Meta(ge=0, le=3)] = 0
+    diag: tuple[tuple[Text, Annotated[int, msgspec.Meta(ge=0, le=3)], Text], ...] = ()
 
     def to_json(self) -> bytes:
         """UTF-8 JSON. The record is not validated field by field (its types are the caller's

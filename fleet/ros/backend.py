@@ -27,6 +27,12 @@ Mapping onto the protocol (:mod:`fleet.navigation`):
   :class:`~fleet.types.Feedback`.
 * :meth:`~RosNavigationBackend.cancel_goal` is idempotent; the goal is ``CANCELING`` until
   the server confirms ``CANCELED``.
+* ``goal_state`` answers the last :data:`KEEP_GOALS` goals (older ids raise ``KeyError``,
+  as for an id never issued), so a long run's memory stays bounded.
+* Lifecycle: :func:`make_ros_backends` with ``wait_s`` waits until every robot's navigator
+  is active (bringing unconfigured robots up through their lifecycle managers); a robot whose
+  ``bt_navigator`` stops answering ``active`` reports ``navigation_ready = False`` (the
+  agent's safety watchdog then stops it).
 * Server loss: a goal whose action server is not discovered any more (or that got no answer
   to its request) for ``server_timeout_s`` ends ``ABORTED`` with
   ``ErrorCode.SERVER_UNAVAILABLE``; nothing waits forever.
@@ -37,21 +43,22 @@ callbacks run on the executor thread; shared state is guarded by one lock.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import os
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
 from typing import Protocol
+
+import numpy as np
 
 from fleet.ros.env import apply_ros_env_defaults
 
 apply_ros_env_defaults()
 
 import rclpy  # noqa: E402
-from action_msgs.msg import GoalStatus as RosGoalStatus  # noqa: E402
 from builtin_interfaces.msg import Time  # noqa: E402
 from nav2_msgs.srv import ClearEntireCostmap  # noqa: E402
 from rclpy.action.client import ActionClient, ClientGoalHandle  # noqa: E402
@@ -73,17 +80,17 @@ from fleet.ros.conversions import (  # noqa: E402
     msg_to_feedback,
     result_path,
 )
+from fleet.ros.lifecycle_client import LifecycleWatch  # noqa: E402
+from fleet.ros.remote_goal import STATUS_MAP, RemoteGoal  # noqa: E402
 from fleet.ros.robot_state import RobotStateTracker  # noqa: E402
 from fleet.types import (  # noqa: E402
     MOTION_GOAL_KINDS,
     ClearCostmaps,
     Costmap,
     ErrorCode,
-    Feedback,
     Goal,
     GoalState,
     GoalStatus,
-    Path,
     RobotState,
 )
 
@@ -91,47 +98,15 @@ from fleet.types import (  # noqa: E402
 BACKEND_KINDS = NAVIGATION_ACTIONS
 #: Every goal kind the backend sends (the last is a service call).
 SENT_KINDS = (*NAVIGATION_ACTIONS, *PLANNING_ACTIONS, "clear_costmaps")
-_STATUS_MAP = {
-    RosGoalStatus.STATUS_SUCCEEDED: GoalStatus.SUCCEEDED,
-    RosGoalStatus.STATUS_CANCELED: GoalStatus.CANCELED,
-    RosGoalStatus.STATUS_ABORTED: GoalStatus.ABORTED,
-}
-
-
-@dataclass
-class _Goal:
-    goal_id: str
-    kind: str
-    goal: Goal
-    status: GoalStatus = GoalStatus.PENDING
-    feedback: Feedback = field(default_factory=Feedback)
-    error_code: int = 0
-    error_msg: str = ""
-    missed: tuple[int, ...] = ()
-    path: Path = ()
-    #: ``None`` until the request is sent, the request's future until the server answers,
-    #: then the server's goal handle.
-    handle: ClientGoalHandle | Future | None = None
-    cancel_wanted: bool = False
-    sent_at: float = 0.0
-    unavailable_since: float | None = None
-
-    def snapshot(self) -> GoalState:
-        return GoalState(
-            self.goal_id,
-            self.kind,
-            self.status,
-            self.feedback,
-            self.error_code,
-            self.error_msg,
-            self.missed,
-            self.path,
-        )
-
-    def finish(self, status: GoalStatus, code: int = 0, msg: str = "") -> None:
-        if self.status.terminal:
-            return
-        self.status, self.error_code, self.error_msg = status, int(code), msg
+#: A robot whose odometry lags the newest stamp by more than this (s) does not hold the
+#: fleet's clock back (:meth:`RosBackends.fleet_time`).
+CLOCK_LAG_S = 2.0
+#: Wall seconds :meth:`RosBackends.close` waits for queued requests and cancel answers.
+CLOSE_FLUSH_S = 3.0
+#: Goals kept for ``goal_state`` (the oldest beyond are forgotten: ``KeyError``).
+KEEP_GOALS = 4096
+#: Goal kinds that move the robot along the floor (for the progress checker).
+DRIVING_KINDS = frozenset({"navigate_to_pose", "navigate_through_poses", "follow_waypoints"})
 
 
 class _FeedbackMessage(Protocol):
@@ -144,7 +119,7 @@ class RosNavigationBackend:
     """NavigationBackend of one namespaced Nav2 robot. Made by :func:`make_ros_backends`;
     see the module docstring for the contract mapping."""
 
-    def __init__(self, owner: RosBackends, namespace: str, server_timeout_s: float) -> None:
+    def __init__(self, owner: RosBackends, namespace: str, server_timeout_s: float, index: int = 0) -> None:
         self._owner = owner
         self._ns = namespace
         self._timeout = server_timeout_s
@@ -158,10 +133,23 @@ class RosNavigationBackend:
         )
         self._clients = {k: ActionClient(self.node, ACTION_TYPES[k], k) for k in BACKEND_KINDS}
         self._services: dict[str, Client] = {}
-        self._goals: dict[str, _Goal] = {}
+        self._goals: dict[str, RemoteGoal] = {}
+        self._live: dict[str, RemoteGoal] = {}
         self._ids = itertools.count(1)
-        self._current: _Goal | None = None
-        self.tracker = RobotStateTracker(self.node, self._lock, owner.saw_stamp)
+        self._current: RemoteGoal | None = None
+        #: Whether every action server of the robot is discovered (refreshed by the executor
+        #: thread's watchdog, every 0.1 s).
+        self.servers_ready = False
+        #: The robot's navigator lifecycle state (polled on the executor thread).
+        self.lifecycle = LifecycleWatch(self.node)
+        self.tracker = RobotStateTracker(
+            self.node,
+            self._lock,
+            owner.saw_stamp,
+            owner.fleet_time,
+            self._driving,
+            saw_odom=lambda t: owner.saw_odom(index, t),
+        )
 
     # -- protocol -------------------------------------------------------------------------
 
@@ -174,10 +162,13 @@ class RosNavigationBackend:
         if getattr(goal, "kind", None) not in SENT_KINDS:
             raise BackendError(f"{self._ns}: the ROS backend cannot send a {type(goal).__name__} goal")
         gid = f"{self._ns}#r{next(self._ids)}"
-        rec = _Goal(gid, goal.kind, goal, sent_at=time.monotonic())
+        rec = RemoteGoal(gid, goal.kind, goal, sent_at=time.monotonic())
         with self._lock:
             old = self._current
             self._goals[gid] = rec
+            self._live[gid] = rec
+            while len(self._goals) > KEEP_GOALS:  # the book is bounded: the oldest goes
+                self._goals.pop(next(iter(self._goals)))
             cancel_old = None
             if goal.kind not in MOTION_GOAL_KINDS:
                 old = None  # a computation runs beside the motion goal
@@ -207,9 +198,19 @@ class RosNavigationBackend:
         self._owner.call_soon(lambda: self._cancel_remote(rec))
 
     def robot_state(self) -> RobotState:
-        """Pose, velocities, battery and distance from the robot's topics (see
-        :mod:`fleet.ros.robot_state`)."""
-        return self.tracker.state()
+        """Pose, velocities, battery, distance, stuck and localization from the robot's topics
+        (see :mod:`fleet.ros.robot_state`); ``navigation_ready`` while its action servers are
+        discovered and its ``bt_navigator`` answers ``active`` (:mod:`fleet.ros.lifecycle_client`,
+        polled every second)."""
+        st = self.tracker.state()
+        if not self.servers_ready:
+            return dataclasses.replace(st, navigation_ready=False)
+        return st
+
+    def _driving(self) -> bool:
+        """Whether the running goal should move the robot (lock held by the caller)."""
+        cur = self._current
+        return cur is not None and not cur.status.terminal and cur.kind in DRIVING_KINDS
 
     def wait_for_servers(self, timeout_s: float, kinds: Iterable[str] = BACKEND_KINDS) -> bool:
         """Block until the action servers ``kinds`` are discovered (True) or ``timeout_s``."""
@@ -246,7 +247,7 @@ class RosNavigationBackend:
             client = self._services[name] = self.node.create_client(ClearEntireCostmap, name)
         return client
 
-    def _clear_costmaps(self, rec: _Goal) -> None:
+    def _clear_costmaps(self, rec: RemoteGoal) -> None:
         """Call the clear services of the goal's costmaps; the goal SUCCEEDS when all answered."""
         assert isinstance(rec.goal, ClearCostmaps)
         which = Costmap(rec.goal.costmap)
@@ -265,7 +266,7 @@ class RosNavigationBackend:
         for f in pending:
             f.add_done_callback(answered)
 
-    def _send_remote(self, rec: _Goal) -> None:
+    def _send_remote(self, rec: RemoteGoal) -> None:
         with self._lock:
             if rec.status.terminal:
                 return
@@ -284,7 +285,7 @@ class RosNavigationBackend:
         rec.handle = fut  # marks "request sent"
         fut.add_done_callback(lambda f: self._on_goal_response(rec, f))
 
-    def _on_goal_response(self, rec: _Goal, fut: Future) -> None:
+    def _on_goal_response(self, rec: RemoteGoal, fut: Future) -> None:
         handle: ClientGoalHandle | None = fut.result() if fut.exception() is None else None
         cancel = False
         with self._lock:
@@ -297,10 +298,10 @@ class RosNavigationBackend:
             # preempted or canceled before the server answered: cancel it there too
             cancel = rec.cancel_wanted or rec.status.terminal
         if cancel:
-            handle.cancel_goal_async()
+            self._owner.track_cancel(handle.cancel_goal_async())
         handle.get_result_async().add_done_callback(lambda f: self._on_result(rec, f))
 
-    def _on_feedback(self, rec: _Goal, msg: _FeedbackMessage) -> None:
+    def _on_feedback(self, rec: RemoteGoal, msg: _FeedbackMessage) -> None:
         fb = msg_to_feedback(rec.kind, msg.feedback)
         with self._lock:
             if not rec.status.terminal:
@@ -308,7 +309,7 @@ class RosNavigationBackend:
                 if fb.current_pose is not None:
                     self.tracker.feedback_pose(fb.current_pose)
 
-    def _on_result(self, rec: _Goal, fut: Future) -> None:
+    def _on_result(self, rec: RemoteGoal, fut: Future) -> None:
         if fut.exception() is not None:
             with self._lock:
                 rec.finish(
@@ -316,7 +317,7 @@ class RosNavigationBackend:
                 )
             return
         res = fut.result()
-        status = _STATUS_MAP.get(res.status, GoalStatus.ABORTED)
+        status = STATUS_MAP.get(res.status, GoalStatus.ABORTED)
         result = res.result
         code = int(getattr(result, "error_code", 0))
         msg = str(getattr(result, "error_msg", ""))
@@ -329,7 +330,7 @@ class RosNavigationBackend:
                 msg = msg or "canceled by another client"
             rec.finish(status, code, msg)
 
-    def _cancel_remote(self, rec: _Goal) -> None:
+    def _cancel_remote(self, rec: RemoteGoal) -> None:
         handle = rec.handle
         if handle is None:
             with self._lock:
@@ -338,14 +339,20 @@ class RosNavigationBackend:
                     rec.finish(GoalStatus.CANCELED, 0, "")
             return
         if isinstance(handle, ClientGoalHandle):
-            handle.cancel_goal_async()
+            self._owner.track_cancel(handle.cancel_goal_async())
         # else the request is in flight: _on_goal_response cancels it once accepted
 
     def _watchdog(self, now: float) -> None:
         """Send goals that waited for their server; end goals whose server vanished or never
         answered (executor thread)."""
+        self.lifecycle.poll(now)
+        self.servers_ready = self.lifecycle.active and all(
+            c.server_is_ready() for c in self._clients.values()
+        )
         with self._lock:
-            live = [r for r in self._goals.values() if not r.status.terminal]
+            for gid in [g for g, r in self._live.items() if r.status.terminal]:
+                del self._live[gid]
+            live = list(self._live.values())
         for rec in live:
             ready = self._ready(rec.kind)
             if rec.handle is None and ready:
@@ -376,6 +383,7 @@ class RosNavigationBackend:
             c.destroy()
         for s in self._services.values():
             self.node.destroy_client(s)
+        self.lifecycle.destroy(self.node)
         self.node.destroy_node()
 
 
@@ -402,13 +410,18 @@ class RosBackends:
         #: Latest header stamp (s) seen on amcl_pose / odom: the robots' time (simulated time
         #: with ``fleet sim-ros``, ROS time with a real Nav2).
         self.latest_stamp = 0.0
+        namespaces = list(namespaces)
+        #: Each robot's newest odometry stamp (s), by the order of ``namespaces``.
+        self._odom_t = np.zeros(len(namespaces))
+        self._cancels: set[Future] = set()
+        self._fleet_t = 0.0
         self.backends: dict[str, RosNavigationBackend] = {}
         try:
             for ns in namespaces:
                 ns = ns if ns.startswith("/") else "/" + ns
                 if ns in self.backends:
                     raise BackendError(f"namespace {ns!r} listed twice")
-                self.backends[ns] = RosNavigationBackend(self, ns, server_timeout_s)
+                self.backends[ns] = RosNavigationBackend(self, ns, server_timeout_s, len(self.backends))
             self._helper = Node(
                 "fleet_backends", context=context, start_parameter_services=False, enable_rosout=False
             )
@@ -446,6 +459,43 @@ class RosBackends:
                 time.sleep(0.05)
         return missing
 
+    def wait_until_active(self, timeout_s: float = 30.0, *, startup: bool = True) -> list[str]:
+        """Wait until every robot's navigator (``bt_navigator``) is active, as
+        ``BasicNavigator.waitUntilNav2Active`` does; with ``startup``, a robot whose nodes are
+        unconfigured or inactive (Nav2 launched without ``autostart``) is brought up with a
+        STARTUP to its lifecycle managers, as ``BasicNavigator.lifecycleStartup`` does.
+        Returns the namespaces still not active after ``timeout_s`` (empty when all are)."""
+        deadline = time.monotonic() + timeout_s
+        missing = list(self.backends)
+        while missing and time.monotonic() < deadline:
+            for ns in missing:
+                w = self.backends[ns].lifecycle
+                if startup and not w.startup_sent and w.state in ("unconfigured", "inactive"):
+                    self.call_soon(w.startup)
+            time.sleep(0.05)
+            missing = [ns for ns in missing if not self.backends[ns].lifecycle.active]
+        return missing
+
+    def fleet_time(self) -> float:
+        """The fleet's clock (s of the robots' time): the newest odometry stamp *every* robot
+        has reached, so that each robot's pose read at this time is the pose of this time
+        (taking the newest stamp of any robot instead would read the others' poses from
+        before it: the time-matching of :mod:`fleet.ros.frames`, across robots). A robot whose
+        odometry is more than :data:`CLOCK_LAG_S` behind the newest stamp (its Nav2 is gone)
+        does not hold the clock back; the clock never goes back."""
+        newest = self.latest_stamp
+        ts = self._odom_t
+        recent = ts[ts >= newest - CLOCK_LAG_S]
+        t = float(recent.min()) if recent.size else newest
+        if t > self._fleet_t:
+            self._fleet_t = t
+        return self._fleet_t
+
+    def saw_odom(self, index: int, t: float) -> None:
+        """Record robot ``index``'s newest odometry stamp ``t`` (s; executor thread)."""
+        if t > self._odom_t[index]:
+            self._odom_t[index] = t
+
     def saw_stamp(self, stamp: Time) -> None:
         """Record a header stamp seen on a robot's topic (executor thread)."""
         t = float(stamp.sec) + float(stamp.nanosec) * 1e-9
@@ -472,10 +522,21 @@ class RosBackends:
                     break
                 raise
 
+    def track_cancel(self, fut: Future) -> None:
+        """Remember a cancel request until it is answered (:meth:`close` waits for it)."""
+        self._cancels.add(fut)
+        fut.add_done_callback(self._cancels.discard)
+
     def close(self) -> None:
-        """Stop the executor thread, destroy the nodes, shut the context down."""
+        """Send what is queued (the cancels of goals the agents canceled as they closed: a
+        robot must not drive on after the run) and wait up to :data:`CLOSE_FLUSH_S` for their
+        answers; then stop the executor thread, destroy the nodes, shut the context down."""
         if self._closed:
             return
+        deadline = time.monotonic() + CLOSE_FLUSH_S
+        self._guard.trigger()
+        while (self._queue or self._cancels) and time.monotonic() < deadline and self._thread.is_alive():
+            time.sleep(0.01)
         self._closed = True
         self._thread.join(timeout=5.0)
         for b in self.backends.values():
@@ -499,13 +560,17 @@ def make_ros_backends(
     context: Context | None = None,
     server_timeout_s: float = 3.0,
     wait_s: float | None = None,
+    startup: bool = True,
 ) -> RosBackends:
     """Create ROS backends for ``namespaces`` (e.g. ``["/robot1", "/robot2"]``).
 
     Returns a :class:`RosBackends`: ``.backends[ns]`` is each robot's
     :class:`RosNavigationBackend`; ``.close()`` stops the shared executor thread and the
-    context. With ``wait_s``, waits that long for every robot's Nav2 action servers and
-    raises :class:`~fleet.errors.BackendError` naming the robots still missing.
+    context. With ``wait_s``, waits that long for every robot's Nav2 action servers, then that
+    long again for every robot's navigator to be active (sending its lifecycle managers
+    STARTUP when its nodes are unconfigured, unless ``startup`` is false: see
+    :meth:`RosBackends.wait_until_active`), and raises :class:`~fleet.errors.BackendError`
+    naming the robots still missing.
     """
     rb = RosBackends(namespaces, domain_id=domain_id, context=context, server_timeout_s=server_timeout_s)
     if wait_s is not None:
@@ -515,6 +580,14 @@ def make_ros_backends(
             raise BackendError(
                 f"no Nav2 action servers found within {wait_s:.0f} s for {', '.join(missing)} "
                 f"(ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}; is `fleet sim-ros` running?)"
+            )
+        missing = rb.wait_until_active(wait_s, startup=startup)
+        if missing:
+            states = ", ".join(f"{ns} ({rb.backends[ns].lifecycle.state})" for ns in missing)
+            rb.close()
+            raise BackendError(
+                f"Nav2 not active within {wait_s:.0f} s on {states}: bt_navigator/get_state is not "
+                "'active'" + ("" if startup else " (bring it up with its lifecycle managers' STARTUP)")
             )
     return rb
 

@@ -27,7 +27,7 @@ DISCOVERY_PROFILE = Path(__file__).with_name("discovery.xml")
 DISABLE_VAR = "FLEET_DISABLE_ROS"
 #: The Python packages the ROS layer needs (the ROS 2 Jazzy wheels, and the interface
 #: packages ``make setup-ros`` builds).
-REQUIRED_MODULES = ("rclpy", "nav2_msgs", "geographic_msgs")
+REQUIRED_MODULES = ("rclpy", "nav2_msgs", "geographic_msgs", "tf2_msgs", "diagnostic_msgs")
 
 
 def apply_ros_env_defaults(
@@ -53,7 +53,7 @@ def apply_ros_env_defaults(
 
 def ros_unavailable_reason(environ: MutableMapping[str, str] | None = None) -> str | None:
     """Why the ROS 2 layer cannot run here (a sentence naming the fix), or ``None`` when it
-    can: rclpy, nav2_msgs and geographic_msgs are importable and ``FLEET_DISABLE_ROS`` is not
+    can: the modules of :data:`REQUIRED_MODULES` are importable and ``FLEET_DISABLE_ROS`` is not
     ``1`` in ``environ`` (default ``os.environ``)."""
     env = os.environ if environ is None else environ
     if env.get(DISABLE_VAR, "") == "1":

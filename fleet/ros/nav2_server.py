@@ -4,9 +4,17 @@ real ROS 2 (rclpy).
 For every robot namespace (``/robot1`` ...) one lean node ``/robot1/nav2_sim``
 (:class:`~fleet.ros.nav2_facade.RobotFacade`) exposes what a Nav2 Jazzy bringup under that
 namespace exposes to clients such as ``nav2_simple_commander.BasicNavigator(namespace=
-'/robot1')``: Nav2's action servers (:mod:`fleet.ros.nav2_actions`), lifecycle and costmap
-services (:mod:`fleet.ros.nav2_services`), ``amcl_pose``, ``odom``, ``battery_state`` and
-``initialpose`` (:mod:`fleet.ros.nav2_facade`).
+'/robot1')``: Nav2's action servers (:mod:`fleet.ros.nav2_actions`), lifecycle nodes and
+managers (:mod:`fleet.ros.lifecycle`), costmap services (:mod:`fleet.ros.nav2_services`),
+``tf``, ``amcl_pose``, ``odom``, ``battery_state``, ``plan`` and ``initialpose``
+(:mod:`fleet.ros.nav2_facade`).
+
+For people looking at the fleet (RViz, Foxglove), the server's ``fleet_sim`` node publishes,
+in the global namespace: ``/map`` (``nav_msgs/OccupancyGrid``, transient local, once),
+``/tf`` (every robot's ``map -> <robot>/odom -> <robot>/base_link``, frame-prefixed with the
+robot's name) and ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``: each robot's battery,
+localization, motion and navigation checks of :mod:`fleet.diagnostics`, and each lifecycle
+manager's health) at ``--diagnostics-hz``.
 
 This module is the server process: :class:`Nav2SimServer` owns the rclpy context, one
 ``SingleThreadedExecutor`` and the simulator's time; :func:`serve` runs it until a signal;
@@ -39,21 +47,28 @@ apply_ros_env_defaults()
 
 import rclpy  # noqa: E402
 from builtin_interfaces.msg import Time  # noqa: E402
-from nav2_msgs.msg import Costmap  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from nav_msgs.msg import OccupancyGrid as GridMsg  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.signals import SignalHandlerOptions  # noqa: E402
+from tf2_msgs.msg import TFMessage  # noqa: E402
 
 from fleet.clock import Pacer, WallClock  # noqa: E402
+from fleet.diagnostics import robot_diagnostics  # noqa: E402
 from fleet.errors import BackendError, FleetError  # noqa: E402
+from fleet.maps import FREE, OccupancyGrid  # noqa: E402
 from fleet.navigation import Clock  # noqa: E402
-from fleet.ros.conversions import seconds_to_time  # noqa: E402
+from fleet.ros.conversions import pose2d_to_pose, seconds_to_time  # noqa: E402
+from fleet.ros.lifecycle import LIFECYCLE_NODES  # noqa: E402
 from fleet.ros.nav2_facade import Profile, RobotFacade  # noqa: E402
-from fleet.ros.nav2_services import LIFECYCLE_NODES, costmap_from_grid  # noqa: E402
+from fleet.types import Pose2D  # noqa: E402
 from nodes.bt_xml import parse_file  # noqa: E402
 
 if TYPE_CHECKING:
+    from fleet.config.model import FleetConfig
     from sim.simulator import Simulator
 
 #: Most simulator steps one timer callback runs to catch up; beyond, the backlog is dropped
@@ -61,6 +76,12 @@ if TYPE_CHECKING:
 MAX_CATCH_UP_STEPS = 20
 #: Timer period (wall s) of the stepping timer while the world is paused (``speed`` 0).
 PAUSED_TICK_S = 0.05
+#: ``/map``: latched for late subscribers (RViz, Foxglove), as map_server publishes it.
+MAP_QOS = QoSProfile(
+    depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
+)
+#: Exit status after SIGINT / SIGTERM (docs/cli.md).
+EXIT_INTERRUPTED = 130
 
 __all__ = ["LIFECYCLE_NODES", "Nav2SimServer", "Profile", "build_simulator", "main", "serve"]
 
@@ -77,6 +98,9 @@ class Nav2SimServer:
         feedback_hz, odom_hz, amcl_hz: wall-clock publication rates (``0`` disables).
         profile: :class:`~fleet.ros.nav2_facade.Profile` (or its name): ``full`` serves every
             Nav2 interface, ``lean`` the seven navigation actions, lifecycle and the topics.
+        diagnostics_hz: wall-clock rate of ``/diagnostics`` (``0`` disables).
+        autostart: bring every robot's lifecycle nodes up at once (Nav2's ``autostart``);
+            otherwise they wait, unconfigured, for ``manage_nodes`` STARTUP.
         context: an initialized rclpy ``Context``; by default the server creates and owns one.
         domain_id: ROS domain of the context it creates (default: ``ROS_DOMAIN_ID``).
         wall: the wall clock the simulator is paced against (default
@@ -98,6 +122,8 @@ class Nav2SimServer:
         odom_hz: float = 10.0,
         amcl_hz: float = 1.0,
         profile: Profile | str = Profile.FULL,
+        diagnostics_hz: float = 1.0,
+        autostart: bool = True,
         context: Context | None = None,
         domain_id: int | None = None,
         wall: Clock | None = None,
@@ -119,7 +145,10 @@ class Nav2SimServer:
         self.context = context
         self.executor = SingleThreadedExecutor(context=context)
         self._stop = False
-        self._costmap: Costmap | None = None
+        #: Why the server stopped: ``"signal"``, ``"duration"`` (set by :func:`serve`), or ``""``.
+        self.stopped_by = ""
+        #: Simulated time the world does not step beyond (``serve``'s ``duration_s``).
+        self.end_time: float | None = None
         t_create = self.wall.now()
         self.world = Node("fleet_sim", context=context, start_parameter_services=False, enable_rosout=False)
         self.robots: dict[str, RobotFacade] = {}
@@ -131,9 +160,9 @@ class Nav2SimServer:
                 context,
                 profile,
                 stamp=self.stamp,
-                costmap=self.costmap_msg,
                 feedback_period=feedback_period,
                 wall=self.wall,
+                autostart=autostart,
             )
         for r in self.robots.values():
             r.actions.set_default_trees(nav_to_pose_xml, nav_through_poses_xml)
@@ -141,7 +170,12 @@ class Nav2SimServer:
         self.create_time_s = self.wall.now() - t_create
         self.executor.add_node(self.world)
         for r in self.robots.values():
-            self.executor.add_node(r.node)
+            for node in r.nodes:
+                self.executor.add_node(node)
+        self.tf_pub = self.world.create_publisher(TFMessage, "/tf", 100)
+        self.map_pub = self.world.create_publisher(GridMsg, "/map", MAP_QOS)
+        self.diag_pub = self.world.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.map_pub.publish(map_msg(sim.grid, self.stamp()))
         step = sim.params.step_s
         self.world.create_timer(
             max(step / self.speed, 0.01) if self.speed > 0 else PAUSED_TICK_S, self.step_to_wall_time
@@ -150,6 +184,8 @@ class Nav2SimServer:
             self.world.create_timer(1.0 / odom_hz, self._publish_odom)
         if amcl_hz > 0:
             self.world.create_timer(1.0 / amcl_hz, self._publish_amcl)
+        if diagnostics_hz > 0:
+            self.world.create_timer(1.0 / diagnostics_hz, self.publish_diagnostics)
         self._publish_amcl()
         self.pacer.start()
 
@@ -168,6 +204,8 @@ class Nav2SimServer:
             n = 0
             # simulated seconds owed: the pacer's lag times the speed
             while -self.pacer.ahead() * self.speed >= step - 1e-9:
+                if self.end_time is not None and self.sim.clock.now() >= self.end_time - 1e-9:
+                    break  # the run's --duration is reached: the world stops there
                 if n == MAX_CATCH_UP_STEPS:
                     self.pacer.start()  # cannot keep up: drop the backlog rather than spiral
                     break
@@ -178,18 +216,43 @@ class Nav2SimServer:
             r.actions.poll_all(wall)
 
     def _publish_odom(self) -> None:
+        """Every robot's ``odom``, ``tf``, ``battery_state`` and ``plan``, and the fleet's ``/tf``."""
+        stamp = self.stamp()
+        fleet_tf = []
         for r in self.robots.values():
-            r.publish_odom()
+            r.publish_odom(stamp)
+            fleet_tf.extend(r.transforms(stamp, prefix=f"{r.name}/"))
+        self.tf_pub.publish(TFMessage(transforms=fleet_tf))
+
+    def publish_diagnostics(self) -> None:
+        """``/diagnostics``: every robot's checks (:func:`fleet.diagnostics.robot_diagnostics`,
+        named ``<robot>: <check>``, hardware id the robot's name) and its lifecycle managers'
+        health (``<robot>: <manager>``)."""
+        arr = DiagnosticArray()
+        arr.header.stamp = self.stamp()
+        out = []
+        for r in self.robots.values():
+            for d in robot_diagnostics(self.sim.robot_state(r.ns)):
+                st = DiagnosticStatus(
+                    level=bytes([int(d.level)]),
+                    name=f"{r.name}: {d.name}",
+                    message=d.message,
+                    hardware_id=r.name,
+                )
+                st.values = [KeyValue(key=k, value=v) for k, v in d.values]
+                out.append(st)
+            for manager, level, message in r.lifecycle.health():
+                out.append(
+                    DiagnosticStatus(
+                        level=bytes([level]), name=f"{r.name}: {manager}", message=message, hardware_id=r.name
+                    )
+                )
+        arr.status = out
+        self.diag_pub.publish(arr)
 
     def _publish_amcl(self) -> None:
         for r in self.robots.values():
             r.publish_pose()
-
-    def costmap_msg(self) -> Costmap:
-        """The static map as a costmap (built on first use, then shared by every robot)."""
-        if self._costmap is None:
-            self._costmap = costmap_from_grid(self.sim.grid)
-        return self._costmap
 
     # -- running --------------------------------------------------------------------------
 
@@ -228,15 +291,34 @@ class Nav2SimServer:
 
 def build_simulator(config_path: str, robots: int | None = None) -> Simulator:
     """Load a fleet config and make a simulator with its robots (``robots`` overrides the count)."""
-    from fleet.clock import SimClock
     from fleet.config.loader import load_config
+
+    return simulator_for(load_config(config_path, robots=robots))
+
+
+def simulator_for(cfg: FleetConfig) -> Simulator:
+    """A simulator with the robots of the loaded config ``cfg``."""
+    from fleet.clock import SimClock
     from sim.simulator import Simulator
 
-    cfg = load_config(config_path, robots=robots)
     sim = Simulator(cfg.grid, cfg.sim, SimClock())
     for spec in cfg.robots:
         sim.add_robot(spec)
     return sim
+
+
+def map_msg(grid: OccupancyGrid, stamp: Time) -> GridMsg:
+    """The ``nav_msgs/OccupancyGrid`` (frame ``map``) of the static map: free 0, else 100."""
+    m = GridMsg()
+    m.header.frame_id = "map"
+    m.header.stamp = stamp
+    m.info.map_load_time = stamp
+    m.info.resolution = float(grid.resolution)
+    m.info.width = grid.width
+    m.info.height = grid.height
+    m.info.origin = pose2d_to_pose(Pose2D(grid.origin_x, grid.origin_y, 0.0))
+    m.data = ((grid.cells != FREE).astype("int8") * 100).ravel().tolist()
+    return m
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -246,10 +328,17 @@ def build_parser() -> argparse.ArgumentParser:
         description=(
             "Serve the simulated fleet of CONFIG as namespaced Nav2 over ROS 2: for every robot "
             "/NAME, the Nav2 action servers (navigate_to_pose, navigate_through_poses, "
-            "follow_waypoints, spin, backup, ...), lifecycle get_state, amcl_pose, odom and the "
-            "costmap services. nav2_simple_commander's BasicNavigator(namespace='/robot1') "
-            "works against it. Stop with Ctrl-C."
+            "follow_waypoints, spin, backup, ...), lifecycle nodes and managers, tf, amcl_pose, "
+            "odom, battery_state, plan and the costmap services; for the whole fleet /map, /tf "
+            "and /diagnostics (open RViz or Foxglove with fixed frame 'map'). "
+            "nav2_simple_commander's BasicNavigator(namespace='/robot1') works against it. "
+            "Stop with Ctrl-C (exit 130)."
         ),
+        epilog="examples:\n"
+        "  fleet sim-ros configs/warehouse_patrol.yaml --speed 5\n"
+        "  fleet sim-ros configs/warehouse_patrol.yaml --duration 300 --plot out/truth.png\n"
+        "  fleet sim-ros configs/warehouse_patrol.yaml --no-autostart   # bring Nav2 up with manage_nodes\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("config", help="fleet config YAML (see docs/config.md)")
     ap.add_argument("--robots", type=int, default=None, help="serve N robots instead of the config's list")
@@ -263,11 +352,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="which Nav2 interfaces to serve",
     )
     ap.add_argument("--feedback-hz", type=float, default=10.0, help="action feedback rate (wall Hz)")
-    ap.add_argument("--odom-hz", type=float, default=10.0, help="odom rate (wall Hz, 0 = off)")
+    ap.add_argument("--odom-hz", type=float, default=10.0, help="odom and tf rate (wall Hz, 0 = off)")
     ap.add_argument("--amcl-hz", type=float, default=1.0, help="amcl_pose rate (wall Hz, 0 = off)")
+    ap.add_argument("--diagnostics-hz", type=float, default=1.0, help="/diagnostics rate (wall Hz, 0 = off)")
+    ap.add_argument(
+        "--no-autostart",
+        action="store_true",
+        help="leave the Nav2 lifecycle nodes unconfigured until a manage_nodes STARTUP",
+    )
     ap.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: the environment's)")
     ap.add_argument("--ready-file", default=None, help="write a JSON line here once every server exists")
-    ap.add_argument("--duration", type=float, default=None, help="stop after this many wall seconds")
+    ap.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
     ap.add_argument(
         "--nav-to-pose-xml",
         default=None,
@@ -281,29 +376,48 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="navigator tree of NavigateThroughPoses goals with an empty behavior_tree",
     )
+    ap.add_argument("--plot", default=None, help="write a PNG of the robots' true trajectories at the end")
+    ap.add_argument(
+        "--truth",
+        default=None,
+        help="write the ground truth at the end as JSON: each robot's trajectory (t, x, y), "
+        "odometer (m) and final pose",
+    )
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
     """``fleet sim-ros CONFIG``: serve the config's simulated robots as namespaced Nav2.
-    Returns the exit status: 0 after a clean stop, 2 for a bad config."""
+    Returns the exit status: 0 after ``--duration``, 130 after Ctrl-C / SIGTERM, 2 for a bad
+    config or argument."""
     args = build_parser().parse_args(argv)
+    if args.duration is not None and not args.duration > 0:
+        print(
+            f"error: --duration must be a positive number of simulated seconds, got {args.duration}",
+            file=sys.stderr,
+        )
+        return 2
     if args.domain_id is not None:
         apply_ros_env_defaults(args.domain_id)
     try:
-        sim = build_simulator(args.config, args.robots)
+        from fleet.config.loader import load_config
+
+        cfg = load_config(args.config, robots=args.robots)
+        sim = simulator_for(cfg)
         for tree in (args.nav_to_pose_xml, args.nav_through_poses_xml):
             if tree is not None:
                 parse_file(tree)  # a default tree that cannot load is an error at start, as in Nav2
     except FleetError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    return serve(
+    code = serve(
         sim,
         speed=args.speed,
         feedback_hz=args.feedback_hz,
         odom_hz=args.odom_hz,
         amcl_hz=args.amcl_hz,
+        diagnostics_hz=args.diagnostics_hz,
+        autostart=not args.no_autostart,
         profile=args.profile,
         domain_id=args.domain_id,
         ready_file=args.ready_file,
@@ -311,6 +425,31 @@ def main(argv: list[str] | None = None) -> int:
         nav_to_pose_xml=args.nav_to_pose_xml,
         nav_through_poses_xml=args.nav_through_poses_xml,
     )
+    if args.truth:
+        write_truth(sim, args.truth)
+        print(f"[sim-ros] ground truth: {args.truth}", flush=True)
+    if args.plot:
+        from fleet.viz.plot import plot_run
+
+        trajectories = {r.name: sim.trajectory(r.namespace) for r in cfg.robots}
+        plot_run(cfg, trajectories, args.plot, title=f"{cfg.name} (fleet sim-ros, true trajectories)")
+        print(f"[sim-ros] plot: {args.plot}", flush=True)
+    return code
+
+
+def write_truth(sim: Simulator, path: str) -> None:
+    """The simulator's ground truth as JSON: ``{"t": now, "robots": {ns: {"trajectory": [[t, x,
+    y], ...], "distance_m": odometer, "pose": [x, y, theta]}}}`` (``map`` frame, m, s)."""
+    robots = {}
+    for ns in sim.namespaces:
+        st = sim.localization_state(ns)
+        robots[ns] = {
+            "trajectory": [list(p) for p in sim.trajectory(ns)],
+            "distance_m": sim.robot_state(ns).distance_m,
+            "pose": list(sim.true_pose(ns).as_tuple()),
+            "estimate_error_m": st.error_m,
+        }
+    Path(path).write_text(json.dumps({"t": sim.clock.now(), "robots": robots}))
 
 
 def serve(
@@ -322,14 +461,17 @@ def serve(
     feedback_hz: float = 10.0,
     odom_hz: float = 10.0,
     amcl_hz: float = 1.0,
+    diagnostics_hz: float = 1.0,
+    autostart: bool = True,
     profile: Profile | str = Profile.FULL,
     domain_id: int | None = None,
     nav_to_pose_xml: str | None = None,
     nav_through_poses_xml: str | None = None,
 ) -> int:
     """Serve ``sim`` (the other arguments are :class:`Nav2SimServer`'s) until SIGINT/SIGTERM
-    or ``duration_s`` wall seconds. Writes ``ready_file`` (JSON: pid, robots, create_s,
-    domain_id) once every server exists. Returns the process exit status (0)."""
+    or ``duration_s`` simulated seconds have passed. Writes ``ready_file`` (JSON: pid, robots,
+    create_s, domain_id) once every server exists. Returns the process exit status: 0 after
+    the duration, :data:`EXIT_INTERRUPTED` after a signal."""
     wall = WallClock()
     t0 = wall.now()
     server = Nav2SimServer(
@@ -338,6 +480,8 @@ def serve(
         feedback_hz=feedback_hz,
         odom_hz=odom_hz,
         amcl_hz=amcl_hz,
+        diagnostics_hz=diagnostics_hz,
+        autostart=autostart,
         profile=profile,
         domain_id=domain_id,
         nav_to_pose_xml=nav_to_pose_xml,
@@ -345,6 +489,7 @@ def serve(
     )
 
     def _stop(_sig: int, _frame: FrameType | None) -> None:
+        server.stopped_by = "signal"
         server.request_stop()
 
     signal.signal(signal.SIGINT, _stop)
@@ -364,13 +509,20 @@ def serve(
         tmp = Path(ready_file + ".tmp")
         tmp.write_text(json.dumps(info) + "\n")
         tmp.replace(ready_file)
-    end = None if duration_s is None else wall.now() + duration_s
+    sim_t0 = sim.clock.now()
+    if duration_s is not None:
+        server.end_time = sim_t0 + duration_s
     try:
-        while server.running and (end is None or wall.now() < end):
+        while server.running:
+            if duration_s is not None and sim.clock.now() - sim_t0 >= duration_s - 1e-9:
+                server.stopped_by = "duration"
+                break
             server.spin_once(0.1)
     finally:
         server.close()
-    return 0
+    t = sim.clock.now() - sim_t0
+    print(f"[sim-ros] stopped ({server.stopped_by or 'shut down'}) after {t:.1f} s simulated", flush=True)
+    return EXIT_INTERRUPTED if server.stopped_by == "signal" else 0
 
 
 if __name__ == "__main__":

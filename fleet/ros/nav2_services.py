@@ -1,24 +1,19 @@
-"""The Nav2 services of one simulated robot: lifecycle and costmaps.
+"""The costmap services of one simulated robot (its lifecycle is :mod:`fleet.ros.lifecycle`).
 
-* :class:`LifecycleServices`: ``<node>/get_state`` for each of :data:`LIFECYCLE_NODES`
-  (answering ``active``: the simulator is always up) and
-  ``lifecycle_manager_navigation/manage_nodes`` (every command succeeds). This is what
-  ``BasicNavigator.waitUntilNav2Active()`` / ``lifecycleStartup()`` call.
-* :class:`CostmapServices`: the four clear services of Nav2's costmaps (no-ops: the simulated
-  costmaps hold only the static map) and ``{global,local}_costmap/get_costmap``, which answer
-  the static map as a ``nav2_msgs/Costmap`` (:func:`costmap_from_grid`).
+* :class:`CostmapServices`: the clear services of Nav2's two costmaps, which really clear the
+  robot's learned obstacles in the simulator (:mod:`sim.costmap`), and
+  ``{global,local}_costmap/get_costmap``, which answer the live costmap.
 
 Service names are relative, so they resolve under the robot's namespace
-(``/robot1/amcl/get_state``). Callbacks run on the server's one executor thread.
+(``/robot1/global_costmap/get_costmap``). Callbacks run on the server's one executor thread.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING, Protocol
 
-import numpy as np
-from lifecycle_msgs.msg import State
-from lifecycle_msgs.srv import GetState
+from builtin_interfaces.msg import Time
 from nav2_msgs.msg import Costmap
 from nav2_msgs.srv import (
     ClearCostmapAroundPose,
@@ -26,98 +21,117 @@ from nav2_msgs.srv import (
     ClearCostmapExceptRegion,
     ClearEntireCostmap,
     GetCostmap,
-    ManageLifecycleNodes,
 )
 from rclpy.node import Node
 
-from fleet.maps import FREE, OccupancyGrid
-from fleet.ros.conversions import pose2d_to_pose
+from fleet.ros.conversions import pose2d_to_pose, pose_stamped_to_pose2d
 from fleet.types import Pose2D
 
-#: Nav2 nodes whose lifecycle state a client may ask (``<name>/get_state``).
-LIFECYCLE_NODES = (
-    "bt_navigator",
-    "amcl",
-    "planner_server",
-    "controller_server",
-    "behavior_server",
-    "map_server",
-)
-#: Nav2's lifecycle manager of the navigation nodes.
-LIFECYCLE_MANAGER = "lifecycle_manager_navigation"
-#: Cost of an occupied cell in a published costmap (Nav2's LETHAL_OBSTACLE).
-LETHAL_COST = 254
+if TYPE_CHECKING:
+    from sim.costmap import CostmapRaster
+    from sim.simulator import Simulator
 
-#: Every clear service of Nav2's two costmaps: (service type, relative name).
-CLEAR_SERVICES = (
-    (ClearEntireCostmap, "global_costmap/clear_entirely_global_costmap"),
-    (ClearEntireCostmap, "local_costmap/clear_entirely_local_costmap"),
-    (ClearCostmapExceptRegion, "local_costmap/clear_costmap_except_region"),
-    (ClearCostmapAroundRobot, "local_costmap/clear_costmap_around_robot"),
-    (ClearCostmapAroundPose, "local_costmap/clear_costmap_around_pose"),
-)
 #: The costmaps ``get_costmap`` is served for.
 COSTMAPS = ("global_costmap", "local_costmap")
 
 
-class LifecycleServices:
-    """Lifecycle services of one robot's Nav2 nodes, served on ``node``.
+class CostmapServices:
+    """The costmap services of one simulated robot ``namespace`` of ``sim``, served on ``node``
+    with Nav2's names, for each of :data:`COSTMAPS` (``<costmap>/<service>_<costmap>``):
 
-    Every node of :data:`LIFECYCLE_NODES` reports ``active``; ``manage_nodes`` accepts every
-    command (startup, shutdown, pause, resume, reset) and reports success without changing
-    anything.
+    * ``clear_entirely_<c>`` (ClearEntireCostmap): the learned obstacles of that costmap go;
+    * ``clear_except_<c>`` (ClearCostmapExceptRegion): all but those in the square of side
+      ``reset_distance`` around the robot;
+    * ``clear_around_<c>`` (ClearCostmapAroundRobot): those in that square;
+    * ``clear_around_pose_<c>`` (ClearCostmapAroundPose): those in the square around ``pose``;
+    * ``get_costmap`` (GetCostmap): the live costmap (:meth:`sim.simulator.Simulator.costmap`):
+      the whole map for the global one, a 5 m window around the robot for the local one;
+      ``specs.layer`` picks ``static_layer``, ``obstacle_layer`` or ``inflation_layer``,
+      anything else gives ``master`` (all layers).
+
+    ``cleared`` counts the obstacles the clears removed. Callbacks run on the server's thread.
     """
 
-    def __init__(self, node: Node) -> None:
-        self.services = [
-            node.create_service(GetState, f"{name}/get_state", self._get_state) for name in LIFECYCLE_NODES
-        ]
-        self.services.append(
-            node.create_service(ManageLifecycleNodes, f"{LIFECYCLE_MANAGER}/manage_nodes", self._manage)
-        )
+    def __init__(self, node: Node, sim: Simulator, namespace: str, stamp: Callable[[], Time]) -> None:
+        self._sim = sim
+        self._ns = namespace
+        self._stamp = stamp
+        self.cleared = 0
+        self.services = []
+        for c in COSTMAPS:
+            which = c.split("_")[0]
+            self.services += [
+                node.create_service(ClearEntireCostmap, f"{c}/clear_entirely_{c}", self._clear_entire(which)),
+                node.create_service(
+                    ClearCostmapExceptRegion, f"{c}/clear_except_{c}", self._clear_square(which, True)
+                ),
+                node.create_service(
+                    ClearCostmapAroundRobot, f"{c}/clear_around_{c}", self._clear_square(which, False)
+                ),
+                node.create_service(
+                    ClearCostmapAroundPose, f"{c}/clear_around_pose_{c}", self._clear_pose(which)
+                ),
+                node.create_service(GetCostmap, f"{c}/get_costmap", self._get_costmap(which)),
+            ]
 
-    def _get_state(self, _req: GetState.Request, resp: GetState.Response) -> GetState.Response:
-        resp.current_state = State(id=State.PRIMARY_STATE_ACTIVE, label="active")
-        return resp
+    def _clear_entire(self, which: str) -> Callable[[object, ClearEntireCostmap.Response], object]:
+        def cb(_req: object, resp: ClearEntireCostmap.Response) -> object:
+            self.cleared += self._sim.clear_costmaps(self._ns, which)
+            return resp
 
-    def _manage(
-        self, _req: ManageLifecycleNodes.Request, resp: ManageLifecycleNodes.Response
-    ) -> ManageLifecycleNodes.Response:
-        resp.success = True
-        return resp
+        return cb
+
+    def _clear_square(self, which: str, keep_inside: bool) -> Callable[[_Reset, object], object]:
+        def cb(req: _Reset, resp: object) -> object:
+            self.cleared += self._sim.clear_costmap_region(
+                self._ns, which, float(req.reset_distance), keep_inside=keep_inside
+            )
+            return resp
+
+        return cb
+
+    def _clear_pose(self, which: str) -> Callable[[ClearCostmapAroundPose.Request, object], object]:
+        def cb(req: ClearCostmapAroundPose.Request, resp: object) -> object:
+            center = pose_stamped_to_pose2d(req.pose)
+            self.cleared += self._sim.clear_costmap_region(
+                self._ns, which, float(req.reset_distance), center=center
+            )
+            return resp
+
+        return cb
+
+    def _get_costmap(
+        self, which: str
+    ) -> Callable[[GetCostmap.Request, GetCostmap.Response], GetCostmap.Response]:
+        def cb(req: GetCostmap.Request, resp: GetCostmap.Response) -> GetCostmap.Response:
+            layer = str(req.specs.layer) if req.specs.layer in LAYERS else "master"
+            raster = self._sim.costmap(self._ns, which, layer)
+            resp.map = costmap_msg(raster, layer, self._stamp())
+            return resp
+
+        return cb
 
 
-class CostmapServices:
-    """Costmap services of one robot, served on ``node``: the clears of
-    :data:`CLEAR_SERVICES` (they answer and change nothing) and ``get_costmap`` of each of
-    :data:`COSTMAPS`, answered with ``costmap()`` (the static map, built once by the
-    server)."""
-
-    def __init__(self, node: Node, costmap: Callable[[], Costmap]) -> None:
-        self._costmap = costmap
-        self.services = [node.create_service(srv, name, self._clear) for srv, name in CLEAR_SERVICES]
-        self.services += [
-            node.create_service(GetCostmap, f"{name}/get_costmap", self._get_costmap) for name in COSTMAPS
-        ]
-
-    def _clear(self, _req: object, resp: object) -> object:
-        return resp
-
-    def _get_costmap(self, _req: GetCostmap.Request, resp: GetCostmap.Response) -> GetCostmap.Response:
-        resp.map = self._costmap()
-        return resp
+class _Reset(Protocol):
+    reset_distance: float
 
 
-def costmap_from_grid(grid: OccupancyGrid) -> Costmap:
-    """The ``nav2_msgs/Costmap`` (layer ``master``, frame ``map``) of an occupancy grid: free
-    cells cost 0, every other cell :data:`LETHAL_COST`. Row-major from the origin cell, as
-    Nav2 publishes it."""
+#: The layers ``get_costmap`` serves by name (``master`` for any other).
+LAYERS = ("static_layer", "obstacle_layer", "inflation_layer")
+
+
+def costmap_msg(raster: CostmapRaster, layer: str, stamp: Time) -> Costmap:
+    """A ``nav2_msgs/Costmap`` (frame ``map``) of a simulator costmap raster, row-major from
+    its origin cell, as Nav2 publishes it."""
     m = Costmap()
     m.header.frame_id = "map"
-    m.metadata.layer = "master"
-    m.metadata.resolution = float(grid.resolution)
-    m.metadata.size_x = grid.width
-    m.metadata.size_y = grid.height
-    m.metadata.origin = pose2d_to_pose(Pose2D(grid.origin_x, grid.origin_y, 0.0))
-    m.data = np.where(grid.cells == FREE, 0, LETHAL_COST).astype(np.uint8).ravel().tolist()
+    m.header.stamp = stamp
+    m.metadata.layer = layer
+    m.metadata.resolution = float(raster.resolution)
+    rows, cols = raster.cost.shape
+    m.metadata.size_x = int(cols)
+    m.metadata.size_y = int(rows)
+    m.metadata.origin = pose2d_to_pose(Pose2D(raster.origin_x, raster.origin_y, 0.0))
+    m.metadata.update_time = stamp
+    m.data = raster.cost.ravel().tolist()
     return m

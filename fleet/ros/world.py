@@ -5,8 +5,9 @@ in-process simulator, but every robot's :class:`~fleet.navigation.NavigationBack
 :class:`~fleet.ros.backend.RosNavigationBackend` talking to Nav2 under the robot's namespace
 (a real Nav2 bringup per robot, or ``fleet sim-ros CONFIG`` serving all of them).
 
-Time: the fleet clock is :class:`RosStampClock`, the newest header stamp seen on the robots'
-``odom`` / ``amcl_pose`` (simulated time with ``fleet sim-ros``, ROS time with a real Nav2),
+Time: the fleet clock is :class:`RosStampClock`, the newest odometry stamp every robot has
+reached (simulated time with ``fleet sim-ros``, ROS time with a real Nav2), and each robot's
+pose is read at that time (its odometry interpolated there), never at another robot's;
 so tick rates and timeouts follow the robots' time whatever speed the simulator runs at.
 The world is ``remote``: the runner does not pace it.
 
@@ -27,13 +28,14 @@ from fleet.runtime.worlds import BlindWorld
 
 
 class RosStampClock:
-    """Seconds of the newest stamp seen by ``backends`` (0 until the first message)."""
+    """Seconds of the robots' time every robot's odometry has reached
+    (:meth:`~fleet.ros.backend.RosBackends.fleet_time`; 0 until the first message)."""
 
     def __init__(self, backends: RosBackends) -> None:
         self._rb = backends
 
     def now(self) -> float:
-        return self._rb.latest_stamp
+        return self._rb.fleet_time()
 
 
 class RosWorld(BlindWorld):

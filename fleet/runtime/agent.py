@@ -15,6 +15,13 @@ Orders are queued by the bus callback thread and applied on the ticking thread o
 With traffic management the agent also takes the robot's traffic grants
 (``fleet/<robot>/grant``, newest ``seq`` wins) into the blackboard key ``grant``.
 
+Safety and health: each tick first reads the robot's state and asks the robot's
+:class:`fleet.diagnostics.SafetyWatchdog`; while it trips (localization lost or stale, the
+navigation server down) the tree is halted at once (its running goal is canceled, so the robot
+stops within this one control period), the robot reports ``mode = "safety_stop"`` and the
+coordinator takes its task back; when it clears the tree runs again. Every status record
+carries the robot's diagnostics (``health``, ``diag``: :func:`fleet.diagnostics.robot_diagnostics`).
+
 Status rate: with ``status_hz`` (the config's ``bus.status_hz``) the agent publishes its status
 on the bus at most that often (simulated time, from the records' ``t``): a record is published
 when at least ``1 / status_hz`` s passed since the last one published; ``None`` publishes every
@@ -29,8 +36,17 @@ import threading
 from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Protocol
 
+from fleet.diagnostics import (
+    Diagnostic,
+    HealthParams,
+    Level,
+    SafetyWatchdog,
+    problems,
+    robot_diagnostics,
+    worst,
+)
 from fleet.messages import Grant, StatusRecord, TaskMessage
-from fleet.types import Mode, Pose2D, TaskKind, TreeKind
+from fleet.types import Mode, Pose2D, RobotState, TaskKind, TreeKind
 
 if TYPE_CHECKING:
     from fleet.navigation import Clock, NavigationBackend
@@ -100,6 +116,7 @@ class RobotAgent:
         traffic: bool = False,
         status_hz: float | None = None,
         tree_file: str | None = None,
+        health: HealthParams | None = None,
     ) -> None:
         from fleet.robots import BatteryModel
         from nodes import build_tree
@@ -124,17 +141,17 @@ class RobotAgent:
         clear_robot_blackboard(self.namespace)
         self.bb = robot_blackboard(self.namespace, name=f"agent{self.namespace}")
         self.traffic = traffic
+        battery = battery_model or BatteryModel()
         self.tree_file = tree_file
         if tree_file is not None:
             from nodes.xml_tree import load_tree
 
-            self.root = load_tree(
-                tree_file, self.namespace, backend, clock, battery_model or BatteryModel()
-            ).root
+            self.root = load_tree(tree_file, self.namespace, backend, clock, battery).root
         else:
-            self.root = build_tree(
-                tree_kind, self.namespace, backend, clock, battery_model or BatteryModel(), traffic=traffic
-            )
+            self.root = build_tree(tree_kind, self.namespace, backend, clock, battery, traffic=traffic)
+        self.health = health or HealthParams(battery_low=battery.low)
+        #: The fleet-side safety stop (see the module docstring); ``watchdog.trips`` counts stops.
+        self.watchdog = SafetyWatchdog(self.health)
         self.seq = 0
         self.ticks = 0
         self.charges = 0
@@ -214,16 +231,31 @@ class RobotAgent:
     # -- ticking -----------------------------------------------------------------------
 
     def tick(self) -> StatusRecord:
-        """Apply queued orders, tick the tree once, publish (see ``status_hz``) and return
-        the status record."""
+        """Apply queued orders, check the safety watchdog, tick the tree once (unless the
+        watchdog holds the robot), publish (see ``status_hz``) and return the status record."""
+        from py_trees.common import Status
+
         self._apply_orders()
-        self.root.tick_once()
+        st = self.backend.robot_state()
+        was = self.watchdog.reason
+        reason = self.watchdog.check(st)
+        if reason:
+            if not was:
+                logger.warning("robot %s: safety stop: %s", self.name, reason)
+                self.root.stop(Status.INVALID)  # cancels the running goal: the robot stops
+            self.bb.mode = Mode.SAFETY_STOP
+            self.bb.active_leaf = "SafetyWatchdog"
+        else:
+            if was:
+                logger.warning("robot %s: safety stop cleared", self.name)
+                self.bb.mode = Mode.IDLE
+            self.root.tick_once()
         self.ticks += 1
         mode = str(self.bb.mode)
         if mode == Mode.CHARGING and self._last_mode != Mode.CHARGING:
             self.charges += 1
         self._last_mode = mode
-        rec = self.status()
+        rec = self.status(st)
         self.last_status = rec
         self._publish(rec)
         if self.on_status is not None:
@@ -240,10 +272,12 @@ class RobotAgent:
         self.published += 1
         self.bus.publish_status(rec)
 
-    def status(self) -> StatusRecord:
-        """The current status record of this robot (each call takes the next ``seq``)."""
+    def status(self, state: RobotState | None = None) -> StatusRecord:
+        """The current status record of this robot (each call takes the next ``seq``), from
+        ``state`` (default: the backend's now)."""
         self.seq += 1
-        st = self.backend.robot_state()
+        st = state if state is not None else self.backend.robot_state()
+        health, diag = self._diagnostics(st)
         bb = self.bb
         task_id = bb.task_id
         laps = int(bb.laps) if bb.lap_task_id is not None and bb.lap_task_id == task_id else 0
@@ -266,7 +300,29 @@ class RobotAgent:
             collisions=int(st.collisions),
             seq=self.seq,
             picks_done=int(bb.picks_done or 0),
+            health=health,
+            diag=diag,
         )
+
+    def _diagnostics(self, st: RobotState) -> tuple[int, tuple[tuple[str, int, str], ...]]:
+        """``(worst level, the checks that are not OK)`` of ``st``; a healthy robot (the common
+        case) costs no check objects."""
+        h = self.health
+        if (
+            st.localized
+            and st.navigation_ready
+            and st.battery_known
+            and not st.stuck
+            and not st.safety_stop
+            and st.pose is not None
+            and st.battery >= h.battery_low
+            and st.pose_age_s <= 0.5 * h.localization_timeout_s
+        ):
+            return 0, ()
+        items = robot_diagnostics(st, h)
+        if self.watchdog.reason and not st.safety_stop:
+            items = (*(d for d in items if d.name != "motion"), _stopped(self.watchdog.reason))
+        return int(worst(items)), problems(items)
 
     def close(self) -> None:
         """Cancel the robot's outstanding goal, drop the liveliness token and the subscription."""
@@ -283,6 +339,10 @@ class RobotAgent:
                 except Exception as e:  # noqa: BLE001 - keep releasing the rest
                     logger.debug("robot %s: undeclare failed: %s", self.name, e)
         self._token = self._sub = self._grant_sub = None
+
+
+def _stopped(reason: str) -> Diagnostic:
+    return Diagnostic("motion", Level.ERROR, f"safety stop: {reason}")
 
 
 def _pose(p: Pose2D | Iterable[float]) -> Pose2D:

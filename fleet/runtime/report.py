@@ -35,6 +35,9 @@ JSON fields (``RunReport.to_dict``), units in the names:
   ``recoveries_per_goal``, ``max_recoveries``, ``time_over_straight`` and
   ``time_over_roadmap`` (time taken by succeeded goals over the time of the straight-line /
   roadmap optimum at top speed).
+  Each ``per_robot`` entry also has ``safety_stops`` (times its safety watchdog stopped it:
+  localization lost, navigation server down; :mod:`fleet.diagnostics`);
+* ``safety_stops``: the robots' safety stops summed (robots of this process).
 
 Trajectories (for :mod:`fleet.viz.plot`) are kept on the object but not written to JSON:
 the world's own (the simulator and SUMO sample every robot every 0.5 s) for the robots of
@@ -93,6 +96,7 @@ class RobotReport:
     collisions: int = 0
     charges: int = 0
     goals: dict[str, Any] = field(default_factory=dict)
+    safety_stops: int = 0
 
 
 @dataclass
@@ -123,6 +127,7 @@ class RunReport:
     picks_assigned: int = 0
     picks_completed: int = 0
     goals: dict[str, Any] = field(default_factory=dict)
+    safety_stops: int = 0
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -164,6 +169,7 @@ class ReportBuilder:
         local: the robots whose agents ran in this process (their trajectories come from the
             world; the others' from ``bus_trajectory``).
         t0: the simulated time the loop started at (for the throughput).
+        t_end: the simulated time the loop ended at (default: the world's clock now).
     """
 
     config: FleetConfig
@@ -171,6 +177,7 @@ class ReportBuilder:
     speed: float
     local: Sequence[str]
     t0: float = 0.0
+    t_end: float | None = None
 
     def build(
         self,
@@ -185,6 +192,7 @@ class ReportBuilder:
         goals: Mapping[str, GoalMetrics] | None = None,
         bus_trajectory: Callable[[str], list[tuple[float, float, float]]] = lambda name: [],
         malformed: int = 0,
+        safety_stops: Mapping[str, int] | None = None,
     ) -> RunReport:
         """The report: ``records`` are the latest status per robot; ``state`` the coordinator's
         (``None`` without a coordinator: laps come from the records); ``traffic`` the traffic
@@ -200,11 +208,13 @@ class ReportBuilder:
             if m is not None:
                 row.goals = m.to_dict()
                 fleet_goals.add(m)
+        for row in rows:
+            row.safety_stops = (safety_stops or {}).get(row.name, 0)
         trajectories = {n: self._trajectory(world, n, bus_trajectory) for n in names}
         collisions = world.collisions()
         if collisions is None:  # a blind world: every robot reports its own contacts
             collisions = sum(r.collisions for r in rows) // 2
-        now = world.clock.now()
+        now = world.clock.now() if self.t_end is None else self.t_end
         laps = state.laps_completed() if state is not None else sum(r.laps for r in rows)
         robot_hours = len(rows) * max(0.0, now - self.t0) / 3600.0
         deadlocks = (
@@ -214,7 +224,7 @@ class ReportBuilder:
             config=str(self.config.path),
             backend=self.backend,
             robots=len(rows),
-            sim_time_s=float(now),
+            sim_time_s=float(now - self.t0),  # the run's own time, not the robots' clock
             wall_time_s=float(wall_s),
             speed=self.speed,
             patrols_assigned=len(state.assignments) if state is not None else 0,
@@ -238,6 +248,7 @@ class ReportBuilder:
             picks_assigned=len(state.pick_assignments) if state is not None else 0,
             picks_completed=state.picks_completed() if state is not None else 0,
             goals=fleet_goals.to_dict() if goals else {},
+            safety_stops=sum(r.safety_stops for r in rows),
         )
 
     def _row(

@@ -159,6 +159,7 @@ class FleetRunner:
         self.traffic_policy: ReservationTraffic | None = None
         self.stop_event = threading.Event()
         self._t0 = 0.0
+        self._t_end: float | None = None
         self._wall = WallClock()
         self._wall0 = 0.0
         self.world: World | None = None
@@ -298,6 +299,7 @@ class FleetRunner:
                     display.show(self.snapshot())
                     next_show = w + display.interval_s
         finally:
+            self._t_end = clock.now()  # a remote world's clock runs on while the run closes
             display.close(self.snapshot())
 
     def _sleep(self, seconds: float) -> None:
@@ -331,7 +333,7 @@ class FleetRunner:
         recs = self.records()
         st = self.coordinator.state if self.coordinator is not None else None
         return FleetSnapshot(
-            sim_time_s=world.clock.now() if world is not None else 0.0,
+            sim_time_s=world.clock.now() - self._t0 if world is not None else 0.0,
             wall_s=self._wall.now() - self._wall0,
             records=recs,
             alive=self.bus.alive() if self.coordinator is not None and self.bus is not None else None,
@@ -343,7 +345,9 @@ class FleetRunner:
     def _report(self, world: World, wall_s: float, interrupted: bool) -> RunReport:
         for log in self.goal_logs.values():
             log.close()
-        builder = ReportBuilder(self.config, self.backend_name, self.speed, self.agent_names, t0=self._t0)
+        builder = ReportBuilder(
+            self.config, self.backend_name, self.speed, self.agent_names, t0=self._t0, t_end=self._t_end
+        )
         return builder.build(
             world,
             {r.robot: r for r in self.records()},
@@ -353,6 +357,7 @@ class FleetRunner:
             traffic=self.traffic_policy,
             charges={a.name: a.charges for a in self.agents},
             goals={name: log.metrics for name, log in self.goal_logs.items()},
+            safety_stops={a.name: a.watchdog.trips for a in self.agents},
             bus_trajectory=self.bus_view.trajectory,
             malformed=self.bus.malformed if self.bus is not None else 0,
         )

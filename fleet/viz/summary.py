@@ -49,6 +49,8 @@ def _counts(r: Mapping[str, Any]) -> list[Text]:
     line = Text("collisions: ")
     line.append(str(r["collisions"]), style="bold red" if r["collisions"] else "")
     line.append(f"   deadlocks: {r['deadlocks']}   reassignments: {r['reassignments']}")
+    if r.get("safety_stops"):
+        line.append(f"   safety stops: {r['safety_stops']}", style="bold yellow")
     line.append(f"   throughput: {float(r.get('throughput_laps_per_robot_hour', 0.0)):.1f} laps/robot-hour")
     lines.append(line)
     t = r.get("traffic")

@@ -3,8 +3,10 @@
 Columns, in the order shown: robot, ``x`` / ``y`` (m, ``map`` frame), ``yaw`` (degrees),
 ``bat`` (battery %), ``chg`` (charging), ``bt`` (root status), ``leaf`` (active leaf),
 ``mode``, ``task`` (assignment id), ``laps``, ``prog`` (progress through the lap) and
-``flags``: ``STUCK``; ``DEAD`` when the robot's liveliness token is gone; ``SILENT`` when its
-last record is more than ``silent_s`` simulated seconds older than ``now``.
+``flags``: ``STUCK``; the robot's diagnostics that are not OK as ``LEVEL:name``
+(``ERROR:localization``, ``WARN:battery``; :mod:`fleet.diagnostics`); ``DEAD`` when the
+robot's liveliness token is gone; ``STALE`` when its last record is more than ``silent_s``
+simulated seconds older than ``now`` (its bus link is stale).
 
 The layout adapts to the space it is drawn in (:class:`FleetTable` reads the console's width
 and height, so a live table follows a resized terminal):
@@ -35,7 +37,7 @@ from rich.text import Text
 
 from fleet.messages import StatusRecord
 
-#: A record this many simulated seconds older than ``now`` is flagged SILENT.
+#: A record this many simulated seconds older than ``now`` is flagged STALE.
 SILENT_S = 5.0
 #: The width the leaf column gets when it fits, and the widest it grows to (characters).
 LEAF_WANTED = 14
@@ -96,15 +98,25 @@ def as_mapping(records: Records) -> dict[str, StatusRecord]:
 def flags(
     name: str, rec: StatusRecord | None, alive: set[str] | None, now: float | None, silent_s: float
 ) -> list[str]:
-    """The flags of one robot: ``STUCK``, then ``DEAD`` or ``SILENT`` (see the module docstring)."""
+    """The flags of one robot: ``STUCK``, its diagnostics that are not OK, then ``DEAD`` or
+    ``STALE`` (see the module docstring)."""
     out = []
     if rec is not None and rec.stuck:
         out.append("STUCK")
+    if rec is not None:
+        for check, level, _ in rec.diag:
+            if check == "motion" and level == 1 and rec.stuck:
+                continue  # the same as STUCK
+            out.append(f"{LEVEL_NAMES.get(level, str(level))}:{check}")
     if alive is not None and name not in alive:
         out.append("DEAD")
     elif rec is not None and now is not None and now - rec.t > silent_s:
-        out.append("SILENT")
+        out.append("STALE")
     return out
+
+
+#: The names of the diagnostic levels of :class:`fleet.diagnostics.Level`.
+LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 
 
 def summary_line(records: Records, alive: set[str] | None = None, now: float | None = None) -> str:

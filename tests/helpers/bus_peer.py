@@ -3,8 +3,9 @@
 Modes (each prints ``ready`` once set up, runs until SIGTERM or its count is done, always
 closes its Zenoh session):
 
-* ``status ENDPOINT ROBOTS COUNT HZ``: a client publishing ``COUNT`` status records per robot
-  (comma-separated ``ROBOTS``) at ``HZ``, holding their liveliness tokens, then idling.
+* ``status ENDPOINT ROBOTS COUNT HZ [LOST]``: a client publishing ``COUNT`` status records per
+  robot (comma-separated ``ROBOTS``) at ``HZ``, holding their liveliness tokens, then idling;
+  robot ``LOST``'s records carry an ERROR localization diagnostic.
 * ``alive ENDPOINT ROBOT``: a client holding the token ``fleet/ROBOT/alive``.
 * ``navserver ENDPOINT SPEED``: a router serving a one-robot simulator (the world of
   ``tests/conformance/conformance_harness.py``, robot ``/robot1`` at its start) at ``SPEED`` x
@@ -52,7 +53,8 @@ def settle(
             raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
 
 
-def record(robot: str, seq: int) -> StatusRecord:
+def record(robot: str, seq: int, lost: bool = False) -> StatusRecord:
+    """A patrolling robot's status (``lost``: its diagnostics say its localization is lost)."""
     return StatusRecord(
         robot=robot,
         ns="/" + robot,
@@ -70,6 +72,8 @@ def record(robot: str, seq: int) -> StatusRecord:
         distance_m=1.5 * seq,
         collisions=0,
         seq=seq,
+        health=2 if lost else 0,  # as an agent whose robot's localization is lost reports
+        diag=(("localization", 2, "localization lost"),) if lost else (),
     )
 
 
@@ -85,12 +89,13 @@ def main(argv: list[str]) -> int:
         if mode == "status":
             robots = argv[2].split(",")
             count, hz = int(argv[3]), float(argv[4])
+            lost = argv[5] if len(argv) > 5 else ""
             for r in robots:
                 bus.declare_alive(r)
             print("ready", flush=True)
             for seq in range(1, count + 1):
                 for r in robots:
-                    bus.publish_status(record(r, seq))
+                    bus.publish_status(record(r, seq, lost=r == lost))
                 if stop.wait(1.0 / hz):
                     break
             print("done", flush=True)

@@ -50,6 +50,14 @@ def test_is_stuck_is_localized_near_pose() -> None:
     robot_blackboard(NS).charger = Pose2D(2.2, 3.1)
     near.tick_once()
     assert near.status == Status.SUCCESS
+    sim.set_fault(NS, "localization_lost")
+    sim.run_until(lambda: sim.robot_state(NS).pose_age_s > 1.0, 3.0)
+    localized.tick_once()
+    assert localized.status == Status.FAILURE
+    sim.set_fault(NS, None)
+    sim.step()
+    localized.tick_once()
+    assert localized.status == Status.SUCCESS
     sim.set_fault(NS, "stalled")
     b.send_goal(NavigateToPose(Pose2D(5.0, 3.0)))
     sim.run_until(lambda: sim.robot_state(NS).stuck, 3.0)

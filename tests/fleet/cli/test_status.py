@@ -20,7 +20,9 @@ def test_status_once_sees_every_robot_of_another_process(spawn: Spawn, zenoh_end
     # the publisher is the router here: start a router that only relays
     router = spawn(["-c", _ROUTER, zenoh_endpoint])
     _ready(router)
-    pub = spawn(["tests/helpers/bus_peer.py", "status", zenoh_endpoint, ",".join(robots), "100000", "20"])
+    pub = spawn(
+        ["tests/helpers/bus_peer.py", "status", zenoh_endpoint, ",".join(robots), "100000", "20", "robot2"]
+    )
     _ready(pub)
     viewer = spawn(["-m", "fleet.cli", "status", "--once", "--endpoint", zenoh_endpoint, "--wait", "30"])
     out, err = viewer.communicate(timeout=60)
@@ -29,6 +31,8 @@ def test_status_once_sees_every_robot_of_another_process(spawn: Spawn, zenoh_end
     assert "6 robots, 6 alive" in lines[0]
     assert [line.split()[0] for line in lines[2:]] == robots  # one row per robot, in order
     assert lines[1].split()[:5] == ["robot", "x", "y", "yaw", "bat"] and lines[1].split()[-1] == "flags"
+    # diagnostics travel with the statuses: robot2's lost localization is flagged, no one else's
+    assert [line.split()[0] for line in lines[2:] if "ERROR:localization" in line] == ["robot2"]
     viewer = spawn(
         ["-m", "fleet.cli.status", "--once", "--json", "--endpoint", zenoh_endpoint, "--wait", "30"]
     )
@@ -37,6 +41,10 @@ def test_status_once_sees_every_robot_of_another_process(spawn: Spawn, zenoh_end
     data = json.loads(out)
     assert [r["robot"] for r in data["robots"]] == robots
     assert data["alive"] == robots and data["malformed"] == 0
+    by_name = {r["robot"]: r for r in data["robots"]}
+    assert by_name["robot2"]["health"] == 2
+    assert by_name["robot2"]["diag"] == [["localization", 2, "localization lost"]]
+    assert by_name["robot1"]["health"] == 0 and by_name["robot1"]["diag"] == []
 
 
 def test_status_once_without_robots_exits_1_and_without_router_exits_2(

@@ -35,7 +35,7 @@ from nav2_msgs.action import (
     NavigateToPose,
     Spin,
 )
-from nav2_msgs.srv import ClearEntireCostmap
+from nav2_msgs.srv import ClearEntireCostmap, ManageLifecycleNodes
 from rclpy.action import ActionClient
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
@@ -172,6 +172,36 @@ class Commander(Node):
             if time.monotonic() > deadline:
                 raise TimeoutError("amcl_pose never received")
         self._wait_for_node_active(navigator)
+
+    def _manage_every_manager(self, command: int) -> dict[str, bool]:
+        """Send ``command`` to every ``ManageLifecycleNodes`` service of the ROS graph, as
+        BasicNavigator's lifecycleStartup / lifecycleShutdown do (every namespace's managers,
+        not only this navigator's). Unlike BasicNavigator it waits for each answer (with the
+        hang guard) and returns ``{service: success}``."""
+        out: dict[str, bool] = {}
+        for srv_name, srv_type in self.get_service_names_and_types():
+            if srv_type[0] != "nav2_msgs/srv/ManageLifecycleNodes":
+                continue
+            mgr_client = self.create_client(ManageLifecycleNodes, srv_name)
+            deadline = time.monotonic() + self.timeout_s
+            while not mgr_client.wait_for_service(timeout_sec=1.0):
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"{srv_name} not available")
+            req = ManageLifecycleNodes.Request()
+            req.command = command
+            future = mgr_client.call_async(req)
+            self._spin_until(future)
+            if future.result() is None:
+                raise TimeoutError(f"no answer from {srv_name}")
+            out[srv_name] = bool(future.result().success)
+            self.destroy_client(mgr_client)
+        return out
+
+    def lifecycleStartup(self) -> dict[str, bool]:
+        return self._manage_every_manager(ManageLifecycleNodes.Request.STARTUP)
+
+    def lifecycleShutdown(self) -> dict[str, bool]:
+        return self._manage_every_manager(ManageLifecycleNodes.Request.SHUTDOWN)
 
     def goThroughPoses(self, poses: list[PoseStamped], behavior_tree: str = "") -> bool:
         g = NavigateThroughPoses.Goal()

@@ -38,6 +38,9 @@ def navs(warehouse_server: Any, ros_context: Any) -> Iterator[dict[str, Commande
     class _Factory(dict):  # type: ignore[type-arg]
         def __missing__(self, ns: str) -> Commander:
             made[ns] = Commander(ns, ros_context)
+            # as nav2_simple_commander's examples do: the robot's real pose first (the
+            # default initial pose, (0, 0), would leave the robot mislocalized and stopped)
+            made[ns].setInitialPose(_ps(float(ns.removeprefix("/robot")), 3.0))
             self[ns] = made[ns]
             return made[ns]
 

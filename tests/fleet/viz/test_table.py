@@ -122,4 +122,4 @@ def test_no_robots_and_robots_without_status() -> None:
 def test_silent_robot_is_flagged() -> None:
     recs = fleet(2)
     lines = render_table(recs, now=recs["robot2"].t + 10.0).splitlines()
-    assert lines[2].endswith("SILENT") and lines[3].endswith("SILENT")
+    assert lines[2].endswith("STALE") and lines[3].endswith("STALE")
