@@ -281,6 +281,9 @@ def observation_from_record(rec: StatusRecord) -> Observation:
         laps=int(rec.laps),
         charging=bool(rec.charging),
         picks_done=int(rec.picks_done),
+        result_id=rec.result_id,
+        result=str(rec.result),
+        steps_done=int(rec.steps_done),
     )
 
 
@@ -294,6 +297,7 @@ def task_message(order: TaskOrder) -> TaskMessage:
         poses=order.poses,
         charger=order.charger,
         pick=order.pick,
+        steps=order.steps,
     )
 
 
