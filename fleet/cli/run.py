@@ -11,6 +11,7 @@ from fleet.cli.common import (
     add_config,
     add_endpoint,
     add_outputs,
+    add_service,
     add_traffic,
     announce,
     finish,
@@ -27,7 +28,10 @@ examples:
   fleet run configs/warehouse_patrol.yaml --agents robot1,robot2 --backend remote
       (robots of a `fleet sim` in another process; the other robots run `fleet agent`)
   fleet run configs/warehouse_picking.yaml --tree picking --speed 0 --duration 300
-      (picking trees: the coordinator hands out the config's tasks instead of its routes)
+      (the coordinator hands out the config's picks instead of its routes)
+  fleet run configs/warehouse_patrol.yaml --api 127.0.0.1:8080 --state out/state/demo
+      (tasks at runtime: `fleet task submit go_to --target a3_n`, docs/service.md; run it again
+       with the same --state after a crash to resume)
 
 --duration and --speed are in simulated seconds; --speed 0 runs as fast as the CPU allows.
 """
@@ -63,6 +67,7 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
     add_endpoint(p)
     add_outputs(p)
     add_traffic(p)
+    add_service(p)
     p.add_argument(
         "--backend", default="sim", metavar="NAME", help="navigation backend (default sim; see docs/cli.md)"
     )
@@ -77,8 +82,8 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
         "--tree",
         choices=tuple(TreeKind),
         default=TreeKind.PATROL,
-        help="behavior tree of every robot: patrol (the coordinator assigns the config's routes; "
-        "default) or picking (it assigns the config's tasks, each done once; not with --traffic)",
+        help="the config's initial tasks: patrol (its routes; default), picking (its picks, each done "
+        "once) or tasks (both). Every robot runs the tree that takes any task kind at runtime",
     )
     return p
 
@@ -101,6 +106,8 @@ def handle(args: argparse.Namespace) -> int:
         live=False if args.no_live else None,
         tree_kind=args.tree,
         traffic=args.traffic,
+        state_dir=args.state,
+        api=args.api,
     )
     announce(runner, f"{len(runner.agent_names)} agents" + ("" if args.no_coordinator else " + coordinator"))
     return finish(runner, runner.run(), args)

@@ -360,7 +360,7 @@ class CoordinatorState:
         """Laps per route (every route, 0 if none)."""
         out = dict.fromkeys(self.routes, 0)
         for a in self.assignments:
-            out[a.name] += a.laps
+            out[a.name] = out.get(a.name, 0) + a.laps
         return out
 
     def laps_by_robot(self) -> dict[str, int]:

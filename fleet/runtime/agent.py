@@ -183,6 +183,17 @@ class RobotAgent:
             if self._grant is None or grant.seq > self._grant.seq:
                 self._grant = grant
 
+    def pending(self) -> bool:
+        """Orders, a grant or a control change wait to be applied (thread-safe)."""
+        with self._lock:
+            ctl = self._control
+            halted = ctl is not None and (ctl.estop or ctl.paused)
+            return (
+                bool(self._inbox)
+                or (self._grant is not None and self._grant.seq > self._grant_seq)
+                or (halted != (self.halted is not None))
+            )
+
     def set_control(self, ctl: FleetControl) -> None:
         """Keep the fleet's control state for the next :meth:`tick` (newest ``seq`` wins);
         thread-safe."""

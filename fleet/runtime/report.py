@@ -113,6 +113,10 @@ class RunReport:
     traffic: dict[str, Any] | None = None
     picks_assigned: int = 0
     picks_completed: int = 0
+    #: Tasks of the task service by state and by kind (``None`` without a coordinator).
+    tasks: dict[str, Any] | None = None
+    #: Every pause, resume, e-stop and release: when (fleet and wall time), by whom, why.
+    control_events: list[dict[str, Any]] = field(default_factory=list)
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -174,6 +178,8 @@ class ReportBuilder:
         charges: Mapping[str, int] | None = None,
         bus_trajectory: Callable[[str], list[tuple[float, float, float]]] = lambda name: [],
         malformed: int = 0,
+        tasks: dict[str, Any] | None = None,
+        control_events: Sequence[dict[str, Any]] = (),
     ) -> RunReport:
         """The report: ``records`` are the latest status per robot; ``state`` the coordinator's
         (``None`` without a coordinator: laps come from the records); ``traffic`` the traffic
@@ -218,6 +224,8 @@ class ReportBuilder:
             traffic=traffic_dict(traffic, now) if traffic is not None else None,
             picks_assigned=len(state.pick_assignments) if state is not None else 0,
             picks_completed=state.picks_completed() if state is not None else 0,
+            tasks=tasks,
+            control_events=list(control_events),
         )
 
     def _row(
