@@ -87,7 +87,9 @@ function onMessage(text) {
   }
   messages += 1;
   if (m.type === "robots") {
+    const known = robots.n;
     robots.update(m.robots, m.t, t0);
+    if (robots.n !== known) countRobots();
     robotMessages += 1;
     rateWindow.push(t0);
     const dt = performance.now() - t0;
@@ -275,22 +277,25 @@ function frame(now) {
 }
 
 let namesDefaulted = false;
+/** The robot count in the top bar (`data-count`), as soon as a new robot appears. */
+function countRobots() {
+  const count = $("robot-count");
+  if (count.dataset.count === String(robots.n)) return;
+  count.dataset.count = String(robots.n);
+  count.textContent = String(robots.n);
+  form.setRobots(robots.names);
+  if (!namesDefaulted && robots.n > 0) {
+    namesDefaulted = true;
+    view.showNames = robots.n <= 40;
+    $("opt-names").checked = view.showNames;
+  }
+}
+
 function panels() {
   const now = performance.now();
   rateWindow = rateWindow.filter((t) => now - t < 2000);
   $("ws-rate").textContent = rateWindow.length > 1 ? `${(rateWindow.length / 2).toFixed(1)} Hz` : "-";
   $("fleet-time").textContent = fmtTime(robots.t);
-  const count = $("robot-count");
-  if (count.dataset.count !== String(robots.n)) {
-    count.dataset.count = String(robots.n);
-    count.textContent = String(robots.n);
-    form.setRobots(robots.names);
-    if (!namesDefaulted && robots.n > 0) {
-      namesDefaulted = true;
-      view.showNames = robots.n <= 40;
-      $("opt-names").checked = view.showNames;
-    }
-  }
   const counts = robots.counts();
   renderHealth(robots, counts, view.selected);
   renderLegend(counts);
