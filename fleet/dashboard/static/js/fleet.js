@@ -30,6 +30,11 @@ export class Samples {
     this.i = 0;
     this.total = 0;
   }
+  reset() {
+    this.n = 0;
+    this.i = 0;
+    this.total = 0;
+  }
   add(v) {
     this.buf[this.i] = v;
     this.i = (this.i + 1) % this.buf.length;

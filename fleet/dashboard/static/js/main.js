@@ -26,6 +26,8 @@ let rateWindow = [];
 let socket = null;
 let retryMs = 500;
 let taskFilter = "all";
+let statsSince = performance.now();
+let robotMessagesSince = 0;
 
 // --- the site -----------------------------------------------------------------------------
 async function getJson(path) {
@@ -331,7 +333,15 @@ window.fleetDashboard = {
     frame_ms: view.frameMs.summary(),
     frame_gap_ms: view.frameGap.summary(),
     update_period_ms: robots.period,
+    since_ms: performance.now() - statsSince,
+    robot_messages_since: robotMessages - robotMessagesSince,
   }),
+  /** Forget the timing figures so far (the bench calls it after the page warmed up). */
+  resetStats: () => {
+    for (const sm of [wsMs, robotsMs, wsBytes, view.frameMs, view.frameGap]) sm.reset();
+    statsSince = performance.now();
+    robotMessagesSince = robotMessages;
+  },
   control: () => control,
   select: (name) => select(robots.index.get(name) ?? -1),
 };
