@@ -288,7 +288,7 @@ function countRobots() {
   form.setRobots(robots.names);
   if (!namesDefaulted && robots.n > 0) {
     namesDefaulted = true;
-    view.showNames = robots.n <= 40;
+    view.showNames = robots.n <= 200;
     $("opt-names").checked = view.showNames;
   }
 }

@@ -15,6 +15,40 @@ export function robotHue(name) {
   return (h * 137.508) % 360;
 }
 
+const MAX_LABELS = 400;
+
+/** Screen rectangles of the labels drawn so far (a grid of 64 px cells): a label that
+ * would overlap one is left out. */
+class Labels {
+  constructor() {
+    this.cells = new Map();
+    this.count = 0;
+  }
+  take(x, y, w, h) {
+    const c0 = Math.floor(x / 64);
+    const c1 = Math.floor((x + w) / 64);
+    const r0 = Math.floor(y / 64);
+    const r1 = Math.floor((y + h) / 64);
+    for (let cx = c0; cx <= c1; cx++) {
+      for (let cy = r0; cy <= r1; cy++) {
+        for (const b of this.cells.get(cx * 100003 + cy) || []) {
+          if (x < b[0] + b[2] && b[0] < x + w && y < b[1] + b[3] && b[1] < y + h) return false;
+        }
+      }
+    }
+    const box = [x, y, w, h];
+    for (let cx = c0; cx <= c1; cx++) {
+      for (let cy = r0; cy <= r1; cy++) {
+        const k = cx * 100003 + cy;
+        if (!this.cells.has(k)) this.cells.set(k, []);
+        this.cells.get(k).push(box);
+      }
+    }
+    this.count += 1;
+    return true;
+  }
+}
+
 export class MapView {
   constructor(canvas, robots) {
     this.canvas = canvas;
@@ -371,10 +405,17 @@ export class MapView {
       c.lineWidth = 3;
       c.strokeStyle = "rgba(236, 240, 244, 0.9)";
       c.fillStyle = "#16202b";
-      for (let j = 0; j < m; j++) {
+      const placed = new Labels();
+      const lh = Math.round(Math.min(13, Math.max(10, r * 0.9)));
+      for (let j = 0; j < m && placed.count < MAX_LABELS; j++) {
         const name = R.names[this.order[j]];
-        c.strokeText(name, this.sx[j], this.sy[j] - r - 3);
-        c.fillText(name, this.sx[j], this.sy[j] - r - 3);
+        const w = c.measureText(name).width;
+        const x = this.sx[j];
+        const y = this.sy[j] - r - 3;
+        if (x < -w || x > this.w + w || y < 0 || y > this.h + lh) continue;
+        if (!placed.take(x - w / 2 - 1, y - lh, w + 2, lh)) continue;
+        c.strokeText(name, x, y);
+        c.fillText(name, x, y);
       }
     } else if (this.selected >= 0) {
       const j = this.order.indexOf(this.selected);

@@ -6,7 +6,7 @@ import { HEALTHS, STATES, STATE_COLORS, TASK_STATES, OPEN_TASK_STATES } from "./
 
 const $ = (id) => document.getElementById(id);
 const MAX_TASK_ROWS = 200;
-const MAX_ROBOT_ROWS = 12;
+const MAX_ROBOT_ROWS = 8;
 
 export function el(tag, attrs = {}, ...children) {
   const e = document.createElement(tag);
