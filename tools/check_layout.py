@@ -44,6 +44,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "fleet.traffic": ("fleet.roadmap", "fleet.config", "fleet.coordination"),
     "fleet.bus": (),
     "fleet.viz": ("fleet.roadmap", "fleet.config"),
+    "fleet.dashboard": (),
     "fleet.testing": (),
     "fleet.service": ("fleet.roadmap", "fleet.config", "fleet.coordination", "fleet.bus"),
     "fleet.api": ("fleet.roadmap", "fleet.config", "fleet.coordination", "fleet.service"),
