@@ -1,8 +1,9 @@
 """The dashboard in a real headless Chromium (Debian's ``chromium`` + ``chromedriver`` through
 selenium) against a real ``fleet run ... --traffic --api 127.0.0.1:PORT`` on the simulator:
 the page draws one marker per robot and they move, reserved segments arrive, a task submitted
-through the form ends ``completed``, a bad one is refused naming the field, and the E-STOP
-button stops every robot until Release and Resume.
+through the form ends ``completed``, a bad one is refused naming the field, the E-STOP
+button stops every robot until Release and Resume, and the form builds patrols and picks
+(stations picked by clicking the map) that the task table's buttons cancel.
 
 Real Zenoh on loopback, real py_trees, the real simulator and API. Waits are on conditions
 with deadlines (at least 3x what a loaded 2-core machine needs), never fixed sleeps; the fleet
@@ -251,3 +252,83 @@ def test_estop_stops_every_robot_until_release_and_resume(page: Any, fleet: Flee
         60,
         "robots to move again after resume",
     )
+
+
+def click_map_at(page: Any, x: float, y: float) -> None:
+    """Click the map canvas at the map point (x, y) (m)."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    canvas = page.find_element("id", "map")
+    px, py = page.execute_script("return window.fleetDashboard.toScreen(arguments[0], arguments[1])", x, y)
+    size = canvas.size
+    ActionChains(page).move_to_element_with_offset(
+        canvas, int(px - size["width"] / 2), int(py - size["height"] / 2)
+    ).click().perform()
+
+
+def test_form_builds_patrol_and_pick_and_the_table_cancels_them(page: Any, fleet: Fleet) -> None:
+    from selenium.webdriver.support.ui import Select
+
+    result = page.find_element("id", "task-result")
+    kind = Select(page.find_element("id", "f-kind"))
+
+    def submit() -> str:
+        old = result.get_attribute("data-task-id")
+        page.find_element("id", "f-submit").click()
+        return str(
+            wait_until(lambda: (v := result.get_attribute("data-task-id")) != old and v, 30, "a new task id")
+        )
+
+    page.find_element("id", "f-name").clear()
+    # a patrol over typed waypoints, one lap, only robot3 may take it
+    kind.select_by_value("patrol")
+    Select(page.find_element("id", "f-route")).select_by_value("")
+    page.find_element("id", "f-waypoints").send_keys("a2_s, a2_n, a3_n, a3_s")
+    page.find_element("id", "f-laps").send_keys("1")
+    Select(page.find_element("id", "f-robot")).select_by_value("robot3")
+    patrol = submit()
+    got = fleet.get(f"/api/tasks/{patrol}")
+    assert got["spec"] == {
+        "kind": "patrol",
+        "waypoints": ["a2_s", "a2_n", "a3_n", "a3_s"],
+        "laps": 1,
+        "robot": "robot3",
+    }
+
+    # a pick whose stations are chosen by clicking them on the map
+    kind.select_by_value("pick")
+    Select(page.find_element("id", "f-robot")).select_by_value("")
+    stations = {s["name"]: s for s in fleet.get("/api/stations")}
+    for field, name in (("f-pickup", "pick_a4_1_w"), ("f-dropoff", "drop2")):
+        page.find_element("id", field).click()
+        click_map_at(page, stations[name]["x"], stations[name]["y"])
+        wait_until(
+            lambda f=field, n=name: page.find_element("id", f).get_attribute("value") == n,
+            30,
+            f"{field} = {name}",
+        )
+    dwell = page.find_element("id", "f-dwell")
+    dwell.clear()
+    dwell.send_keys("2")
+    pick = submit()
+    assert fleet.get(f"/api/tasks/{pick}")["spec"] == {
+        "kind": "pick",
+        "pickup": "pick_a4_1_w",
+        "dropoff": "drop2",
+        "dwell_s": 2.0,
+    }
+
+    # the table's cancel buttons cancel both
+    for task_id in (patrol, pick):
+        button = f'#tasks tbody tr[data-task-id="{task_id}"] button[data-cancel]'
+        wait_until(
+            lambda b=button: page.find_elements("css selector", b), 30, f"the cancel button of {task_id}"
+        )
+        page.find_element("css selector", button).click()
+        row = f'#tasks tbody tr[data-task-id="{task_id}"]'
+        wait_until(
+            lambda r=row: page.find_element("css selector", r).get_attribute("data-state") == "canceled",
+            60,
+            f"{task_id} canceled on the page",
+        )
+        assert fleet.get(f"/api/tasks/{task_id}")["state"] == "canceled"

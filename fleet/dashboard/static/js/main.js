@@ -267,7 +267,11 @@ function tooltip(i, px, py) {
 
 // --- the loops -----------------------------------------------------------------------------
 let markers = -1;
+let lastRaf = 0;
+const rafGap = new Samples(600);
 function frame(now) {
+  if (lastRaf > 0) rafGap.add(now - lastRaf);
+  lastRaf = now;
   if (view.frame(now)) {
     canvas.dataset.frames = String(view.frames);
     if (view.drawn !== markers) {
@@ -332,16 +336,23 @@ window.fleetDashboard = {
     robots_msg_bytes: wsBytes.summary(),
     frame_ms: view.frameMs.summary(),
     frame_gap_ms: view.frameGap.summary(),
+    raf_gap_ms: rafGap.summary(),
     update_period_ms: robots.period,
     since_ms: performance.now() - statsSince,
     robot_messages_since: robotMessages - robotMessagesSince,
   }),
   /** Forget the timing figures so far (the bench calls it after the page warmed up). */
   resetStats: () => {
-    for (const sm of [wsMs, robotsMs, wsBytes, view.frameMs, view.frameGap]) sm.reset();
+    for (const sm of [wsMs, robotsMs, wsBytes, view.frameMs, view.frameGap, rafGap]) sm.reset();
     statsSince = performance.now();
     robotMessagesSince = robotMessages;
   },
+  /** Measure frames with their rasterization (the bench): read a pixel back after each. */
+  setFlush: (on) => {
+    view.flush = Boolean(on);
+  },
+  /** Where a map point (m) is on the canvas (CSS px from its top-left corner). */
+  toScreen: (x, y) => [view.ox + x * view.scale, view.oy - y * view.scale],
   control: () => control,
   select: (name) => select(robots.index.get(name) ?? -1),
 };

@@ -68,6 +68,7 @@ export class MapView {
     this.userView = false;
     this.showNames = false;
     this.showNodes = false;
+    this.flush = false;
     this.selected = -1;
     this.hover = -1;
     this.frameMs = new Samples(600);
@@ -266,6 +267,8 @@ export class MapView {
     c.setTransform(this.dpr, 0, 0, this.dpr, 0, 0);
     this.drawTraffic(c);
     this.drawRobots(c, robots.alpha(now));
+    // reading a pixel back makes the browser rasterize now, so the frame time includes it
+    if (this.flush) c.getImageData(0, 0, 1, 1);
     this.dirty = false;
     this.drawnVersion = robots.version;
     const dt = performance.now() - t0;

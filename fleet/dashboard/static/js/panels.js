@@ -174,7 +174,36 @@ function progress(t) {
   return "";
 }
 
-let lastTasksKey = "";
+const taskRows = new Map(); // task id -> its <tr>, kept while shown so clicks never hit a stale row
+let lastOrder = "";
+
+/** Set a row's cells from the task, touching only what changed. */
+function fillTaskRow(tr, t) {
+  if (!tr.cells.length) {
+    for (let k = 0; k < 6; k++) tr.append(document.createElement("td"));
+    tr.cells[0].className = "id";
+    tr.cells[0].textContent = t.id;
+    tr.cells[1].append(el("span", { class: "kindtag", text: t.kind }), what(t));
+    tr.cells[1].title = `${t.kind} ${what(t)}`;
+    tr.cells[2].append(el("span", {}));
+    tr.dataset.taskId = t.id;
+  }
+  const set = (node, prop, v) => {
+    if (node[prop] !== v) node[prop] = v;
+  };
+  if (tr.dataset.state !== t.state) tr.dataset.state = t.state;
+  set(tr, "title", t.message || t.name || "");
+  const badge = tr.cells[2].firstChild;
+  set(badge, "className", `badge state ${t.state}`);
+  set(badge, "textContent", t.state);
+  set(tr.cells[3], "textContent", t.robot || "");
+  set(tr.cells[4], "textContent", progress(t));
+  const open = OPEN_TASK_STATES.has(t.state);
+  const button = tr.cells[5].firstChild;
+  if (open && !button) tr.cells[5].append(el("button", { title: `cancel ${t.id}`, text: "\u00d7", "data-cancel": t.id }));
+  if (!open && button) button.remove();
+}
+
 /** The task counts and table (newest first, at most MAX_TASK_ROWS rows). */
 export function renderTasks(tasks, filter) {
   const counts = tasks.counts();
@@ -185,24 +214,24 @@ export function renderTasks(tasks, filter) {
   const list = tasks.list(filter);
   const shown = list.slice(0, MAX_TASK_ROWS);
   tasks.dirty = false;
-  const key = JSON.stringify([list.length, ...shown.map((t) => [t.id, t.state, t.robot, progress(t), t.message])]);
-  if (key === lastTasksKey) return;
-  lastTasksKey = key;
+  const keep = new Set();
   const rows = shown.map((t) => {
-    const open = OPEN_TASK_STATES.has(t.state);
-    const cancel = open ? el("button", { title: `cancel ${t.id}`, text: "\u00d7", "data-cancel": t.id }) : null;
-    const tr = el("tr", { "data-task-id": t.id, "data-state": t.state, title: t.message || t.name || "" },
-      el("td", { class: "id", text: t.id }),
-      el("td", { title: `${t.kind} ${what(t)}` }, el("span", { class: "kindtag", text: t.kind }), what(t)),
-      el("td", {}, el("span", { class: `badge state ${t.state}`, text: t.state })),
-      el("td", { text: t.robot || "" }),
-      el("td", { text: progress(t) }),
-      el("td", {}, cancel));
-    if (tasks.fresh.has(t.id)) tr.classList.add("fresh");
+    let tr = taskRows.get(t.id);
+    if (!tr) {
+      tr = document.createElement("tr");
+      taskRows.set(t.id, tr);
+      if (tasks.fresh.has(t.id)) tr.classList.add("fresh");
+    }
+    fillTaskRow(tr, t);
+    keep.add(t.id);
     return tr;
   });
+  for (const id of taskRows.keys()) if (!keep.has(id)) taskRows.delete(id);
   tasks.fresh.clear();
-  $("tasks").tBodies[0].replaceChildren(...rows);
+  const order = shown.map((t) => t.id).join(",");
+  if (order !== lastOrder) {
+    lastOrder = order;
+    $("tasks").tBodies[0].replaceChildren(...rows);
+  }
   $("tasks-more").textContent = list.length > MAX_TASK_ROWS ? `${list.length - MAX_TASK_ROWS} older tasks not shown` : "";
-  tasks.dirty = false;
 }
