@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 
 from fleet.client import FleetClient
 
@@ -35,9 +36,10 @@ def main() -> int:
     print(f"{patrol.id}: 2-lap patrol ->", patrol.wait(args.timeout), "laps", patrol.data["laps"])
 
     endless = fleet.patrol(["a6_s", "a6_n"])
-    while endless.refresh().state != "active":
-        endless.wait(timeout=0.5)
-    print(f"{endless.id}: endless patrol on {endless.robot}; canceling ->", endless.cancel())
+    deadline = time.monotonic() + args.timeout
+    while endless.refresh().state != "active" and not endless.done and time.monotonic() < deadline:
+        time.sleep(0.2)
+    print(f"{endless.id}: endless patrol {endless.state} on {endless.robot}; canceling ->", endless.cancel())
     endless.wait(args.timeout)
 
     print("pause ->", fleet.pause("tour")["state"], "; resume ->", fleet.resume("tour")["state"])
