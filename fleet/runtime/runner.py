@@ -230,7 +230,7 @@ class FleetRunner:
         self.world = world = factory(self.config, specs, session)
         sim = getattr(world, "sim", None)
         self._world_latch = (
-            WorldLatch(self.latch, sim) if sim is not None and hasattr(sim, "set_fault") else None
+            WorldLatch(self.latch, sim) if sim is not None and hasattr(sim, "fault_of") else None
         )
         traced = [s.name for s in specs if world.trajectory(s.namespace) is not None]
         self.bus_view.skip_trajectories(traced)  # the world records these robots' trajectories
