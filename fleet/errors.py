@@ -75,3 +75,15 @@ class TaskFinished(ServiceError):
 
 class CommandRefused(ServiceError):
     """A fleet command cannot be applied now (e.g. ``resume`` while the e-stop is latched)."""
+
+
+class ApiError(ServiceError):
+    """An answer of a fleet's API with an error ``status`` (0: the fleet could not be
+    reached), the ``field`` it is about and the ``reason``."""
+
+    def __init__(self, status: int, reason: str, field: str = "") -> None:
+        self.status = status
+        self.reason = reason
+        self.field = field
+        where = f"{field}: " if field else ""
+        super().__init__(f"{where}{reason}" + (f" (HTTP {status})" if status else ""))

@@ -10,12 +10,14 @@ Endpoints (JSON; the OpenAPI schema is served at ``/openapi.json``, interactive 
   ``POST /api/fleet/pause|resume|estop|release`` (body ``{"by", "reason"}`` optional;
   ``X-Fleet-User`` header names who otherwise);
 * the site for a dashboard: ``GET /api/map`` (metadata), ``/api/map.png``, ``/api/roadmap``,
-  ``/api/chargers``, ``/api/stations``, ``/api/routes``, ``/api/parking``, ``/api/traffic``
-  (reserved segments when traffic management is on);
+  ``/api/chargers``, ``/api/stations``, ``/api/routes``, ``/api/parking``,
+  ``/api/reservations`` (reserved nodes and segments when traffic management is on);
 * ``/api/ws``: a WebSocket streaming robot states ``ws_hz`` times a second, task events and
   control changes as they happen (message shapes in ``docs/service.md``);
-* ``/``: the dashboard's static files if :data:`DASHBOARD_DIR` (or ``dashboard_dir``) holds an
-  ``index.html`` (:func:`mount_dashboard`), else a page pointing at ``/docs``.
+* ``/``: whatever the extensions mount (:func:`extend`): by default the package named by
+  :data:`DASHBOARD_PACKAGE`, if installed, gets ``mount(app)`` called after every API route
+  is added (the live dashboard serves its static files there); without one, ``/`` is a small
+  page pointing at ``/docs``.
 
 Bad input gets a 4xx answer ``{"error", "field", "status"}`` and changes nothing: invalid
 JSON 400, a body over ``max_body`` bytes 413, an invalid task 422, an unknown task 404, a
@@ -26,17 +28,17 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import importlib
 import json
 import logging
 from collections import Counter
-from collections.abc import Awaitable, Callable, MutableMapping
-from pathlib import Path
+from collections.abc import Awaitable, Callable, MutableMapping, Sequence
 from typing import Any, Literal
 
 from fastapi import FastAPI, Header, Request, WebSocket, WebSocketDisconnect
 from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.utils import get_openapi
 from fastapi.responses import HTMLResponse, JSONResponse, Response
-from fastapi.staticfiles import StaticFiles
 from pydantic import ValidationError
 
 from fleet.api import schemas
@@ -45,12 +47,12 @@ from fleet.messages import FleetControl
 from fleet.service import site
 from fleet.service.records import TaskEvent, iso
 from fleet.service.service import TaskService
-from fleet.service.specs import TaskSpec, explain_errors
+from fleet.service.specs import TASK_SPEC, explain_errors
 
 logger = logging.getLogger(__name__)
 
-#: Where the dashboard's static files live (served at ``/`` when it holds an ``index.html``).
-DASHBOARD_DIR = Path(__file__).resolve().parent / "static"
+#: The package whose ``mount(app: FastAPI) -> None`` extends the app by default (the dashboard).
+DASHBOARD_PACKAGE = "fleet.dashboard"
 #: Request bodies larger than this (bytes) are refused with 413.
 MAX_BODY = 64 * 1024
 #: Robot states per second on ``/api/ws``.
@@ -131,11 +133,12 @@ def who(by: str | None, header: str | None, request: Request | WebSocket) -> str
 def create_app(
     service: TaskService,
     *,
-    dashboard_dir: Path | None = None,
+    extensions: Sequence[Callable[[FastAPI], None]] | None = None,
     max_body: int = MAX_BODY,
     ws_hz: float = WS_HZ,
 ) -> FastAPI:
-    """The API of ``service`` (see the module docstring)."""
+    """The API of ``service`` (see the module docstring). ``extensions`` are called with the
+    app once every API route is added (default: :func:`default_extensions`)."""
     config = service.config
     app = FastAPI(
         title=f"fleet task service: {config.name}",
@@ -154,7 +157,7 @@ def create_app(
     @app.exception_handler(ServiceError)
     async def _service_error(request: Request, exc: ServiceError) -> JSONResponse:
         if isinstance(exc, InvalidTask):
-            return error(422, exc.reason, exc.field)
+            return error(400 if exc.reason.startswith("invalid JSON") else 422, exc.reason, exc.field)
         if isinstance(exc, UnknownTask):
             return error(404, str(exc), "id")
         if isinstance(exc, (TaskFinished, CommandRefused)):
@@ -163,10 +166,24 @@ def create_app(
 
     bad = errors(400, 413, 422)
 
-    @app.post("/api/tasks", status_code=201, response_model=schemas.TaskOut, responses=bad, tags=["tasks"])
-    async def submit(task: TaskSpec, x_fleet_user: str | None = Header(None)) -> JSONResponse:
-        """Submit a task: ``{"kind": ..., <its arguments>, "priority"?, "robot"?, "name"?}``."""
-        rec = service.submit(task, by=x_fleet_user or "api")
+    @app.post(
+        "/api/tasks",
+        status_code=201,
+        response_model=schemas.TaskOut,
+        responses=bad,
+        tags=["tasks"],
+        openapi_extra={
+            "requestBody": {
+                "required": True,
+                "content": {"application/json": {"schema": {"$ref": "#/components/schemas/TaskSpec"}}},
+            }
+        },
+    )
+    async def submit(request: Request, x_fleet_user: str | None = Header(None)) -> JSONResponse:
+        """Submit a task: ``{"kind": ..., <its arguments>, "priority"?, "robot"?, "name"?}``
+        (the body is read as JSON whatever its Content-Type)."""
+        data = json_body(await request.body())
+        rec = service.submit(data, by=x_fleet_user or "api")
         return JSONResponse(rec.to_dict(), status_code=201)
 
     @app.get("/api/tasks", response_model=list[schemas.TaskOut], tags=["tasks"])
@@ -232,7 +249,7 @@ def create_app(
             args = schemas.CommandIn(by=None, reason=None)
             if body.strip():
                 try:
-                    args = schemas.CommandIn.model_validate_json(body)
+                    args = schemas.CommandIn.model_validate(json_body(body))
                 except ValidationError as e:
                     raise explain_errors(list(e.errors(include_url=False))) from None
             ctl = service.command(action, who(args.by, x_fleet_user, request), args.reason or "")
@@ -271,10 +288,14 @@ def create_app(
         response_class=Response,
     )
     async def map_image() -> Response:
-        """The map image (one pixel per cell, top row first; see ``/api/map`` for its placement)."""
+        """The map image (one pixel per cell, top row first). Its placement is in ``/api/map``
+        and in the headers ``X-Map-Resolution`` (m per pixel) and ``X-Map-Origin`` (``x,y`` of
+        the lower-left corner, m)."""
         if "png" not in png:
             png["png"] = await asyncio.to_thread(site.map_png, config.grid)
-        return Response(png["png"], media_type="image/png")
+        g = config.grid
+        headers = {"X-Map-Resolution": f"{g.resolution:g}", "X-Map-Origin": f"{g.origin_x:g},{g.origin_y:g}"}
+        return Response(png["png"], media_type="image/png", headers=headers)
 
     @app.get("/api/roadmap", response_model=schemas.RoadmapOut, tags=["site"])
     async def roadmap() -> JSONResponse:
@@ -296,8 +317,10 @@ def create_app(
     async def parking() -> JSONResponse:
         return JSONResponse(site.parking(config))
 
-    @app.get("/api/traffic", response_model=schemas.TrafficOut, tags=["site"])
+    @app.get("/api/reservations", response_model=schemas.TrafficOut, tags=["site"])
+    @app.get("/api/traffic", response_model=schemas.TrafficOut, tags=["site"], include_in_schema=False)
     async def traffic() -> JSONResponse:
+        """Roadmap nodes and segments each robot holds (``enabled`` false without traffic management)."""
         view = service.views.get("traffic")
         return JSONResponse(view() if view is not None else {"enabled": False, "segments": [], "nodes": []})
 
@@ -305,7 +328,8 @@ def create_app(
     async def ws(websocket: WebSocket) -> None:
         await stream(websocket, service, ws_hz)
 
-    mount_dashboard(app, dashboard_dir or DASHBOARD_DIR)
+    app.openapi = lambda: openapi(app)  # type: ignore[method-assign]
+    extend(app, default_extensions() if extensions is None else extensions)
     inner = app.build_middleware_stack
 
     def build() -> ASGIApp:
@@ -315,14 +339,50 @@ def create_app(
     return app
 
 
-def mount_dashboard(app: FastAPI, directory: Path) -> bool:
-    """Serve ``directory``'s static files at ``/`` if it holds an ``index.html`` (the live
-    dashboard ships there, :data:`DASHBOARD_DIR`); else ``/`` is a small page pointing at the
-    API docs. Returns whether the dashboard was mounted. The API routes keep priority: they
-    are added before this mount."""
-    if (directory / "index.html").is_file():
-        app.mount("/", StaticFiles(directory=directory, html=True), name="dashboard")
-        return True
+def json_body(body: bytes) -> Any:
+    """The request body parsed as JSON; :class:`InvalidTask` (400) if it is empty or invalid."""
+    if not body.strip():
+        raise InvalidTask("", "invalid JSON: the body is empty (expected a JSON object)")
+    try:
+        return json.loads(body)
+    except RecursionError:
+        raise InvalidTask("", "invalid JSON: nested too deeply") from None
+    except ValueError as e:
+        raise InvalidTask("", f"invalid JSON: {e}") from None
+
+
+def openapi(app: FastAPI) -> dict[str, Any]:
+    """FastAPI's schema plus ``TaskSpec`` (the body of ``POST /api/tasks``) in its components."""
+    if app.openapi_schema is None:
+        schema = get_openapi(
+            title=app.title, version=app.version, description=app.description, routes=app.routes
+        )
+        spec = TASK_SPEC.json_schema(ref_template="#/components/schemas/{model}")
+        comps = schema.setdefault("components", {}).setdefault("schemas", {})
+        comps.update(spec.pop("$defs", {}))
+        comps["TaskSpec"] = spec
+        app.openapi_schema = schema
+    return app.openapi_schema
+
+
+def default_extensions() -> list[Callable[[FastAPI], None]]:
+    """``[mount]`` of the :data:`DASHBOARD_PACKAGE` package if it is installed, else ``[]``."""
+    try:
+        mod = importlib.import_module(DASHBOARD_PACKAGE)
+    except ImportError:
+        return []
+    mount = getattr(mod, "mount", None)
+    return [mount] if callable(mount) else []
+
+
+def extend(app: FastAPI, extensions: Sequence[Callable[[FastAPI], None]]) -> None:
+    """Call every extension with ``app`` (they add routes or mount static files; the API
+    routes, added before, keep priority). If none serves ``/``, ``/`` is a small page that
+    points at the API docs."""
+    for ext in extensions:
+        ext(app)
+    if any(getattr(r, "path", None) in ("/", "") for r in app.router.routes):
+        return
 
     @app.get("/", include_in_schema=False)
     async def index() -> HTMLResponse:
@@ -330,8 +390,6 @@ def mount_dashboard(app: FastAPI, directory: Path) -> bool:
             "<!doctype html><title>fleet</title><h1>fleet task service</h1>"
             '<p>API: <a href="/docs">/docs</a>, schema <a href="/openapi.json">/openapi.json</a></p>'
         )
-
-    return False
 
 
 def _message(ev: TaskEvent | FleetControl, service: TaskService) -> dict[str, Any]:

@@ -138,17 +138,22 @@ class NodeOut(BaseModel):
     y: float
 
 
-class RoadmapOut(BaseModel):
-    nodes: list[NodeOut]
-    edges: list[list[str]]
-
-
 class NamedPoseOut(BaseModel):
     name: str
     x: float
     y: float
     theta: float
     node: str | None = None
+
+
+class RoadmapOut(BaseModel):
+    """The roadmap and the site's docks (``map`` frame, m, rad)."""
+
+    nodes: list[NodeOut]
+    edges: list[list[str]] = Field(description="[a, b] node names; edges are two-way")
+    chargers: list[NamedPoseOut]
+    stations: list[NamedPoseOut]
+    parking: list[NamedPoseOut]
 
 
 class SegmentOut(BaseModel):

@@ -39,7 +39,13 @@ class ApiServer:
     def __init__(self, app: FastAPI, host: str, port: int) -> None:
         self.host, self.port = host, port
         self.config = uvicorn.Config(
-            app, host=host, port=port, log_level="warning", lifespan="off", ws="websockets", access_log=False
+            app,
+            host=host,
+            port=port,
+            log_level="warning",
+            lifespan="off",
+            ws="websockets-sansio",
+            access_log=False,
         )
         self.server = uvicorn.Server(self.config)
         self.thread = threading.Thread(target=self._run, name=f"api {host}:{port}", daemon=True)

@@ -108,6 +108,15 @@ def add_service(p: argparse.ArgumentParser) -> None:
     )
 
 
+def state_dir(args: argparse.Namespace, config: FleetConfig) -> Path:
+    """``--state``, or a new directory under ``out/state/`` (a run with a coordinator always
+    keeps a durable task book)."""
+    from fleet.runtime.service_host import default_state_dir
+
+    given: Path | None = getattr(args, "state", None)
+    return given if given is not None else default_state_dir(config)
+
+
 def add_outputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--report", type=Path, metavar="PATH", help="write the JSON report here at the end")
     p.add_argument("--plot", type=Path, metavar="PATH", help="write a PNG of the map and trajectories here")
@@ -206,8 +215,9 @@ def remote_runner(
     `fleet agent`): remote backend, as fast as the simulator's clock moves."""
     from fleet.runtime.runner import FleetRunner
 
+    config = load(args)
     return FleetRunner(
-        load(args),
+        config,
         duration=args.duration,
         speed=0.0,
         endpoint=args.endpoint,
@@ -216,6 +226,6 @@ def remote_runner(
         coordinator=coordinator,
         live=live,
         traffic=args.traffic,
-        state_dir=getattr(args, "state", None),
+        state_dir=state_dir(args, config) if coordinator else None,
         api=getattr(args, "api", None),
     )

@@ -17,6 +17,7 @@ from fleet.cli.common import (
     finish,
     load,
     robot_list,
+    state_dir,
 )
 from fleet.types import TreeKind
 
@@ -106,7 +107,7 @@ def handle(args: argparse.Namespace) -> int:
         live=False if args.no_live else None,
         tree_kind=args.tree,
         traffic=args.traffic,
-        state_dir=args.state,
+        state_dir=state_dir(args, config),
         api=args.api,
     )
     announce(runner, f"{len(runner.agent_names)} agents" + ("" if args.no_coordinator else " + coordinator"))

@@ -33,7 +33,7 @@ from fleet.coordination.views import (
     TaskOrder,
 )
 from fleet.roadmap.distances import Distances
-from fleet.types import Mode, Pose2D, TaskKind, TreeKind
+from fleet.types import DRIVING_MODES, Mode, Pose2D, TaskKind, TreeKind
 
 if TYPE_CHECKING:
     from fleet.config.model import FleetConfig, PickTask
@@ -292,7 +292,11 @@ class CoordinatorState:
             if a is not None:
                 if v.obs.task_id != a.task_id:
                     out.append(last if last is not None and last.task_id == a.task_id else self._order(v, a))
-            elif v.obs.task_id is not None and (last is None or v.obs.task_id != last.task_id):
+            elif v.obs.task_id is not None and (
+                last is None
+                or v.obs.task_id != last.task_id
+                or (last.kind != TaskKind.IDLE and v.obs.mode in DRIVING_MODES)
+            ):  # e.g. an N-lap patrol done: the robot would keep looping
                 out.append(last if last is not None and last.kind == TaskKind.IDLE else self._idle_order(v))
         return out
 

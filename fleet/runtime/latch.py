@@ -69,15 +69,21 @@ class Stallable(Protocol):
     @property
     def namespaces(self) -> list[str]: ...
 
+    def fault_of(self, namespace: str) -> str | None: ...
+
     def set_fault(self, namespace: str, fault: str | None) -> None: ...
+
+    def cancel_all(self) -> int: ...
 
 
 class WorldLatch:
     """Applies a :class:`Latch` to a simulator before each step (see the module docstring).
 
     Engaging stalls every robot (the simulator's ``stalled`` fault: zero speed at the next
-    step); releasing clears the stall of the robots it stalled (a fault injected by someone
-    else stays). ``engaged_at_step`` counts the applications that engaged it."""
+    step) and cancels every running goal; releasing cancels every goal again (one sent while
+    latched must not start moving a robot: motion starts again only with new goals after
+    ``resume``) and clears the stall of the robots it stalled (a fault injected by someone
+    else stays). ``engagements`` counts the applications that engaged it."""
 
     def __init__(self, latch: Latch, sim: Stallable) -> None:
         self.latch = latch
@@ -94,11 +100,13 @@ class WorldLatch:
         if self.latch.engaged:
             self._stalled = []
             for ns in self.sim.namespaces:
-                if getattr(self.sim, "fault_of", lambda _ns: None)(ns) is None:
+                if self.sim.fault_of(ns) is None:
                     self.sim.set_fault(ns, "stalled")
                     self._stalled.append(ns)
+            self.sim.cancel_all()
             self.engagements += 1
             return True
+        self.sim.cancel_all()
         for ns in self._stalled:
             self.sim.set_fault(ns, None)
         self._stalled = []

@@ -104,7 +104,8 @@ class FleetRunner:
         display: what shows the running fleet (default: :func:`fleet.viz.display.default_display`
             on ``out``; :class:`fleet.viz.display.NullDisplay` shows nothing).
         state_dir: the coordinator's durable task book (``docs/service.md``); a directory that
-            holds one is resumed. Default: a new one under ``out/state/``.
+            holds one is resumed. ``None``: an in-memory book (the CLI defaults to a new directory
+            under ``out/state/``).
         api: ``HOST:PORT`` to serve the task service's HTTP API on (with the coordinator).
 
     ``tree_kind`` chooses the config's initial tasks (``patrol``: its routes, ``picking``:
@@ -229,7 +230,7 @@ class FleetRunner:
         self.world = world = factory(self.config, specs, session)
         sim = getattr(world, "sim", None)
         self._world_latch = (
-            WorldLatch(self.latch, sim) if sim is not None and hasattr(sim, "set_fault") else None
+            WorldLatch(self.latch, sim) if sim is not None and hasattr(sim, "fault_of") else None
         )
         traced = [s.name for s in specs if world.trajectory(s.namespace) is not None]
         self.bus_view.skip_trajectories(traced)  # the world records these robots' trajectories
@@ -294,7 +295,8 @@ class FleetRunner:
             svc.views["traffic"] = traffic_view(self.traffic_policy)
         host.start(session, bus)
         api = f", API {host.api.url} (docs: {host.api.url}/docs)" if host.api is not None else ""
-        print(f"tasks: {host.state_dir}{api}", file=self.out, flush=True)
+        book = host.state_dir if host.state_dir is not None else "in memory (no --state)"
+        print(f"tasks: {book}{api}", file=self.out, flush=True)
 
     def _make_agent(self, namespace: str, world: World, bus: StatusBus) -> RobotAgent:
         from fleet.runtime.agent import RobotAgent
@@ -341,12 +343,18 @@ class FleetRunner:
 
     def _pace(self, pacer: Pacer) -> None:
         """Wait for real time to catch up (``speed``), reacting to commands meanwhile."""
+        woke: list[bool] = []
+
+        def sleep(seconds: float) -> None:
+            if self._wakeup.wait(seconds):
+                woke.append(True)
+
         while not self.stop_event.is_set():
-            ahead = pacer.ahead()
-            if ahead <= 0:
+            woke.clear()
+            pacer.wait(sleep)
+            if not woke or self.stop_event.is_set():
                 return
-            if self._wakeup.wait(ahead) and not self.stop_event.is_set():
-                self._react()
+            self._react()
 
     def _react(self) -> None:
         """A command arrived: one coordinator cycle now, and a tick of every agent it (or the

@@ -73,7 +73,8 @@ class ServiceHost:
     Args:
         config: the fleet config.
         clock: the fleet clock.
-        state_dir: the durable task book's directory (``None``: :func:`default_state_dir`).
+        state_dir: the durable task book's directory (``None``: an in-memory book, nothing
+            survives the process; the CLI passes :func:`default_state_dir` unless ``--state``).
         api: ``HOST:PORT`` to serve the HTTP API on (``None``: no HTTP).
     """
 
@@ -87,8 +88,8 @@ class ServiceHost:
                 self.api_address = parse_address(api)
             except ValueError as e:
                 raise ConfigError(str(config.path), "api", str(e)) from None
-        self.state_dir = state_dir or default_state_dir(config)
-        self.store = TaskStore(self.state_dir)
+        self.state_dir = state_dir
+        self.store = TaskStore(state_dir) if state_dir is not None else None
         self.service = TaskService(config, clock, self.store)
         self.bus: StatusBus | None = None
         self.api: ApiServer | None = None
@@ -126,7 +127,7 @@ class ServiceHost:
         """Tasks by state and by kind, and the state directory (for the run report)."""
         recs = self.service.tasks()
         return {
-            "state_dir": str(self.state_dir),
+            "state_dir": str(self.state_dir) if self.state_dir is not None else None,
             "total": len(recs),
             "by_state": dict(Counter(r.state.value for r in recs)),
             "by_kind": dict(Counter(r.kind for r in recs)),
@@ -155,4 +156,5 @@ class ServiceHost:
                 logger.warning("closing the task service: %s", e)
         self.api = None
         self.face = None
-        self.store.close()
+        if self.store is not None:
+            self.store.close()

@@ -51,11 +51,15 @@ def map_info(config: FleetConfig) -> dict[str, Any]:
 
 
 def roadmap_dict(config: FleetConfig) -> dict[str, Any]:
-    """``{nodes: [{name, x, y}], edges: [[a, b]]}``."""
+    """``{nodes: [{name, x, y}], edges: [[a, b]], chargers: [...], stations: [...],
+    parking: [...]}`` (the last three as :func:`chargers`, :func:`stations`, :func:`parking`)."""
     rm = config.roadmap
     return {
         "nodes": [{"name": n, "x": rm.pos(n)[0], "y": rm.pos(n)[1]} for n in rm.nodes],
         "edges": [[a, b] for a, b in rm.edges],
+        "chargers": chargers(config),
+        "stations": stations(config),
+        "parking": parking(config),
     }
 
 

@@ -353,7 +353,10 @@ def test_a_wrongly_typed_status_is_caught_when_a_number_is_not_a_number() -> Non
 def test_inconsistent_orders_are_refused_on_send() -> None:
     with pytest.raises(ValueError, match=r"^task\.poses: a patrol task needs at least one pose$"):
         TaskMessage("p-1", "patrol", "robot1").to_json()
-    with pytest.raises(ValueError, match=r"^task\.kind: 'dance' is not one of patrol, pick, go_to, inspection, charge, park, idle$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^task\.kind: 'dance' is not one of patrol, pick, go_to, inspection, charge, park, idle$",
+    ):
         TaskMessage("p-1", "dance").to_json()
     with pytest.raises(TypeError, match="not a navigation goal"):
         goal_to_dict("go there")  # type: ignore[arg-type]  # on purpose
