@@ -37,13 +37,15 @@ async function getJson(path) {
 }
 
 async function loadSite() {
-  const [map, roadmap, chargers, stations, routes] = await Promise.all([
+  const [map, roadmap, chargers, stations, routes, fleet] = await Promise.all([
     getJson("/api/map"),
     getJson("/api/roadmap"),
     getJson("/api/chargers"),
     getJson("/api/stations"),
     getJson("/api/routes").catch(() => []),
+    getJson("/api/fleet").catch(() => null),
   ]);
+  if (fleet && !fleet.traffic) $("traffic-state").textContent = "off";
   const image = await new Promise((resolve) => {
     const img = new Image();
     img.onload = () => resolve(tintMap(img));
