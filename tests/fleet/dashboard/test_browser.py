@@ -3,7 +3,8 @@ selenium) against a real ``fleet run ... --traffic --api 127.0.0.1:PORT`` on the
 the page draws one marker per robot and they move, reserved segments arrive, a task submitted
 through the form ends ``completed``, a bad one is refused naming the field, the E-STOP
 button stops every robot until Release and Resume, and the form builds patrols and picks
-(stations picked by clicking the map) that the task table's buttons cancel.
+(stations picked by clicking the map) that the task table's buttons cancel; after a
+``kill -9`` and restart of the fleet on the same port and ``--state``, the page reconnects.
 
 Real Zenoh on loopback, real py_trees, the real simulator and API. Waits are on conditions
 with deadlines (at least 3x what a loaded 2-core machine needs), never fixed sleeps; the fleet
@@ -76,11 +77,10 @@ def browser_ok() -> None:
         pytest.skip(str(e))
 
 
-@pytest.fixture(scope="module")
-def fleet(tmp_path_factory: pytest.TempPathFactory, browser_ok: None) -> Iterator[Fleet]:
-    tmp = tmp_path_factory.mktemp("dashboard")
-    port = pick_free_port()
-    log = tmp / "fleet.log"
+def start_fleet(tmp: Path, port: int, log_name: str = "fleet.log") -> Fleet:
+    """``fleet run`` of the patrol config with traffic management and the API on ``port``,
+    its task book in ``tmp/state``; returns once the API lists every robot with a pose."""
+    log = tmp / log_name
     args = [
         sys.executable, "-m", "fleet.cli", "run", str(PATROL), "--traffic", "--no-live",
         "--speed", str(SPEED), "--duration", "7200", "--endpoint", free_endpoint(),
@@ -96,14 +96,28 @@ def fleet(tmp_path_factory: pytest.TempPathFactory, browser_ok: None) -> Iterato
             "the API to list every robot with a pose",
             step=0.2,
         )
+    except BaseException:
+        stop_fleet(f)
+        raise
+    return f
+
+
+def stop_fleet(f: Fleet) -> None:
+    f.proc.terminate()
+    try:
+        f.proc.wait(15)
+    except subprocess.TimeoutExpired:
+        f.proc.kill()
+        f.proc.wait(15)
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory, browser_ok: None) -> Iterator[Fleet]:
+    f = start_fleet(tmp_path_factory.mktemp("dashboard"), pick_free_port())
+    try:
         yield f
     finally:
-        proc.terminate()
-        try:
-            proc.wait(15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(15)
+        stop_fleet(f)
 
 
 @pytest.fixture(scope="module")
@@ -332,3 +346,47 @@ def test_form_builds_patrol_and_pick_and_the_table_cancels_them(page: Any, fleet
             f"{task_id} canceled on the page",
         )
         assert fleet.get(f"/api/tasks/{task_id}")["state"] == "canceled"
+
+
+def test_page_reconnects_to_a_fleet_restarted_after_kill_9(tmp_path: Path, browser_ok: None) -> None:
+    port = pick_free_port()
+    first = start_fleet(tmp_path, port)
+    try:
+        with headless_chromium() as page:
+            page.get(first.url + "/")
+            wait_until(lambda: counts(page).get("markers") == ROBOTS, 90, f"{ROBOTS} robot markers")
+            tasks = {t["id"] for t in first.get("/api/tasks")}
+            first.proc.kill()
+            first.proc.wait(15)
+            body = page.find_element("tag name", "body")
+            wait_until(
+                lambda: body.get_attribute("data-ws") == "closed", 30, "the page to see the fleet gone"
+            )
+            second = start_fleet(tmp_path, port, "fleet2.log")
+            try:
+                wait_until(lambda: body.get_attribute("data-ws") == "open", 60, "the page to reconnect")
+                # the restarted simulator puts robots back at their start: compare from there on
+                n = robot_messages(page)
+                wait_until(
+                    lambda: robot_messages(page) >= n + 3, 60, "robot updates from the restarted fleet"
+                )
+                assert counts(page)["markers"] == ROBOTS
+                before = markers(page)
+                wait_until(
+                    lambda: any(
+                        math.dist((m["x"], m["y"]), (before[k]["x"], before[k]["y"])) > 0.3
+                        for k, m in markers(page).items()
+                    ),
+                    60,
+                    "markers to move again after the restart",
+                )
+                rows = {
+                    r.get_attribute("data-task-id")
+                    for r in page.find_elements("css selector", "#tasks tbody tr[data-task-id]")
+                }
+                assert tasks <= rows
+            finally:
+                stop_fleet(second)
+    finally:
+        if first.proc.poll() is None:
+            stop_fleet(first)

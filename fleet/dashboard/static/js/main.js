@@ -103,6 +103,8 @@ function onMessage(text) {
     return;
   }
   if (m.type === "hello") {
+    // another fleet behind the same address (a restart with another config): start afresh
+    if (fleetName && m.fleet && m.fleet !== fleetName) location.reload();
     tasks.reset(m.tasks || []);
     setControl(m.control);
   } else if (m.type === "task") {
