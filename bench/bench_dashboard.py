@@ -32,7 +32,14 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from fleet.dashboard.browser import counts, headless_chromium, stats, wait_until  # noqa: E402
+from fleet.dashboard.browser import (  # noqa: E402
+    BrowserUnavailable,
+    counts,
+    find_programs,
+    headless_chromium,
+    stats,
+    wait_until,
+)
 from fleet.warehouse import generate_warehouse  # noqa: E402
 
 
@@ -135,6 +142,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         args.robots, args.seconds = "50", 5.0
     sizes = [int(x) for x in args.robots.split(",") if x.strip()]
+    try:
+        find_programs()
+    except BrowserUnavailable as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-dashboard-") as tmp:
         for n in sizes:
