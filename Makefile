@@ -6,9 +6,9 @@ PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip
 FLEET  := $(VENV)/bin/fleet
 
-.PHONY: setup setup-core setup-sumo setup-ros demo test test-scale bench lint clean
+.PHONY: setup setup-core setup-sumo setup-ros setup-browser demo test test-scale bench lint clean
 
-setup: setup-core setup-sumo setup-ros
+setup: setup-core setup-sumo setup-ros setup-browser
 
 setup-core: $(VENV)/.core-installed
 $(VENV)/.core-installed: pyproject.toml
@@ -24,6 +24,10 @@ $(VENV)/.sumo-installed: $(VENV)/.core-installed
 
 setup-ros: setup-core
 	VENV=$(VENV) bash tools/setup_ros.sh
+
+# Debian's chromium + chromium-driver (apt-get) for the dashboard's browser tests
+setup-browser:
+	bash tools/setup_browser.sh
 
 demo: setup-core
 	$(FLEET) run configs/warehouse_patrol.yaml --duration 300 --speed 10 --report out/demo_report.json --plot out/demo_trajectories.png

@@ -57,3 +57,50 @@ class TreeError(FleetError):
         self.reason = reason
         where = f"{self.file}:{self.line}" if self.line > 0 else self.file
         super().__init__(f"{where}: {node}: {reason}" if node else f"{where}: {reason}")
+
+
+class ServiceError(FleetError):
+    """A request to the task service cannot be carried out (``docs/service.md``)."""
+
+
+class InvalidTask(ServiceError):
+    """A task (or a command) is invalid; nothing was stored. ``str(err)`` reads
+    ``<field>: <reason>``, e.g. ``waypoints[2]: unknown station or roadmap node 'a9_x'``."""
+
+    def __init__(self, field: str, reason: str) -> None:
+        self.field = field
+        self.reason = reason
+        super().__init__(f"{field}: {reason}" if field else reason)
+
+
+class UnknownTask(ServiceError):
+    """No task has this id."""
+
+    def __init__(self, task_id: str) -> None:
+        self.task_id = task_id
+        super().__init__(f"no task {task_id!r}")
+
+
+class TaskFinished(ServiceError):
+    """The task has already ended (completed, failed or canceled): it cannot be canceled."""
+
+    def __init__(self, task_id: str, state: str) -> None:
+        self.task_id = task_id
+        self.state = state
+        super().__init__(f"task {task_id!r} is already {state}")
+
+
+class CommandRefused(ServiceError):
+    """A fleet command cannot be applied now (e.g. ``resume`` while the e-stop is latched)."""
+
+
+class ApiError(ServiceError):
+    """An answer of a fleet's API with an error ``status`` (0: the fleet could not be
+    reached), the ``field`` it is about and the ``reason``."""
+
+    def __init__(self, status: int, reason: str, field: str = "") -> None:
+        self.status = status
+        self.reason = reason
+        self.field = field
+        where = f"{field}: " if field else ""
+        super().__init__(f"{where}{reason}" + (f" (HTTP {status})" if status else ""))

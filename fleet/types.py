@@ -228,25 +228,40 @@ class Mode(enum.StrEnum):
     RECOVERY = "recovery"
     #: The safety watchdog stopped the robot (localization lost, navigation server down).
     SAFETY_STOP = "safety_stop"
+    #: driving or acting on a go_to, inspection or park task (``nodes/steps.py``)
+    TASK = "task"
+    #: the fleet is paused: the tree is stopped, the robot stands, its task is kept
+    PAUSED = "paused"
+    #: the fleet's emergency stop is latched: nothing moves until it is released
+    ESTOP = "estop"
 
 
 #: Modes in which a robot is expected to drive (the coordinator's stuck check).
-DRIVING_MODES: frozenset[Mode] = frozenset({Mode.PATROL, Mode.PICKING, Mode.RECOVERY})
+DRIVING_MODES: frozenset[Mode] = frozenset({Mode.PATROL, Mode.PICKING, Mode.RECOVERY, Mode.TASK})
 
 
 class TaskKind(enum.StrEnum):
-    """Kinds of order the coordinator sends a robot (``fleet/<robot>/task``)."""
+    """Kinds of task (``docs/service.md``), also the kinds of order the coordinator sends a
+    robot (``fleet/<robot>/task``; ``idle`` is an order, never a task)."""
 
     PATROL = "patrol"
     PICK = "pick"
+    GO_TO = "go_to"
+    INSPECTION = "inspection"
+    CHARGE = "charge"
+    PARK = "park"
     IDLE = "idle"
 
 
 class TreeKind(enum.StrEnum):
-    """The behavior tree every robot of a fleet runs (``fleet run --tree``)."""
+    """Which of a config's tasks a fleet starts with (``fleet run --tree``): its routes
+    (``patrol``), its picks (``picking``) or both (``tasks``). Every robot runs the one task
+    tree (:func:`nodes.task_tree.task_tree`), which takes any task kind at runtime;
+    :func:`nodes.build_tree` still builds the single-purpose patrol and picking trees."""
 
     PATROL = "patrol"
     PICKING = "picking"
+    TASKS = "tasks"
 
 
 class GoalStatus(enum.Enum):

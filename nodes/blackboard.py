@@ -13,6 +13,9 @@ Keys written by the agent and read by the tree:
 * ``charger``: ``Pose2D | None`` the charger to use when the battery is low.
 * ``grant``: ``fleet.messages.Grant | None`` the robot's latest traffic grant (only with
   traffic management; see ``docs/traffic.md``).
+* ``steps``: ``tuple[fleet.messages.Step, ...] | None`` the steps of a go_to, pick,
+  inspection or park task (``nodes/steps.py``); ``task_kind``: ``str | None`` the kind of
+  the current task; ``charge_now``: ``bool`` a charge task (go and charge now).
 
 Keys written by the tree and read by the agent:
 
@@ -23,6 +26,10 @@ Keys written by the tree and read by the agent:
   ``picking``; a ``StrEnum``, so it equals its string).
 * ``route_progress``: ``float`` in [0, 1] through the current lap.
 * ``picks_done``: ``int``.
+* ``step_index``: ``int`` steps of the current task done; ``steps_task_id``: the task id it
+  counts for.
+* ``result_id`` / ``result``: the last task the tree finished and how (``succeeded`` or
+  ``failed: <why>``).
 
 Extra keys of this package (not part of the agent contract, for status and debugging):
 
@@ -44,7 +51,7 @@ from py_trees.blackboard import Blackboard, Client
 from fleet.types import Mode, Pose2D
 
 if TYPE_CHECKING:
-    from fleet.messages import Grant
+    from fleet.messages import Grant, Step
 
 
 class Pick(Protocol):
@@ -76,6 +83,13 @@ class RobotKeys(TypedDict):
     mode: Mode
     route_progress: float
     picks_done: int
+    steps: tuple[Step, ...] | None
+    task_kind: str | None
+    charge_now: bool
+    step_index: int
+    steps_task_id: str | None
+    result_id: str | None
+    result: str
     active_goal: str | None
     last_error: str
 
@@ -93,13 +107,31 @@ DEFAULTS: RobotKeys = {
     "mode": Mode.IDLE,
     "route_progress": 0.0,
     "picks_done": 0,
+    "steps": None,
+    "task_kind": None,
+    "charge_now": False,
+    "step_index": 0,
+    "steps_task_id": None,
+    "result_id": None,
+    "result": "",
     "active_goal": None,
     "last_error": "",
 }
 #: Keys the agent writes and the tree reads.
-INPUT_KEYS = ("route", "task_id", "pick", "charger", "grant")
+INPUT_KEYS = ("route", "task_id", "pick", "charger", "grant", "steps", "task_kind", "charge_now")
 #: Keys the tree writes and the agent reads.
-OUTPUT_KEYS = ("laps", "lap_task_id", "active_leaf", "mode", "route_progress", "picks_done")
+OUTPUT_KEYS = (
+    "laps",
+    "lap_task_id",
+    "active_leaf",
+    "mode",
+    "route_progress",
+    "picks_done",
+    "step_index",
+    "steps_task_id",
+    "result_id",
+    "result",
+)
 #: Keys private to this package (see the module docstring).
 INTERNAL_KEYS = ("active_goal", "last_error")
 

@@ -386,13 +386,16 @@ def build_tree(
     """Build the tree of ``kind`` (a :class:`fleet.types.TreeKind`, or its name as a user
     wrote it: ``"patrol"``, ``"picking"``); ``traffic=True`` builds the traffic-managed variant
     (patrol only). Raises :class:`~fleet.errors.FleetError` for an unknown kind, or for a
-    picking tree with traffic."""
+    picking tree with traffic. The tree of every kind, ``"tasks"`` included:
+    :func:`nodes.task_tree.build_robot_tree`."""
     try:
         tree = TreeKind(kind)
     except ValueError:
         raise FleetError(
             f"unknown behavior tree kind {kind!r}; known kinds: {', '.join(k.value for k in TreeKind)}"
         ) from None
+    if tree is TreeKind.TASKS:
+        raise FleetError("the tasks tree is built by nodes.task_tree.build_robot_tree")
     if tree is TreeKind.PATROL:
         return patrol_tree(namespace, backend, clock, battery, retries=retries, traffic=traffic)
     if traffic:

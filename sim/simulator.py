@@ -273,6 +273,10 @@ class Simulator:
             out.append((t, float(xy[i, 0]), float(xy[i, 1])))
         return out
 
+    def fault_of(self, namespace: str) -> str | None:
+        """The fault injected into the robot ``namespace`` (``None``: none)."""
+        return self._robot(namespace).fault
+
     def set_fault(self, namespace: str, fault: str | None) -> None:
         """Inject a fault (one at a time; ``None`` clears it):
 
@@ -433,6 +437,13 @@ class Simulator:
         """Cancel ``goal_id``: it ends CANCELED at once and the robot decelerates to a stop.
         A no-op for a finished or unknown goal."""
         self._dispatch.cancel(goal_id)
+
+    def cancel_all(self) -> int:
+        """Cancel every running goal of every robot (as :meth:`cancel_goal`); returns how many."""
+        live = [t.record.goal_id for t in list(self._dispatch.tasks.values()) if not t.done]
+        for gid in live:
+            self._dispatch.cancel(gid)
+        return len(live)
 
     # -- stepping ---------------------------------------------------------------------
 

@@ -40,6 +40,13 @@ def robot_of_key(key: str) -> str:
 
 CLOCK_KEY = "fleet/sim/clock"
 
+#: The fleet's control state (:class:`fleet.messages.FleetControl`): coordinator -> everyone.
+CONTROL_KEY = "fleet/control/state"
+
+#: The task service's key space (``docs/service.md``): queryables under it, task events on
+#: ``fleet/service/events/<task id>``.
+SERVICE_PREFIX = "fleet/service"
+
 
 def robot_key_name(namespace: str) -> str:
     """``robot1`` for ``/robot1``."""

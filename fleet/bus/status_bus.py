@@ -5,7 +5,9 @@ Topics (JSON, UTF-8; see ``docs/status_bus.md`` for schemas and examples):
 * ``fleet/<robot>/status``: a :class:`~fleet.messages.StatusRecord`, robot -> everyone;
 * ``fleet/<robot>/task``: a :class:`~fleet.messages.TaskMessage`, coordinator -> robot;
 * ``fleet/<robot>/grant``: a :class:`~fleet.messages.Grant`, coordinator -> robot;
-* ``fleet/<robot>/alive``: a liveliness token held by the robot's agent session.
+* ``fleet/<robot>/alive``: a liveliness token held by the robot's agent session;
+* ``fleet/control/state``: the fleet's :class:`~fleet.messages.FleetControl` (pause, e-stop),
+  coordinator -> everyone.
 
 Sessions are opened with :func:`fleet.bus.session.open_session` and belong to the caller.
 
@@ -28,9 +30,18 @@ from typing import Literal, TypeVar
 import msgspec
 import zenoh
 
-from fleet.bus.keys import ALIVE_KEYS, STATUS_KEYS, alive_key, grant_key, robot_of_key, status_key, task_key
+from fleet.bus.keys import (
+    ALIVE_KEYS,
+    CONTROL_KEY,
+    STATUS_KEYS,
+    alive_key,
+    grant_key,
+    robot_of_key,
+    status_key,
+    task_key,
+)
 from fleet.bus.session import Declaration, close_session, undeclare_all
-from fleet.messages import Grant, StatusRecord, TaskMessage
+from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
 
 #: At most this many events wait in :meth:`StatusBus.drain_events` (oldest dropped first).
 MAX_EVENTS = 10000
@@ -123,6 +134,8 @@ class StatusBus:
         self._status_cbs: list[StatusCallback] = []
         self._join_cbs: list[RobotCallback] = []
         self._leave_cbs: list[RobotCallback] = []
+        self._control_cbs: list[Callable[[FleetControl], None]] = []
+        self._control_sub: zenoh.Subscriber[None] | None = None
         self._status_sub: zenoh.Subscriber[None] | None = None
         self._alive_sub: zenoh.Subscriber[None] | None = None
         self._publishers: dict[str, zenoh.Publisher] = {}
@@ -172,6 +185,10 @@ class StatusBus:
         """Publish a traffic :class:`Grant` on ``fleet/<grant.robot>/grant`` (congestion:
         block, like orders)."""
         self._publisher(grant_key(grant.robot), True).put(grant.to_json())
+
+    def publish_control(self, ctl: FleetControl) -> None:
+        """Publish the fleet's control state on ``fleet/control/state`` (congestion: block)."""
+        self._publisher(CONTROL_KEY, True).put(ctl.to_json())
 
     # -- receiving -------------------------------------------------------------------
 
@@ -306,6 +323,37 @@ class StatusBus:
         self._handles.append(h)
         return h
 
+    def _on_control_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            if _is_delete(sample):
+                return
+            ctl = FleetControl.from_json(sample.payload.to_bytes())
+        except Exception as e:  # noqa: BLE001 - count and drop
+            self._bad(CONTROL_KEY, str(e))
+            return
+        with self._lock:
+            self.received += 1
+            cbs = list(self._control_cbs)
+        self._call(cbs, ctl)
+
+    def subscribe_control(self, callback: Callable[[FleetControl], None]) -> BusHandle:
+        """Call ``callback(ctl)`` (on Zenoh's thread) for every valid control state on
+        ``fleet/control/state``; one subscription per bus, however many callbacks."""
+        with self._lock:
+            self._control_cbs.append(callback)
+            need = self._control_sub is None
+        if need:
+            self._control_sub = self.session.declare_subscriber(CONTROL_KEY, self._on_control_sample)
+
+        def remove() -> None:
+            with self._lock:
+                if callback in self._control_cbs:
+                    self._control_cbs.remove(callback)
+
+        h = BusHandle(remove)
+        self._handles.append(h)
+        return h
+
     # -- liveliness ------------------------------------------------------------------
 
     def declare_alive(self, robot: str) -> BusHandle:
@@ -391,8 +439,8 @@ class StatusBus:
         self._closed = True
         for h in self._handles:
             h.undeclare()
-        undeclare_all([self._status_sub, self._alive_sub, *self._publishers.values()])
-        self._status_sub = self._alive_sub = None
+        undeclare_all([self._status_sub, self._alive_sub, self._control_sub, *self._publishers.values()])
+        self._status_sub = self._alive_sub = self._control_sub = None
         self._publishers.clear()
         self._status_pubs.clear()
 

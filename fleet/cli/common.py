@@ -17,7 +17,7 @@ from rich.console import Console
 
 from fleet.cli.argtypes import positive_int
 from fleet.cli.logs import add_log_level
-from fleet.errors import BackendError, BusError, ConfigError, TreeError
+from fleet.errors import BackendError, BusError, ConfigError, ServiceError, TreeError
 
 if TYPE_CHECKING:
     from fleet.config.model import FleetConfig
@@ -92,6 +92,31 @@ def add_traffic(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-traffic", dest="traffic", action="store_false", help="no traffic management")
 
 
+def add_service(p: argparse.ArgumentParser) -> None:
+    """``--state`` and ``--api``: the coordinator's durable task book and its HTTP API."""
+    p.add_argument(
+        "--state",
+        type=Path,
+        metavar="DIR",
+        help="durable task book (SQLite) of the coordinator: a directory that holds one is resumed "
+        "(tasks, states, leases, ids, e-stop); default: a new one under out/state/",
+    )
+    p.add_argument(
+        "--api",
+        metavar="HOST:PORT",
+        help="serve the task service's HTTP API and WebSocket here, e.g. 127.0.0.1:8080 (see docs/service.md)",
+    )
+
+
+def state_dir(args: argparse.Namespace, config: FleetConfig) -> Path:
+    """``--state``, or a new directory under ``out/state/`` (a run with a coordinator always
+    keeps a durable task book)."""
+    from fleet.runtime.service_host import default_state_dir
+
+    given: Path | None = getattr(args, "state", None)
+    return given if given is not None else default_state_dir(config)
+
+
 def add_outputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--report", type=Path, metavar="PATH", help="write the JSON report here at the end")
     p.add_argument("--plot", type=Path, metavar="PATH", help="write a PNG of the map and trajectories here")
@@ -124,7 +149,7 @@ def guard(fn: Callable[[], int]) -> int:
     old = _sigterm_as_interrupt()
     try:
         return int(fn())
-    except (ConfigError, BusError, BackendError, TreeError) as e:
+    except (ConfigError, BusError, BackendError, ServiceError, TreeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
@@ -190,8 +215,9 @@ def remote_runner(
     `fleet agent`): remote backend, as fast as the simulator's clock moves."""
     from fleet.runtime.runner import FleetRunner
 
+    config = load(args)
     return FleetRunner(
-        load(args),
+        config,
         duration=args.duration,
         speed=0.0,
         endpoint=args.endpoint,
@@ -200,4 +226,6 @@ def remote_runner(
         coordinator=coordinator,
         live=live,
         traffic=args.traffic,
+        state_dir=state_dir(args, config) if coordinator else None,
+        api=getattr(args, "api", None),
     )

@@ -11,6 +11,7 @@ from fleet.cli.common import (
     add_config,
     add_endpoint,
     add_outputs,
+    add_service,
     add_traffic,
     announce,
     finish,
@@ -41,6 +42,7 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
     add_endpoint(p)
     add_outputs(p)
     add_traffic(p)
+    add_service(p)
     return p
 
 

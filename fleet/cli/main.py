@@ -17,7 +17,7 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 
-from fleet.cli import agent, config_schema, coordinator, loadtest, run, sim, sim_ros, status, validate
+from fleet.cli import agent, config_schema, coordinator, loadtest, run, sim, sim_ros, status, task, validate
 from fleet.cli.common import EXIT_ERROR, SubParsers, guard
 from fleet.cli.logs import add_log_level, configure_logging, resolve_level
 
@@ -37,6 +37,11 @@ examples:
   fleet coordinator configs/warehouse_patrol.yaml
   fleet agent configs/warehouse_patrol.yaml --robot robot1     (one per robot)
 
+  tasks at runtime (docs/service.md):
+  fleet run configs/warehouse_patrol.yaml --api 127.0.0.1:8080 --state out/state/demo
+  fleet task submit go_to --target a3_n --wait
+  fleet estop --reason "person in aisle 3"; fleet release; fleet resume
+
 exit codes: 0 ok, 2 bad usage / invalid config / bus error, 130 interrupted (Ctrl-C)
 """
 
@@ -51,6 +56,7 @@ COMMANDS: tuple[Callable[[SubParsers], argparse.ArgumentParser], ...] = (
     validate.add_parser,
     config_schema.add_parser,
     loadtest.add_parser,
+    task.add_parser,
 )
 
 #: Commands whose arguments go, unparsed, to their own parser.

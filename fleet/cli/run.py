@@ -11,11 +11,13 @@ from fleet.cli.common import (
     add_config,
     add_endpoint,
     add_outputs,
+    add_service,
     add_traffic,
     announce,
     finish,
     load,
     robot_list,
+    state_dir,
 )
 from fleet.types import TreeKind
 
@@ -27,9 +29,12 @@ examples:
   fleet run configs/warehouse_patrol.yaml --agents robot1,robot2 --backend remote
       (robots of a `fleet sim` in another process; the other robots run `fleet agent`)
   fleet run configs/warehouse_picking.yaml --tree picking --speed 0 --duration 300
-      (picking trees: the coordinator hands out the config's tasks instead of its routes)
-  fleet run configs/warehouse_patrol.yaml --tree nodes/trees/patrol.xml --speed 0 --duration 300
-      (every robot runs the BehaviorTree.CPP XML tree; a tree that uses {pick} gets tasks)
+      (the coordinator hands out the config's picks instead of its routes)
+  fleet run configs/warehouse_patrol.yaml --api 127.0.0.1:8080 --state out/state/demo
+      (tasks at runtime: `fleet task submit go_to --target a3_n`, docs/service.md; run it again
+       with the same --state after a crash to resume)
+  fleet run configs/warehouse_patrol.yaml --tree nodes/trees/patrol.xml --no-traffic --speed 0 --duration 300
+      (every robot runs the BehaviorTree.CPP XML tree; a tree that uses {pick} gets picks)
 
 --duration and --speed are in simulated seconds; --speed 0 runs as fast as the CPU allows.
 """
@@ -65,6 +70,7 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
     add_endpoint(p)
     add_outputs(p)
     add_traffic(p)
+    add_service(p)
     p.add_argument(
         "--backend", default="sim", metavar="NAME", help="navigation backend (default sim; see docs/cli.md)"
     )
@@ -79,11 +85,11 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
         "--tree",
         type=tree_choice,
         default=TreeKind.PATROL,
-        metavar="{patrol,picking,FILE.xml}",
-        help="behavior tree of every robot: patrol (the coordinator assigns the config's routes; "
-        "default), picking (it assigns the config's tasks, each done once; not with --traffic), or "
-        "a BehaviorTree.CPP v4 XML file (see docs/behavior_trees.md; nodes/trees/patrol.xml and "
-        "picking.xml are the built-in trees as XML)",
+        metavar="{patrol,picking,tasks,FILE.xml}",
+        help="the config's initial tasks: patrol (its routes; default), picking (its picks, each done "
+        "once) or tasks (both); every robot runs the tree that takes any task kind at runtime. Or a "
+        "BehaviorTree.CPP v4 XML file every robot runs instead (docs/behavior_trees.md; its orders "
+        "follow from the keys it reads; traffic management off)",
     )
     return p
 
@@ -92,7 +98,7 @@ def tree_choice(text: str) -> str:
     """``--tree``: a :class:`TreeKind` name or a path ending in ``.xml``."""
     if text in tuple(TreeKind) or text.lower().endswith(".xml"):
         return text
-    raise argparse.ArgumentTypeError(f"expected patrol, picking or a FILE.xml, got {text!r}")
+    raise argparse.ArgumentTypeError(f"expected {', '.join(TreeKind)} or a FILE.xml, got {text!r}")
 
 
 def handle(args: argparse.Namespace) -> int:
@@ -115,6 +121,8 @@ def handle(args: argparse.Namespace) -> int:
         tree_kind=TreeKind.PATROL if is_xml else args.tree,
         tree_file=args.tree if is_xml else None,
         traffic=args.traffic,
+        state_dir=state_dir(args, config),
+        api=args.api,
     )
     announce(runner, f"{len(runner.agent_names)} agents" + ("" if args.no_coordinator else " + coordinator"))
     return finish(runner, runner.run(), args)

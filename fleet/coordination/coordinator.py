@@ -161,8 +161,10 @@ class Coordinator:
     are also handed to ``local_deliver[robot]`` at once, so an in-process run does not depend
     on network timing. Their orders are still published, for observers and for robustness.
 
-    ``task_kind`` is the tree kind the fleet's robots run: ``"patrol"`` (the config's routes
-    are assigned) or ``"picking"`` (its tasks are); see :func:`state_from_config`. A
+    ``task_kind`` chooses the config's initial tasks: ``"patrol"`` (its routes),
+    ``"picking"`` (its picks) or ``"tasks"`` (both); see :func:`state_from_config`.
+    ``first_id``: the first assignment id to hand out (a restarted coordinator continues its
+    durable book's counter). A
     ``traffic`` policy that sends grants (:class:`~fleet.coordination.policy.GrantSender`,
     ``deliver`` unset) has them delivered by :meth:`_deliver_grant`.
     """
@@ -175,11 +177,12 @@ class Coordinator:
         traffic: TrafficPolicy | None = None,
         local_robots: set[str] | None = None,
         task_kind: TreeKind | str = TreeKind.PATROL,
+        first_id: int = 1,
     ) -> None:
         self.config = config
         self.bus = bus
         self.clock = clock
-        self.state = state_from_config(config, traffic, task_kind)
+        self.state = state_from_config(config, traffic, task_kind, first_id)
         self.state.expect([r.name for r in config.robots], config.coordinator.status_timeout_s)
         self.local_robots = set(local_robots or ())
         #: In-process agents' ``deliver`` by robot (their orders skip the bus).
@@ -284,6 +287,9 @@ def observation_from_record(rec: StatusRecord) -> Observation:
         laps=int(rec.laps),
         charging=bool(rec.charging),
         picks_done=int(rec.picks_done),
+        result_id=rec.result_id,
+        result=str(rec.result),
+        steps_done=int(rec.steps_done),
     )
 
 
@@ -297,6 +303,7 @@ def task_message(order: TaskOrder) -> TaskMessage:
         poses=order.poses,
         charger=order.charger,
         pick=order.pick,
+        steps=order.steps,
     )
 
 

@@ -38,6 +38,9 @@ CHARGER_BONUS_M = 20.0
 ON_CHARGER_M = 0.5
 #: The rank (m) of a task's preferred robot: below any travel cost, so it is matched first.
 PREFERRED_RANK = -1e9
+#: Each level of a task's priority lowers its rank by this much (m): a higher-priority task
+#: is matched before any lower-priority one, whatever the distances.
+PRIORITY_M = 1e6
 
 
 def travel_costs(
@@ -78,21 +81,38 @@ def rank(
     preferred: Sequence[str | None],
     chargers: ChargerAllocation,
     now: float,
+    priorities: Sequence[int] | None = None,
+    only: Sequence[str | None] | None = None,
 ) -> FloatMatrix:
     """The matching order of ``costs[robot, task]`` (a copy): robots on a charger
     :data:`CHARGER_BONUS_M` lower, robots in cool-down (``now < cooldown_until``)
-    :data:`COOLDOWN_PENALTY` higher, and the preferred robot of task ``j`` (``preferred[j]``,
-    if among ``robots`` and the task is reachable for it) at :data:`PREFERRED_RANK`."""
+    :data:`COOLDOWN_PENALTY` higher, task ``j`` :data:`PRIORITY_M` lower per level of
+    ``priorities[j]``, and the preferred robot of task ``j`` (``preferred[j]``, if among
+    ``robots`` and the task is reachable for it) at :data:`PREFERRED_RANK` (minus its
+    priority). ``only[j]``: the one robot task ``j`` may go to (every other robot: ``inf``)."""
     r = costs.copy()
     for i, v in enumerate(robots):
         if chargers.on_charger(v):
             r[i] -= CHARGER_BONUS_M
         if now < v.cooldown_until:
             r[i] += COOLDOWN_PENALTY
+    if priorities is not None and any(priorities):
+        r -= np.asarray(priorities, dtype=float)[None, :] * PRIORITY_M
     names = {v.name: i for i, v in enumerate(robots)}
     for j, pref in enumerate(preferred):
         if pref is not None and pref in names and math.isfinite(r[names[pref], j]):
-            r[names[pref], j] = PREFERRED_RANK
+            r[names[pref], j] = PREFERRED_RANK - (
+                priorities[j] * PRIORITY_M if priorities is not None else 0.0
+            )
+    if only is not None:
+        for j, name in enumerate(only):
+            if name is None:
+                continue
+            keep = names.get(name)
+            col = r[keep, j] if keep is not None else np.inf
+            r[:, j] = np.inf
+            if keep is not None:
+                r[keep, j] = col
     return r
 
 

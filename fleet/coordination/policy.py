@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 from fleet.types import Pose2D
 
 if TYPE_CHECKING:
-    from fleet.coordination.tasks import PatrolRoute
+    from fleet.coordination.tasks import PatrolRoute, TrafficRoute
     from fleet.coordination.views import RobotView, TaskOrder
     from fleet.messages import Grant
 
@@ -17,15 +17,20 @@ if TYPE_CHECKING:
 class TrafficPolicy(Protocol):
     """Extension point for traffic management (e.g. roadmap segment reservations).
 
-    The coordinator calls :meth:`on_assign` when it gives a route to a robot (the policy may
-    return different poses, e.g. with waiting points), :meth:`on_release` when a robot loses
+    The coordinator calls :meth:`on_assign` when it gives a task with a traffic route to a
+    robot (``route.nodes``, driven as a loop if ``route.loop``; the policy may return
+    different poses, e.g. with waiting points), :meth:`on_release` when a robot loses
     its route or dies, and :meth:`cycle` once per coordinator cycle with every robot's view;
     :meth:`cycle` returns extra orders to send (usually none). Policies must keep
     :meth:`cycle` roughly linear in the number of robots.
     """
 
     def on_assign(
-        self, robot: str, route: PatrolRoute, poses: tuple[Pose2D, ...], task_id: str | None = None
+        self,
+        robot: str,
+        route: TrafficRoute | PatrolRoute,
+        poses: tuple[Pose2D, ...],
+        task_id: str | None = None,
     ) -> tuple[Pose2D, ...]: ...
 
     def on_release(self, robot: str) -> None: ...
@@ -50,7 +55,11 @@ class NoTraffic:
     """The default :class:`TrafficPolicy`: robots rely on their own reactive safety layer."""
 
     def on_assign(
-        self, robot: str, route: PatrolRoute, poses: tuple[Pose2D, ...], task_id: str | None = None
+        self,
+        robot: str,
+        route: TrafficRoute | PatrolRoute,
+        poses: tuple[Pose2D, ...],
+        task_id: str | None = None,
     ) -> tuple[Pose2D, ...]:
         return poses
 

@@ -6,13 +6,23 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING
 
 from fleet.coordination import health
+from fleet.coordination.lifecycle import TaskState
 from fleet.coordination.matching import ChargerAllocation, greedy_match, rank, travel_costs
 from fleet.coordination.policy import NoTraffic, TrafficPolicy
-from fleet.coordination.tasks import IDLE_PREFIX, PatrolRoute, Pick, Task, TaskBook, patrol_routes
+from fleet.coordination.tasks import (
+    IDLE_PREFIX,
+    PatrolRoute,
+    Pick,
+    Task,
+    TaskBook,
+    only_of,
+    patrol_routes,
+    priority_of,
+)
 from fleet.coordination.views import (
     Assignment,
     CoordinatorParams,
@@ -23,7 +33,7 @@ from fleet.coordination.views import (
     TaskOrder,
 )
 from fleet.roadmap.distances import Distances
-from fleet.types import Mode, Pose2D, TaskKind, TreeKind
+from fleet.types import DRIVING_MODES, Mode, Pose2D, TaskKind, TreeKind
 
 if TYPE_CHECKING:
     from fleet.config.model import FleetConfig, PickTask
@@ -51,11 +61,19 @@ class CoordinatorState:
         params: thresholds.
         traffic: the traffic policy (default :class:`NoTraffic`).
         picks: the picks to do once each (:class:`fleet.config.model.PickTask`, unique
-            names), in queue order. A robot runs one tree kind, so give routes (patrol trees)
-            or picks (picking trees), not both: :func:`state_from_config` chooses by tree kind.
+            names), in queue order. Robots running the task tree take both; a fleet of
+            single-purpose trees gets one kind (:func:`state_from_config` chooses).
+        first_id: the first assignment id to hand out (a restarted coordinator continues
+            its durable book's counter, so ids are never reused).
 
     Raises:
-        ValueError: both routes and picks were given, or two tasks share a name.
+        ValueError: two tasks share a name.
+
+    Runtime: :meth:`add_task` adds a task, :meth:`cancel` cancels one, :meth:`restore`
+    re-reads a lease of a durable book; ``halted`` (paused or e-stopped) suspends the
+    cycle's health checks, assignment and traffic cycle (:meth:`step` only reconciles
+    nothing: robots stand); ``hooks`` run at the start of every cycle (the task service
+    applies its submissions and cancels there, on the coordinator's thread).
 
     ``book`` is the :class:`TaskBook`; ``events`` the latest :data:`MAX_EVENTS` ``(t, text)``
     log entries (also logged at DEBUG); ``deadlocks`` how often a robot turned stuck next to
@@ -70,11 +88,8 @@ class CoordinatorState:
         params: CoordinatorParams | None = None,
         traffic: TrafficPolicy | None = None,
         picks: Sequence[PickTask] = (),
+        first_id: int = 1,
     ) -> None:
-        if routes and picks:
-            raise ValueError(
-                "CoordinatorState: give routes (patrol fleet) or picks (picking fleet), not both"
-            )
         self.roadmap = roadmap
         self.params = params or CoordinatorParams()
         self.traffic: TrafficPolicy = traffic or NoTraffic()
@@ -83,13 +98,18 @@ class CoordinatorState:
         self.events: deque[tuple[float, str]] = deque(maxlen=MAX_EVENTS)
         self.chargers = ChargerAllocation(chargers)
         self.blocked = health.BlockedWaypoints()
-        self.book = TaskBook(Distances(roadmap))
-        tasks: list[Task] = [*routes, *(Pick(p) for p in picks)]
+        self.book = TaskBook(Distances(roadmap), first_id)
+        tasks: list[Task] = [*routes, *(pick_task(p, roadmap) for p in picks)]
         for t in tasks:
             self.book.add(t)
         self.expected: set[str] = set()
         self.settle_s = 0.0
         self._t_start: float | None = None
+        #: Paused or e-stopped: no health checks, assignments or traffic cycle.
+        self.halted = False
+        #: Called as ``hook(self, now)`` at the start of every :meth:`step`.
+        self.hooks: list[Callable[[CoordinatorState, float], None]] = []
+        self._pending_orders: list[TaskOrder] = []
 
     def expect(self, robots: Iterable[str], settle_s: float) -> None:
         """Hold the first assignment until every robot in ``robots`` has reported or
@@ -123,10 +143,14 @@ class CoordinatorState:
             self._log(now, f"{robot} is back")
         v.last_seen = now
         v.obs = obs
+        self._confirm(v, obs, now)
         finished = self.book.record(robot, obs, now, v.assignment)
         if finished is not None:
             v.assignment = None
-            self._log(now, f"{finished.name} done by {robot} ({finished.task_id})")
+            if self.book.tasks[finished.name].traffic_route() is not None:
+                self.traffic.on_release(robot)
+            how = "failed" if finished.t_completed is None else "done"
+            self._log(now, f"{finished.name} {how} by {robot} ({finished.task_id})")
         if obs.pose is not None:
             health.note_progress(v, obs.pose, now)
         if (
@@ -139,12 +163,77 @@ class CoordinatorState:
             self._log(now, f"{robot} blocked by another robot")
         v.was_stuck = obs.stuck
 
+    def _confirm(self, v: RobotView, obs: Observation, now: float) -> None:
+        """A restored lease (:meth:`restore`) is kept if the robot's status carries its id
+        (traffic management is told again), else the task goes back to the queue."""
+        a = v.assignment
+        if a is None or not a.restored:
+            return
+        if obs.task_id == a.task_id:
+            a.restored = False
+            v.progress_t = now
+            task = self.book.tasks[a.name]
+            route = task.traffic_route()
+            if route is not None:
+                self.traffic.on_assign(v.name, route, a.poses, a.task_id)
+            self._log(now, f"{a.name} kept by {v.name} after a restart ({a.task_id})")
+        else:
+            v.assignment = None
+            self.book.release(a, now, Reason.RESTART)
+            self._log(now, f"{a.name} back in the queue: {v.name} no longer runs {a.task_id}")
+
+    # -- runtime tasks -----------------------------------------------------------------
+
+    def add_task(self, task: Task, now: float) -> None:
+        """Add a task at runtime (queued). Raises ``ValueError`` for a taken name or an entry
+        off the roadmap."""
+        self.book.add(task)
+        self._log(now, f"{task.name} queued ({task.kind})")
+
+    def cancel(self, name: str, now: float) -> TaskOrder | None:
+        """Cancel task ``name``: a queued task ends at once; a held one is taken from its
+        robot (the returned idle order stops it). ``None`` if nothing is to be sent. Raises
+        ``KeyError`` for a task that is not in the book or already finished."""
+        if name not in self.book.tasks or name in self.book.done:
+            raise KeyError(name)
+        robot = self.book.holder.get(name)
+        v = self.robots.get(robot) if robot is not None else None
+        a = v.assignment if v is not None and v.assignment is not None and v.assignment.name == name else None
+        order = None
+        if v is not None and a is not None:
+            v.assignment = None
+            if self.book.tasks[name].traffic_route() is not None:
+                self.traffic.on_release(v.name)
+            order = self._idle_order(v)
+        self.book.finish(name, a, now, TaskState.CANCELED, "canceled")
+        self._log(now, f"{name} canceled")
+        return order
+
+    def restore(self, name: str, robot: str, task_id: str, now: float, started: bool) -> None:
+        """Re-read a lease of a durable task book after a restart: ``robot`` holds task
+        ``name`` under ``task_id`` until its first status says otherwise (:meth:`_confirm`).
+        The robot counts as just seen (a silent one dies after ``status_timeout_s`` and the
+        task goes back to the queue)."""
+        v = self._view(robot, now)
+        v.assignment = self.book.restore(name, robot, task_id, now, started)
+        v.progress_t = now
+
     # -- the cycle ---------------------------------------------------------------------
 
     def step(self, now: float) -> list[TaskOrder]:
-        """Run one cycle at ``now``: detect dead, stuck and charging robots, take their tasks
-        back, assign waiting tasks, resend unacknowledged orders. Returns the orders to send."""
-        out = self._check_health(now)
+        """Run one cycle at ``now``: run the hooks, detect dead, stuck and charging robots,
+        take their tasks back, assign waiting tasks, resend unacknowledged orders. Returns
+        the orders to send. While :attr:`halted` only the hooks run (robots stand still and
+        keep their tasks; nothing is judged stuck)."""
+        for hook in list(self.hooks):
+            hook(self, now)
+        out = self._pending_orders
+        self._pending_orders = []
+        if self.halted:
+            for v in self.robots.values():
+                v.progress_t = now  # standing still on purpose is no stall
+            return self._sent(out, now)
+        out.extend(self._check_health(now))
         if self._t_start is None:
             self._t_start = now
         settled = now - self._t_start >= self.settle_s or all(
@@ -154,6 +243,13 @@ class CoordinatorState:
             out.extend(self._assign(now))
         out.extend(self.traffic.cycle(now, self.robots))
         out.extend(self._reconcile(now, {o.robot for o in out}))
+        return self._sent(out, now)
+
+    def send(self, order: TaskOrder) -> None:
+        """Queue an order to go out with the next :meth:`step` (e.g. a cancel's idle order)."""
+        self._pending_orders.append(order)
+
+    def _sent(self, out: list[TaskOrder], now: float) -> list[TaskOrder]:
         for o in out:
             rv = self.robots.get(o.robot)
             if rv is not None:
@@ -173,7 +269,7 @@ class CoordinatorState:
             a = v.assignment
             if a is None or not v.alive or v.obs is None:
                 continue
-            if health.charging(v):
+            if health.charging(v) and a.kind is not TaskKind.CHARGE:
                 out.append(self._release(v, now, Reason.CHARGING))
             elif v.obs.mode == Mode.SAFETY_STOP:
                 out.append(self._release(v, now, Reason.SAFETY_STOP))
@@ -198,7 +294,11 @@ class CoordinatorState:
             if a is not None:
                 if v.obs.task_id != a.task_id:
                     out.append(last if last is not None and last.task_id == a.task_id else self._order(v, a))
-            elif v.obs.task_id is not None and (last is None or v.obs.task_id != last.task_id):
+            elif v.obs.task_id is not None and (
+                last is None
+                or v.obs.task_id != last.task_id
+                or (last.kind != TaskKind.IDLE and v.obs.mode in DRIVING_MODES)
+            ):  # e.g. an N-lap patrol done: the robot would keep looping
                 out.append(last if last is not None and last.kind == TaskKind.IDLE else self._idle_order(v))
             elif last is None and not self._eligible(v):
                 # never ordered and not about to get a task (a low battery, for one): an idle
@@ -270,7 +370,7 @@ class CoordinatorState:
         """Laps per route (every route, 0 if none)."""
         out = dict.fromkeys(self.routes, 0)
         for a in self.assignments:
-            out[a.name] += a.laps
+            out[a.name] = out.get(a.name, 0) + a.laps
         return out
 
     def laps_by_robot(self) -> dict[str, int]:
@@ -362,7 +462,16 @@ class CoordinatorState:
         if not idle:
             return []
         costs, entry = self.cost_matrix(idle, waiting)
-        ranks = rank(costs, idle, [self.book.tasks[n].robot for n in waiting], self.chargers, now)
+        tasks = [self.book.tasks[n] for n in waiting]
+        ranks = rank(
+            costs,
+            idle,
+            [t.robot for t in tasks],
+            self.chargers,
+            now,
+            priorities=[priority_of(t) for t in tasks],
+            only=[only_of(t) for t in tasks],
+        )
         return [self._give(idle[i], waiting[j], int(entry[i, j]), now) for i, j in greedy_match(ranks)]
 
     def _give(self, v: RobotView, name: str, entry: int, now: float) -> TaskOrder:
@@ -395,11 +504,15 @@ class CoordinatorState:
 
 
 def state_from_config(
-    config: FleetConfig, traffic: TrafficPolicy | None = None, task_kind: TreeKind | str = TreeKind.PATROL
+    config: FleetConfig,
+    traffic: TrafficPolicy | None = None,
+    task_kind: TreeKind | str = TreeKind.PATROL,
+    first_id: int = 1,
 ) -> CoordinatorState:
-    """A :class:`CoordinatorState` for the chargers and thresholds of ``config``, and its routes
-    (``task_kind`` :attr:`TreeKind.PATROL`: the robots run patrol trees) or its picking
-    ``tasks`` (:attr:`TreeKind.PICKING`: picking trees). Raises ``ValueError`` for another kind."""
+    """A :class:`CoordinatorState` for the chargers and thresholds of ``config``, and its
+    initial tasks: its routes (``task_kind`` :attr:`TreeKind.PATROL`), its picks
+    (:attr:`TreeKind.PICKING`) or both (:attr:`TreeKind.TASKS`). ``first_id``: see
+    :class:`CoordinatorState`. Raises ``ValueError`` for another kind."""
     try:
         tree = TreeKind(task_kind)
     except ValueError:
@@ -411,12 +524,21 @@ def state_from_config(
         status_timeout_s=config.coordinator.status_timeout_s,
         battery_low=config.sim.battery.low,
     )
-    picking = tree is TreeKind.PICKING
+    routes = tree in (TreeKind.PATROL, TreeKind.TASKS)
+    picks = tree in (TreeKind.PICKING, TreeKind.TASKS)
     return CoordinatorState(
-        [] if picking else patrol_routes(config),
+        patrol_routes(config) if routes else [],
         [c.pose for c in config.chargers],
         config.roadmap,
         params,
         traffic,
-        picks=list(config.tasks) if picking else (),
+        picks=list(config.tasks) if picks else (),
+        first_id=first_id,
     )
+
+
+def pick_task(spec: PickTask, roadmap: Roadmap, priority: int = 0, only: str | None = None) -> Pick:
+    """A :class:`Pick` of ``spec`` with the roadmap nodes nearest its shelf and drop (its
+    stops under traffic management)."""
+    nodes = (roadmap.nearest_node(spec.shelf.x, spec.shelf.y), roadmap.nearest_node(spec.drop.x, spec.drop.y))
+    return Pick(spec, nodes, priority, only)

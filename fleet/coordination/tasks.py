@@ -3,13 +3,25 @@
 A :class:`Task` is one unit of work held by at most one robot at a time. Its kind decides
 where a robot can start it (:meth:`Task.entries`), what the robot is sent
 (:meth:`Task.order`), how a status carrying the assignment's id moves it on
-(:meth:`Task.record`) and whether it is finished. Two kinds exist:
+(:meth:`Task.record`) and whether it is finished. The kinds:
 
-* :class:`PatrolRoute` (``TaskKind.PATROL``): a route kept covered, counted in laps; never
-  finished, so it stays with its robot until taken back. Traffic management sees it
-  (:meth:`Task.traffic_route`).
-* :class:`Pick` (``TaskKind.PICK``): a config pick done once; finished when the robot's
-  ``picks_done`` rises.
+* :class:`PatrolRoute` (``TaskKind.PATROL``): a route kept covered, counted in laps; finished
+  after ``laps`` laps over all its assignments, or never (``laps`` ``None``: until canceled).
+* :class:`Pick` (``TaskKind.PICK``): a pick (shelf, dwell, drop) done once; finished when the
+  robot reports its steps done (or its ``picks_done`` rises).
+* :class:`~fleet.coordination.kinds.StepTask` (``go_to``, ``inspection``, ``park``,
+  ``charge``): steps the robot runs once; finished when it reports them done.
+
+Every kind states the way traffic management must reserve for it with
+:meth:`Task.traffic_route` (a :class:`TrafficRoute`: roadmap nodes, looped or not). Besides
+the protocol, a task may have ``priority`` (int, higher is matched first; default 0),
+``only`` (the one robot allowed to take it; default any) and ``laps`` (a patrol's target);
+read them with :func:`priority_of`, :func:`only_of`, :func:`laps_target`.
+
+A status that carries an assignment's id and reports ``result_id`` equal to it finishes the
+task whatever its kind: ``result`` ``succeeded`` completes it, ``failed: ...`` fails it
+(:class:`~fleet.coordination.lifecycle.TaskState`). The book tells its ``listener``
+(:class:`~fleet.coordination.lifecycle.TaskListener`) about every transition.
 
 The :class:`TaskBook` holds every task, who holds it, the assignment records (one
 :class:`~fleet.coordination.views.Assignment` per hand-over, fresh id each time), the
@@ -22,14 +34,16 @@ health checks and the order (re)sending work on the protocol only.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
+from fleet.coordination.lifecycle import TaskListener, TaskState
 from fleet.coordination.views import Assignment, Observation, Reassignment, TaskOrder
+from fleet.messages import Step
 from fleet.types import Pose2D, TaskKind
 
 if TYPE_CHECKING:
@@ -39,6 +53,37 @@ if TYPE_CHECKING:
 
 #: Prefix of the ids of idle orders (tasks bring their own, :attr:`Task.id_prefix`).
 IDLE_PREFIX = "i"
+
+#: The result a robot reports for a task it finished (``StatusRecord.result``).
+SUCCEEDED = "succeeded"
+
+
+@dataclass(frozen=True)
+class TrafficRoute:
+    """What traffic management reserves for a task: its roadmap ``nodes`` in driving order,
+    driven as a loop (``loop``, a patrol) or once, stopping at each node (a pick, a go_to, an
+    inspection)."""
+
+    nodes: tuple[str, ...]
+    loop: bool = False
+
+
+def priority_of(task: object) -> int:
+    """A task's ``priority`` (higher is matched first; 0 if it has none)."""
+    return int(getattr(task, "priority", 0))
+
+
+def only_of(task: object) -> str | None:
+    """The one robot a task may go to (its ``only``), or ``None``: any robot."""
+    only = getattr(task, "only", None)
+    return None if only is None else str(only)
+
+
+def laps_target(task: object) -> int | None:
+    """A patrol's target laps (its ``laps``), or ``None``: until canceled."""
+    laps = getattr(task, "laps", None)
+    return None if laps is None else int(laps)
+
 
 IndexMatrix = npt.NDArray[np.int64]
 FloatMatrix = npt.NDArray[np.float64]
@@ -77,8 +122,9 @@ class Task(Protocol):
         """The poses the robot drives (``map`` frame) when it starts at entry ``entry``."""
         ...
 
-    def traffic_route(self) -> PatrolRoute | None:
-        """The route traffic management reserves for the robot, or ``None`` (not managed)."""
+    def traffic_route(self) -> TrafficRoute | PatrolRoute | None:
+        """The route traffic management reserves for the robot (nodes, looped or not), or
+        ``None`` (not managed)."""
         ...
 
     def record(self, a: Assignment, obs: Observation, now: float, active: bool) -> bool:
@@ -96,14 +142,24 @@ class PatrolRoute:
     """A patrol route as the coordinator holds it: one lap of ``poses`` (map frame), the
     roadmap node at each pose (``nodes[i]`` for ``poses[i]``), and an optional preferred robot.
 
-    As a :class:`Task`: any of its nodes is an entry (the lap starts there), it is never
-    finished, and its assignment counts the highest ``laps`` its robot reported for the id
-    (also after the route was taken back: a lap driven is a lap driven)."""
+    As a :class:`Task`: any of its nodes is an entry (the lap starts there), and its
+    assignment counts the highest ``laps`` its robot reported for the id (also after the
+    route was taken back: a lap driven is a lap driven). It is finished when its assignments
+    drove ``laps`` laps in total (the book counts), never if ``laps`` is ``None``.
+    ``priority`` / ``only``: see the module docstring."""
 
     name: str
     poses: tuple[Pose2D, ...]
     nodes: tuple[str, ...]
     robot: str | None = None
+    laps: int | None = None
+    priority: int = 0
+    only: str | None = None
+
+    @property
+    def loop(self) -> bool:
+        """Traffic management drives a patrol as a loop."""
+        return True
 
     @property
     def kind(self) -> TaskKind:
@@ -123,7 +179,7 @@ class PatrolRoute:
     def poses_from(self, entry: int) -> tuple[Pose2D, ...]:
         return self.poses[entry:] + self.poses[:entry]
 
-    def traffic_route(self) -> PatrolRoute | None:
+    def traffic_route(self) -> TrafficRoute | PatrolRoute | None:
         return self
 
     def record(self, a: Assignment, obs: Observation, now: float, active: bool) -> bool:
@@ -146,9 +202,15 @@ class Pick:
     baseline ``picks_done``; a later one with a higher ``picks_done`` finishes the pick. Only
     the active assignment can complete, so a late status of a robot the pick was taken from
     cannot. The robot's stall grace is the pick's ``dwell_s`` (standing at the shelf is no
-    stall)."""
+    stall). A robot running the task tree gets the pick as steps (drive to the shelf, wait
+    ``dwell_s``, drive to the drop; ``nodes`` are the roadmap nodes nearest shelf and drop,
+    its traffic route) and reports them done (the generic result, see the module docstring).
+    """
 
     spec: PickTask
+    nodes: tuple[str, str] | None = None
+    priority: int = 0
+    only: str | None = None
 
     @property
     def name(self) -> str:
@@ -179,8 +241,18 @@ class Pick:
     def poses_from(self, entry: int) -> tuple[Pose2D, ...]:
         return ()
 
-    def traffic_route(self) -> PatrolRoute | None:
-        return None
+    def traffic_route(self) -> TrafficRoute | PatrolRoute | None:
+        return None if self.nodes is None else TrafficRoute(self.nodes)
+
+    def steps(self) -> tuple[Step, ...]:
+        """Shelf, dwell, drop as steps (nodes for traffic management when known)."""
+        sp = self.spec
+        shelf_node, drop_node = self.nodes if self.nodes is not None else (None, None)
+        return (
+            Step("drive", sp.shelf, shelf_node, name=sp.shelf_station or "shelf"),
+            Step("wait", duration_s=float(sp.dwell_s), name="dwell"),
+            Step("drive", sp.drop, drop_node, name=sp.drop_station or "drop"),
+        )
 
     def record(self, a: Assignment, obs: Observation, now: float, active: bool) -> bool:
         if not active:
@@ -193,7 +265,9 @@ class Pick:
         return False
 
     def order(self, robot: str, a: Assignment, charger: Pose2D | None) -> TaskOrder:
-        return TaskOrder(robot, a.task_id, TaskKind.PICK, None, (), charger, pick=self.spec)
+        return TaskOrder(
+            robot, a.task_id, TaskKind.PICK, None, (), charger, pick=self.spec, steps=self.steps()
+        )
 
 
 class TaskBook:
@@ -201,13 +275,19 @@ class TaskBook:
     docstring). ``distances`` indexes the roadmap nodes of the tasks' entries.
 
     Attributes (read them, change them through the methods): ``tasks`` by name in the order
-    added; ``holder`` task name -> robot (``None``: nobody); ``done`` finished task names;
-    ``records`` every assignment in the order made; ``by_id`` the same by task id;
-    ``reassignments`` every task taken back; ``pending`` task name -> its reassignment while
-    the task waits for a new robot.
+    added; ``holder`` task name -> robot (``None``: nobody); ``done`` finished task names
+    (completed, failed or canceled: never handed out again); ``records`` every assignment in
+    the order made; ``by_id`` the same by task id; ``reassignments`` every task taken back;
+    ``pending`` task name -> its reassignment while the task waits for a new robot;
+    ``laps`` task name -> laps driven over all its assignments; ``listener`` told about every
+    lifecycle transition (:class:`~fleet.coordination.lifecycle.TaskListener`).
+
+    Ids: :meth:`next_id` counts from ``first_id`` (a restarted coordinator passes the first
+    id its durable book has not handed out), and calls ``on_id(counter)`` after every id so
+    that the caller can persist how far it got.
     """
 
-    def __init__(self, distances: Distances) -> None:
+    def __init__(self, distances: Distances, first_id: int = 1) -> None:
         self.distances = distances
         self.tasks: dict[str, Task] = {}
         self.holder: dict[str, str | None] = {}
@@ -216,7 +296,10 @@ class TaskBook:
         self.by_id: dict[str, Assignment] = {}
         self.reassignments: list[Reassignment] = []
         self.pending: dict[str, Reassignment] = {}
-        self._counter = 0
+        self.laps: dict[str, int] = {}
+        self.listener: TaskListener | None = None
+        self.on_id: Callable[[int], None] | None = None
+        self._counter = first_id - 1
         self._entries: dict[str, tuple[list[int], list[float]]] = {}
         self._row: dict[str, int] = {}
         self._matrix: tuple[IndexMatrix, FloatMatrix] | None = None
@@ -239,9 +322,20 @@ class TaskBook:
             idx, off = [0], [0.0]
         self.tasks[task.name] = task
         self.holder[task.name] = None
+        self.laps.setdefault(task.name, 0)
         self._entries[task.name] = (idx, off)
         self._row[task.name] = len(self._row)
         self._offsets = self._offsets or any(o != 0.0 for o in off)
+        self._matrix = None
+
+    def forget(self, name: str) -> None:
+        """Drop the finished task ``name`` from :attr:`tasks` (its records stay), so that a
+        long run's book holds only the tasks still to do. No-op for an unknown name."""
+        if name not in self.tasks or name not in self.done:
+            return
+        del self.tasks[name], self.holder[name], self._entries[name]
+        self.laps.pop(name, None)
+        self._row = {n: i for i, n in enumerate(self._entries)}
         self._matrix = None
 
     def waiting(self, kind: TaskKind | None = None) -> list[str]:
@@ -273,6 +367,8 @@ class TaskBook:
     def next_id(self, prefix: str) -> str:
         """A fresh id ``<prefix>-0001``: one counter for every prefix, never reused."""
         self._counter += 1
+        if self.on_id is not None:
+            self.on_id(self._counter)
         return f"{prefix}-{self._counter:04d}"
 
     def assign(
@@ -288,7 +384,21 @@ class TaskBook:
         r = self.pending.pop(name, None)
         if r is not None:
             r.to_robot, r.new_task_id, r.t_reassigned = robot, task_id, now
+        if self.listener is not None:
+            self.listener.assigned(name, a, now)
         return a, r
+
+    def restore(self, name: str, robot: str, task_id: str, now: float, started: bool) -> Assignment:
+        """A restarted coordinator's lease from its durable book: ``robot`` held task
+        ``name`` under ``task_id``. The assignment is marked ``restored`` until the robot
+        confirms it (the listener is not told: nothing changed)."""
+        task = self.tasks[name]
+        a = Assignment(task_id=task_id, name=name, kind=task.kind, robot=robot, t_assigned=now, restored=True)
+        a.t_started = now if started else None
+        self.records.append(a)
+        self.by_id[task_id] = a
+        self.holder[name] = robot
+        return a
 
     def release(self, a: Assignment, now: float, reason: str) -> Reassignment:
         """Take ``a``'s task back from its robot for ``reason``: it waits for another robot."""
@@ -298,24 +408,80 @@ class TaskBook:
         r = Reassignment(t=now, route=a.name, from_robot=a.robot, reason=reason, old_task_id=a.task_id)
         self.reassignments.append(r)
         self.pending[a.name] = r
+        if self.listener is not None:
+            self.listener.released(a.name, a, now, reason)
         return r
+
+    def finish(
+        self, name: str, a: Assignment | None, now: float, state: TaskState, message: str = ""
+    ) -> None:
+        """Task ``name`` ends in the terminal ``state`` (``a``: its last assignment, which
+        ends too): never handed out again."""
+        if name in self.done:
+            return
+        self.holder[name] = None
+        self.pending.pop(name, None)
+        self.done.add(name)
+        if a is not None and a.ended is None:
+            a.ended = now
+            a.end_reason = state.value
+        if self.listener is not None:
+            self.listener.finished(name, a, now, state, message)
 
     def record(
         self, robot: str, obs: Observation, now: float, active: Assignment | None
     ) -> Assignment | None:
         """A status of ``robot`` carrying ``obs.task_id``; ``active`` is the robot's current
-        assignment. Returns the assignment if this status finished its task (then done)."""
+        assignment. Returns the assignment if this status finished its task (then done:
+        completed, or failed if the robot reported it failed)."""
         if obs.task_id is None:
             return None
         a = self.by_id.get(obs.task_id)
-        if a is None or a.robot != robot:
+        if a is None or a.robot != robot or a.name not in self.tasks:
             return None
-        finished = self.tasks[a.name].record(a, obs, now, active is a)
-        if not finished or active is not a:  # only the robot's current assignment finishes a task
+        task = self.tasks[a.name]
+        is_active = active is a
+        if is_active and a.t_started is None and a.ended is None:
+            a.t_started = now
+            if self.listener is not None:
+                self.listener.started(a.name, a, now)
+        laps_before = a.laps
+        finished = task.record(a, obs, now, is_active)
+        note = self._progress(a, obs, laps_before, is_active)
+        if note is not None and self.listener is not None:
+            self.listener.progressed(a.name, a, now, self.laps.get(a.name, 0), note)
+        target = laps_target(task)
+        if target is not None and self.laps.get(a.name, 0) >= target:
+            finished = True
+        state, message = TaskState.COMPLETED, ""
+        if obs.result_id == a.task_id and obs.result:
+            finished = True
+            if obs.result != SUCCEEDED:
+                state, message = TaskState.FAILED, obs.result
+        if not finished or not is_active:  # only the robot's current assignment finishes a task
             return None
-        self.holder[a.name] = None
-        self.done.add(a.name)
+        if a.t_completed is None and state is TaskState.COMPLETED:
+            a.t_completed = now
+        self.finish(a.name, a, now, state, message)
         return a
+
+    def _progress(self, a: Assignment, obs: Observation, laps_before: int, active: bool) -> str | None:
+        """Count laps and steps; what changed (``""``: nothing worth a note), ``None`` if nothing."""
+        notes: list[str] = []
+        if a.laps > laps_before:
+            self.laps[a.name] = self.laps.get(a.name, 0) + a.laps - laps_before
+            notes.append(f"lap {self.laps[a.name]} by {a.robot}")
+        if active and obs.steps_done > a.steps_done:
+            steps = getattr(self.tasks[a.name], "steps", None)
+            seq: tuple[Step, ...] = steps() if callable(steps) else tuple(steps or ())
+            for k in range(a.steps_done, min(obs.steps_done, len(seq))):
+                st = seq[k]
+                if st.action == "capture":
+                    where = "" if obs.pose is None else f" at ({obs.pose.x:.2f}, {obs.pose.y:.2f})"
+                    notes.append(f"capture {st.name!r}{where} by {a.robot}")
+            a.steps_done = obs.steps_done
+            notes.append(f"step {a.steps_done}/{len(seq)}" if seq else f"step {a.steps_done}")
+        return "; ".join(notes) if notes else None
 
 
 def patrol_routes(config: FleetConfig) -> list[PatrolRoute]:

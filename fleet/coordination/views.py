@@ -16,6 +16,7 @@ from fleet.types import Mode, Pose2D, TaskKind
 
 if TYPE_CHECKING:
     from fleet.config.model import PickTask
+    from fleet.messages import Step
 
 
 class Reason(enum.StrEnum):
@@ -26,6 +27,10 @@ class Reason(enum.StrEnum):
     CHARGING = "charging"
     #: its safety watchdog stopped it (localization lost, navigation server down)
     SAFETY_STOP = "safety_stop"
+    #: a restarted coordinator's lease that the robot's first status did not confirm
+    RESTART = "restart"
+    #: the task was canceled while the robot held it
+    CANCELED = "canceled"
 
 
 REASON_DEAD = Reason.DEAD
@@ -53,6 +58,9 @@ class Observation:
     laps: int = 0
     charging: bool = False
     picks_done: int = 0
+    result_id: str | None = None
+    result: str = ""
+    steps_done: int = 0
 
 
 @dataclass(frozen=True)
@@ -60,7 +68,8 @@ class TaskOrder:
     """A message for one robot (published on ``fleet/<robot>/task``).
 
     ``kind`` is :attr:`TaskKind.PATROL <fleet.types.TaskKind.PATROL>` (``route`` and
-    ``poses`` set), ``PICK`` (``pick`` set: a :class:`fleet.config.model.PickTask`) or ``IDLE``
+    ``poses`` set), ``PICK`` (``pick`` set: a :class:`fleet.config.model.PickTask`, and its
+    ``steps``), ``GO_TO`` / ``INSPECTION`` / ``PARK`` (``steps`` set), ``CHARGE`` or ``IDLE``
     (drop any task). ``charger`` is the charger pose the robot should use when its battery
     runs low.
     """
@@ -72,6 +81,7 @@ class TaskOrder:
     poses: tuple[Pose2D, ...]
     charger: Pose2D | None
     pick: PickTask | None = None
+    steps: tuple[Step, ...] = ()
 
 
 @dataclass
@@ -83,7 +93,10 @@ class Assignment:
     lap count the robot reported for this id. ``t_completed`` is when the assignment first
     counted as completed (a patrol's first lap, a pick's drop); ``base`` the robot's
     ``picks_done`` in its first status carrying this id (picks). ``ended`` / ``end_reason``:
-    when and why the task was taken back (``None`` otherwise).
+    when and why the task was taken back (``None`` otherwise). ``t_started``: when the
+    robot's status first carried ``task_id`` (it is executing it); ``steps_done``: the steps
+    it reported done; ``restored``: re-read from a durable task book by a restarted
+    coordinator and not yet confirmed by the robot.
     """
 
     task_id: str
@@ -97,6 +110,9 @@ class Assignment:
     base: int | None = None
     ended: float | None = None
     end_reason: str | None = None
+    t_started: float | None = None
+    steps_done: int = 0
+    restored: bool = False
 
     @property
     def route(self) -> str:

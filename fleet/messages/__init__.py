@@ -10,6 +10,7 @@ contract, with examples, is ``docs/status_bus.md``.
 """
 
 from fleet.messages.codec import BUS_VERSION, DEFAULT_ENDPOINT, MAX_BRIDGE_PAYLOAD, MAX_PAYLOAD_BYTES
+from fleet.messages.control import CONTROL_STATES, FleetControl
 from fleet.messages.nav import (
     BRIDGE_VERSION,
     GOAL_KINDS,
@@ -21,6 +22,7 @@ from fleet.messages.nav import (
     goal_to_dict,
 )
 from fleet.messages.records import (
+    STEP_KINDS,
     TASK_KINDS,
     Grant,
     PickLike,
@@ -29,8 +31,15 @@ from fleet.messages.records import (
     TaskMessage,
     check_robot_name,
 )
+from fleet.messages.steps import ACTIONS, Action, Step
 
 __all__ = [
+    "ACTIONS",
+    "CONTROL_STATES",
+    "STEP_KINDS",
+    "Action",
+    "FleetControl",
+    "Step",
     "BRIDGE_VERSION",
     "BUS_VERSION",
     "DEFAULT_ENDPOINT",

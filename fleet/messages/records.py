@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from typing import Annotated, Final, Protocol
 
 import msgspec
-from msgspec import Struct
+from msgspec import Meta, Struct
 
 from fleet.messages.codec import (
     ROBOT_NAME_PATTERN,
@@ -17,6 +17,7 @@ from fleet.messages.codec import (
     Codec,
     Count,
     Finite,
+    LongText,
     Pose,
     Poses,
     RobotName,
@@ -26,10 +27,15 @@ from fleet.messages.codec import (
     encode_unchecked,
     to_builtins,
 )
+from fleet.messages.steps import Step, StepWire, step_wire
 from fleet.types import Pose2D
 
 #: The kinds of :class:`TaskMessage`.
-TASK_KINDS: Final = ("patrol", "pick", "idle")
+TASK_KINDS: Final = ("patrol", "pick", "go_to", "inspection", "charge", "park", "idle")
+#: Kinds whose order carries the robot's :class:`~fleet.messages.steps.Step` list.
+STEP_KINDS: Final = ("go_to", "inspection", "park")
+#: At most this many steps in one order.
+MAX_STEPS: Final = 1000
 
 _ROBOT_RE = re.compile(ROBOT_NAME_PATTERN)
 
@@ -59,7 +65,10 @@ class StatusRecord(Struct, frozen=True, tag_field="v", tag=1, omit_defaults=True
     agent started (optional on the wire, ``0`` when absent). Diagnostics
     (:mod:`fleet.diagnostics`): ``health`` the worst level of the robot's checks (0 OK, 1 WARN,
     2 ERROR) and ``diag`` the checks that are not OK as ``[name, level, message]`` (both
-    optional on the wire: absent means all OK). The JSON carries ``"v": 1``.
+    optional on the wire: absent means all OK). ``result_id`` / ``result``: the
+    last task id whose steps the robot finished and how (``succeeded`` or ``failed: <why>``;
+    repeated until the next order); ``steps_done``: steps of the current task done so far.
+    The JSON carries ``"v": 1``.
     """
 
     robot: RobotName
@@ -81,6 +90,9 @@ class StatusRecord(Struct, frozen=True, tag_field="v", tag=1, omit_defaults=True
     picks_done: Count = 0
     health: Annotated[int, msgspec.Meta(ge=0, le=3)] = 0
     diag: tuple[tuple[Text, Annotated[int, msgspec.Meta(ge=0, le=3)], Text], ...] = ()
+    result_id: Text | None = None
+    result: LongText = ""
+    steps_done: Count = 0
 
     def to_json(self) -> bytes:
         """UTF-8 JSON. The record is not validated field by field (its types are the caller's
@@ -150,7 +162,9 @@ class PickLike(Protocol):
 class TaskMessage(Struct, frozen=True):
     """An order for one robot (``fleet/<robot>/task``).
 
-    ``kind`` is ``patrol`` (``route`` name and the lap's ``poses``), ``pick`` (``pick`` set) or
+    ``kind`` is ``patrol`` (``route`` name and the lap's ``poses``), ``pick`` (``pick`` set,
+    and its ``steps``: shelf, dwell, drop), ``go_to`` / ``inspection`` / ``park`` (``steps``
+    set, see :mod:`fleet.messages.steps`), ``charge`` (go and charge now, at ``charger``) or
     ``idle`` (``task_id`` may be ``None``). ``charger`` is the charger pose to use when low.
     ``robot`` is the addressee (filled from the key on receipt if absent). Task ids are never
     reused.
@@ -163,6 +177,7 @@ class TaskMessage(Struct, frozen=True):
     poses: tuple[Pose2D, ...] = ()
     charger: Pose2D | None = None
     pick: PickLike | None = None
+    steps: tuple[Step, ...] = ()
 
     def _wire(self) -> _TaskWire:
         pk = self.pick
@@ -181,6 +196,7 @@ class TaskMessage(Struct, frozen=True):
                 drop=pose_tuple(pk.drop),
                 dwell_s=float(pk.dwell_s),
             ),
+            steps=tuple(step_wire(st) for st in self.steps),
         )
 
     def to_dict(self) -> dict[str, object]:
@@ -220,6 +236,7 @@ class _TaskWire(Struct, frozen=True, kw_only=True, omit_defaults=True, tag_field
     poses: Poses = ()
     charger: Pose | None = None
     pick: _PickWire | None = None
+    steps: Annotated[tuple[StepWire, ...], Meta(max_length=MAX_STEPS)] = ()
 
     def check(self, what: str) -> _TaskWire:
         """What the types cannot say: ids, poses and picks that each kind needs."""
@@ -231,6 +248,10 @@ class _TaskWire(Struct, frozen=True, kw_only=True, omit_defaults=True, tag_field
             raise ValueError(f"{what}.pick: missing (a pick task needs shelf, drop and dwell_s)")
         if self.kind == "patrol" and not self.poses:
             raise ValueError(f"{what}.poses: a patrol task needs at least one pose")
+        if self.kind in STEP_KINDS and not self.steps:
+            raise ValueError(f"{what}.steps: a {self.kind} task needs at least one step")
+        for i, st in enumerate(self.steps):
+            st.check(f"{what}.steps[{i}]")
         return self
 
     def message(self) -> TaskMessage:
@@ -243,6 +264,7 @@ class _TaskWire(Struct, frozen=True, kw_only=True, omit_defaults=True, tag_field
             poses=tuple(Pose2D(*p) for p in self.poses),
             charger=None if self.charger is None else Pose2D(*self.charger),
             pick=None if pk is None else PickOrder(pk.name, Pose2D(*pk.shelf), Pose2D(*pk.drop), pk.dwell_s),
+            steps=tuple(st.step() for st in self.steps),
         )
 
 

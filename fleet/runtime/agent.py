@@ -8,8 +8,9 @@ While the agent exists its liveliness token ``fleet/<robot>/alive`` is held.
 
 Orders (``fleet/<robot>/task``) are applied to the blackboard keys of
 ``docs/architecture.md``: a ``patrol`` order sets ``route`` (the lap of poses), ``task_id``
-and ``charger``; a ``pick`` order sets ``pick``; an ``idle`` order clears ``route``,
-``pick`` and ``task_id``. An order whose id was already applied (a duplicate, or a late copy
+and ``charger``; a ``go_to``, ``inspection``, ``park`` or ``pick`` order sets ``steps``
+(the legacy picking tree gets ``pick``); a ``charge`` order sets ``charge_now``; an ``idle``
+order clears them all and ``task_id``. An order whose id was already applied (a duplicate, or a late copy
 of an order that has been superseded) is ignored, so a message can never be applied twice.
 Orders are queued by the bus callback thread and applied on the ticking thread only.
 With traffic management the agent also takes the robot's traffic grants
@@ -26,6 +27,13 @@ Status rate: with ``status_hz`` (the config's ``bus.status_hz``) the agent publi
 on the bus at most that often (simulated time, from the records' ``t``): a record is published
 when at least ``1 / status_hz`` s passed since the last one published; ``None`` publishes every
 tick. ``on_status`` (an in-process coordinator) still gets every tick's record.
+
+Pause and emergency stop (``fleet/control/state``, :class:`~fleet.messages.FleetControl`,
+or :meth:`RobotAgent.set_control` in-process): while the fleet is paused or its e-stop is
+latched the agent stops its tree (the running goal is canceled), does not tick it, and
+reports ``mode`` ``paused`` / ``estop``; the blackboard keeps the task, so the tree resumes
+it (at the step or lap it reached) when the fleet runs again. Below the tree, the runner's
+:class:`~fleet.runtime.latch.LatchedBackend` refuses goals while the e-stop is latched.
 """
 
 from __future__ import annotations
@@ -34,7 +42,7 @@ import logging
 import math
 import threading
 from collections.abc import Callable, Iterable
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from fleet.diagnostics import (
     Diagnostic,
@@ -45,7 +53,7 @@ from fleet.diagnostics import (
     robot_diagnostics,
     worst,
 )
-from fleet.messages import Grant, StatusRecord, TaskMessage
+from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
 from fleet.types import Mode, Pose2D, RobotState, TaskKind, TreeKind
 
 if TYPE_CHECKING:
@@ -76,6 +84,14 @@ class AgentBus(Protocol):
     def declare_alive(self, robot: str) -> Declared: ...
 
 
+@runtime_checkable
+class ControlBus(Protocol):
+    """A bus that also carries the fleet's control state (:class:`StatusBus` does); an
+    :class:`AgentBus` without it leaves pause and e-stop to in-process delivery."""
+
+    def subscribe_control(self, callback: Callable[[FleetControl], None]) -> Declared: ...
+
+
 class RobotAgent:
     """The agent of the robot ``namespace`` (``/robot3``; its bus name is ``robot3``).
 
@@ -85,10 +101,11 @@ class RobotAgent:
         clock: the fleet clock (simulated seconds); status timestamps come from it.
         bus: a :class:`~fleet.bus.status_bus.StatusBus` (any :class:`AgentBus`), or ``None``
             for an agent without a network (orders then come only through :meth:`deliver`).
-        tree_kind: ``"patrol"`` or ``"picking"`` (see :func:`nodes.build_tree`): the orders the
-            robot works on.
-        tree_file: a BehaviorTree.CPP XML file to run instead of the built-in tree of
-            ``tree_kind`` (:func:`nodes.xml_tree.load_tree`; ``tree_kind`` should be the file's
+        tree_kind: ``"tasks"`` (the tree that runs every task kind; default), or the
+            single-purpose ``"patrol"`` / ``"picking"`` trees
+            (:func:`nodes.task_tree.build_robot_tree`).
+        tree_file: a BehaviorTree.CPP XML file to run instead of the built-in tree
+            (:func:`nodes.xml_tree.load_tree`; ``tree_kind`` should be the file's
             :attr:`~nodes.xml_tree.XmlTree.task_kind`). A bad file raises
             :class:`~fleet.errors.TreeError`.
         battery_model: the battery thresholds the tree's battery guard uses.
@@ -109,7 +126,7 @@ class RobotAgent:
         backend: NavigationBackend,
         clock: Clock,
         bus: AgentBus | None,
-        tree_kind: str = TreeKind.PATROL,
+        tree_kind: str = TreeKind.TASKS,
         battery_model: BatteryModel | None = None,
         tick_hz: float = 10.0,
         on_status: Callable[[StatusRecord], None] | None = None,
@@ -119,7 +136,6 @@ class RobotAgent:
         health: HealthParams | None = None,
     ) -> None:
         from fleet.robots import BatteryModel
-        from nodes import build_tree
         from nodes.blackboard import clear_robot_blackboard, robot_blackboard
 
         self.namespace = "/" + namespace.strip("/")
@@ -148,7 +164,9 @@ class RobotAgent:
 
             self.root = load_tree(tree_file, self.namespace, backend, clock, battery).root
         else:
-            self.root = build_tree(tree_kind, self.namespace, backend, clock, battery, traffic=traffic)
+            from nodes.task_tree import build_robot_tree
+
+            self.root = build_robot_tree(tree_kind, self.namespace, backend, clock, battery, traffic=traffic)
         self.health = health or HealthParams(battery_low=battery.low)
         #: The fleet-side safety stop (see the module docstring); ``watchdog.trips`` counts stops.
         self.watchdog = SafetyWatchdog(self.health)
@@ -163,13 +181,19 @@ class RobotAgent:
         self.grants_applied = 0
         self._lock = threading.Lock()
         self._last_mode: str = Mode.IDLE
+        self._control: FleetControl | None = None
+        #: The tree is stopped: the fleet is paused or its e-stop latched (see the module docstring).
+        self.halted: str | None = None
         self._token: Declared | None = None
         self._sub: Declared | None = None
         self._grant_sub: Declared | None = None
+        self._control_sub: Declared | None = None
         if bus is not None:
             self._sub = bus.subscribe_tasks(self.name, self.deliver)
             if traffic:
                 self._grant_sub = bus.subscribe_grants(self.name, self.deliver_grant)
+            if isinstance(bus, ControlBus):
+                self._control_sub = bus.subscribe_control(self.set_control)
             self._token = bus.declare_alive(self.name)
 
     # -- orders ------------------------------------------------------------------------
@@ -188,6 +212,24 @@ class RobotAgent:
         with self._lock:
             if self._grant is None or grant.seq > self._grant.seq:
                 self._grant = grant
+
+    def pending(self) -> bool:
+        """Orders, a grant or a control change wait to be applied (thread-safe)."""
+        with self._lock:
+            ctl = self._control
+            halted = ctl is not None and (ctl.estop or ctl.paused)
+            return (
+                bool(self._inbox)
+                or (self._grant is not None and self._grant.seq > self._grant_seq)
+                or (halted != (self.halted is not None))
+            )
+
+    def set_control(self, ctl: FleetControl) -> None:
+        """Keep the fleet's control state for the next :meth:`tick` (newest ``seq`` wins);
+        thread-safe."""
+        with self._lock:
+            if self._control is None or ctl.seq > self._control.seq:
+                self._control = ctl
 
     def _apply_orders(self) -> None:
         with self._lock:
@@ -214,18 +256,20 @@ class RobotAgent:
                 self._seen.pop(next(iter(self._seen)))
         if msg.charger is not None:
             self.bb.charger = _pose(msg.charger)
-        if msg.kind == TaskKind.PATROL:
-            self.bb.pick = None
-            self.bb.route = tuple(_pose(p) for p in msg.poses)
-            self.bb.task_id = tid
-        elif msg.kind == TaskKind.PICK:
-            self.bb.route = None
-            self.bb.pick = msg.pick
-            self.bb.task_id = tid
-        else:
-            self.bb.route = None
-            self.bb.pick = None
-            self.bb.task_id = None
+        bb = self.bb
+        kind = msg.kind
+        bb.route = bb.pick = bb.steps = None
+        bb.charge_now = False
+        bb.task_kind = None if kind == TaskKind.IDLE else str(kind)
+        bb.task_id = None if kind == TaskKind.IDLE else tid
+        if kind == TaskKind.PATROL:
+            bb.route = tuple(_pose(p) for p in msg.poses)
+        elif kind == TaskKind.PICK and (self.tree_kind != TreeKind.TASKS or not msg.steps):
+            bb.pick = msg.pick  # the single-purpose picking tree
+        elif kind in (TaskKind.PICK, TaskKind.GO_TO, TaskKind.INSPECTION, TaskKind.PARK):
+            bb.steps = tuple(msg.steps)
+        elif kind == TaskKind.CHARGE:
+            bb.charge_now = True
         return True
 
     # -- ticking -----------------------------------------------------------------------
@@ -239,7 +283,18 @@ class RobotAgent:
         st = self.backend.robot_state()
         was = self.watchdog.reason
         reason = self.watchdog.check(st)
-        if reason:
+        with self._lock:
+            ctl = self._control
+        halt = (
+            None if ctl is None or not (ctl.estop or ctl.paused) else Mode.ESTOP if ctl.estop else Mode.PAUSED
+        )
+        if halt is not None:  # the fleet's pause or e-stop comes before everything
+            if self.halted is None:
+                self._stop_tree()
+            self.halted = halt
+            self.bb.mode = halt
+        elif reason:
+            self.halted = None
             if not was:
                 logger.warning("robot %s: safety stop: %s", self.name, reason)
                 self.root.stop(Status.INVALID)  # cancels the running goal: the robot stops
@@ -248,6 +303,8 @@ class RobotAgent:
         else:
             if was:
                 logger.warning("robot %s: safety stop cleared", self.name)
+            if was or self.halted is not None:
+                self.halted = None
                 self.bb.mode = Mode.IDLE
             self.root.tick_once()
         self.ticks += 1
@@ -302,6 +359,11 @@ class RobotAgent:
             picks_done=int(bb.picks_done or 0),
             health=health,
             diag=diag,
+            result_id=bb.result_id,
+            result=str(bb.result or ""),
+            steps_done=int(bb.step_index)
+            if bb.steps_task_id is not None and bb.steps_task_id == task_id
+            else 0,
         )
 
     def _diagnostics(self, st: RobotState) -> tuple[int, tuple[tuple[str, int, str], ...]]:
@@ -324,21 +386,25 @@ class RobotAgent:
             items = (*(d for d in items if d.name != "motion"), _stopped(self.watchdog.reason))
         return int(worst(items)), problems(items)
 
-    def close(self) -> None:
-        """Cancel the robot's outstanding goal, drop the liveliness token and the subscription."""
+    def _stop_tree(self) -> None:
+        """Interrupt the tree: the running leaf cancels its goal (the robot stops)."""
         from py_trees.common import Status
 
         try:
             self.root.stop(Status.INVALID)
-        except Exception as e:  # noqa: BLE001 - best effort on shutdown
-            logger.debug("robot %s: stopping the tree failed: %s", self.name, e)
-        for handle in (self._token, self._sub, self._grant_sub):
+        except Exception as e:  # noqa: BLE001 - best effort: the latch below still holds
+            logger.warning("robot %s: stopping the tree failed: %s", self.name, e)
+
+    def close(self) -> None:
+        """Cancel the robot's outstanding goal, drop the liveliness token and the subscriptions."""
+        self._stop_tree()
+        for handle in (self._token, self._sub, self._grant_sub, self._control_sub):
             if handle is not None:
                 try:
                     handle.undeclare()
                 except Exception as e:  # noqa: BLE001 - keep releasing the rest
                     logger.debug("robot %s: undeclare failed: %s", self.name, e)
-        self._token = self._sub = self._grant_sub = None
+        self._token = self._sub = self._grant_sub = self._control_sub = None
 
 
 def _stopped(reason: str) -> Diagnostic:

@@ -128,6 +128,10 @@ class RunReport:
     picks_completed: int = 0
     goals: dict[str, Any] = field(default_factory=dict)
     safety_stops: int = 0
+    #: Tasks of the task service by state and by kind (``None`` without a coordinator).
+    tasks: dict[str, Any] | None = None
+    #: Every pause, resume, e-stop and release: when (fleet and wall time), by whom, why.
+    control_events: list[dict[str, Any]] = field(default_factory=list)
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -193,6 +197,8 @@ class ReportBuilder:
         bus_trajectory: Callable[[str], list[tuple[float, float, float]]] = lambda name: [],
         malformed: int = 0,
         safety_stops: Mapping[str, int] | None = None,
+        tasks: dict[str, Any] | None = None,
+        control_events: Sequence[dict[str, Any]] = (),
     ) -> RunReport:
         """The report: ``records`` are the latest status per robot; ``state`` the coordinator's
         (``None`` without a coordinator: laps come from the records); ``traffic`` the traffic
@@ -249,6 +255,8 @@ class ReportBuilder:
             picks_completed=state.picks_completed() if state is not None else 0,
             goals=fleet_goals.to_dict() if goals else {},
             safety_stops=sum(r.safety_stops for r in rows),
+            tasks=tasks,
+            control_events=list(control_events),
         )
 
     def _row(

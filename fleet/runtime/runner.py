@@ -30,6 +30,7 @@ import math
 import sys
 import threading
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
 from fleet.clock import Pacer, WallClock
@@ -37,6 +38,7 @@ from fleet.config.model import FleetConfig
 from fleet.errors import BackendError, ConfigError
 from fleet.messages import StatusRecord
 from fleet.runtime.backends import BACKENDS, backend_names, world_factory
+from fleet.runtime.latch import Latch, LatchedBackend, WorldLatch
 from fleet.runtime.report import ReportBuilder, RunReport
 from fleet.runtime.trajectory import BusView
 from fleet.runtime.worlds import World, WorldFactory
@@ -51,6 +53,7 @@ if TYPE_CHECKING:
     from fleet.coordination.coordinator import Coordinator
     from fleet.runtime.agent import RobotAgent
     from fleet.runtime.goal_log import GoalLog
+    from fleet.runtime.service_host import ServiceHost
     from fleet.traffic.policy import ReservationTraffic
 
 logger = logging.getLogger(__name__)
@@ -93,7 +96,7 @@ class FleetRunner:
         agents: ``"all"`` (every robot of the config), or the robot names to run here.
         coordinator: whether this process runs the coordinator.
         live: show the live table (default: when ``out`` is a TTY); ignored with ``display``.
-        tree_kind: the behavior tree of every local agent (``patrol`` or ``picking``).
+        tree_kind: the config's initial tasks (see below).
         tree_file: a BehaviorTree.CPP XML tree every local agent runs instead (checked now: a
             bad file raises :class:`~fleet.errors.TreeError`); the orders it works on
             (``tree_kind``) are the file's.
@@ -104,9 +107,15 @@ class FleetRunner:
             config's ``traffic.enabled``.
         display: what shows the running fleet (default: :func:`fleet.viz.display.default_display`
             on ``out``; :class:`fleet.viz.display.NullDisplay` shows nothing).
+        state_dir: the coordinator's durable task book (``docs/service.md``); a directory that
+            holds one is resumed. ``None``: an in-memory book (the CLI defaults to a new directory
+            under ``out/state/``).
+        api: ``HOST:PORT`` to serve the task service's HTTP API on (with the coordinator).
 
+    ``tree_kind`` chooses the config's initial tasks (``patrol``: its routes, ``picking``:
+    its picks, ``tasks``: both); every robot runs the tree that takes any task kind.
     Raises :class:`~fleet.errors.ConfigError` for an unknown backend or robot, a negative
-    speed, a non-positive duration, or traffic management with a tree other than ``patrol``.
+    speed, a non-positive duration, or a bad ``api`` address.
     """
 
     def __init__(
@@ -126,6 +135,8 @@ class FleetRunner:
         traffic: bool | None = None,
         display: FleetDisplay | None = None,
         tree_file: str | None = None,
+        state_dir: Path | None = None,
+        api: str | None = None,
     ) -> None:
         if tree_file is not None:
             from nodes.xml_tree import check_tree_file
@@ -144,17 +155,30 @@ class FleetRunner:
         self.tree_kind = tree_kind
         self.listen = listen
         self.traffic = config.traffic.enabled if traffic is None else bool(traffic)
-        if self.traffic and tree_kind != TreeKind.PATROL:
+        try:
+            TreeKind(tree_kind)
+        except ValueError:
             raise ConfigError(
-                str(config.path), "traffic", f"traffic management drives patrol trees only, not {tree_kind!r}"
-            )
+                str(config.path), "tree", f"unknown tree {tree_kind!r}; known: {', '.join(TreeKind)}"
+            ) from None
         if self.traffic and tree_file is not None:
-            raise ConfigError(
-                str(config.path),
-                "traffic",
-                "traffic management drives the built-in patrol tree only, not an XML tree",
-            )
+            if traffic:
+                raise ConfigError(
+                    str(config.path),
+                    "traffic",
+                    "traffic management drives the built-in task tree only, not an XML tree "
+                    "(run the XML tree with --no-traffic)",
+                )
+            logger.warning("traffic management is off: the XML tree %s drives its own goals", tree_file)
+            self.traffic = False
         self.display = display
+        self.state_dir = state_dir
+        self.api = api
+        #: The task service and its faces (with the coordinator; set up by :meth:`run`).
+        self.host: ServiceHost | None = None
+        #: The e-stop latch below the trees (``fleet.runtime.latch``).
+        self.latch = Latch()
+        self._wakeup = threading.Event()
         #: The traffic policy when traffic management is on (set up by :meth:`run`).
         self.traffic_policy: ReservationTraffic | None = None
         self.stop_event = threading.Event()
@@ -212,6 +236,12 @@ class FleetRunner:
     def stop(self) -> None:
         """Ask the loop to end after the current iteration (thread-safe); a paced wait ends at once."""
         self.stop_event.set()
+        self._wakeup.set()
+
+    def wake(self) -> None:
+        """A command arrived (thread-safe): run a coordinator cycle and tick the agents it gave
+        orders to as soon as the loop can, not at the next scheduled tick."""
+        self._wakeup.set()
 
     def _setup(self, factory: WorldFactory, session: zenoh.Session) -> World:
         """The bus, the world, the coordinator and the agents, on ``session``."""
@@ -221,6 +251,10 @@ class FleetRunner:
         self.bus.subscribe_statuses(self.bus_view.see)
         specs = [self.config.robot(n) for n in self.agent_names]
         self.world = world = factory(self.config, specs, session)
+        sim = getattr(world, "sim", None)
+        self._world_latch = (
+            WorldLatch(self.latch, sim) if sim is not None and hasattr(sim, "fault_of") else None
+        )
         traced = [s.name for s in specs if world.trajectory(s.namespace) is not None]
         self.bus_view.skip_trajectories(traced)  # the world records these robots' trajectories
         if self.run_coordinator:
@@ -229,6 +263,7 @@ class FleetRunner:
         if self.coordinator is not None:
             self.coordinator.local_deliver = {a.name: a.deliver for a in self.agents}
             self.coordinator.local_grant_deliver = {a.name: a.deliver_grant for a in self.agents}
+        self._start_service(session, self.bus)
         logger.info(
             "%s: backend %s ready, %d agents%s, traffic management %s, status on the bus %s",
             self.config.name,
@@ -242,19 +277,49 @@ class FleetRunner:
 
     def _make_coordinator(self, world: World, bus: StatusBus) -> Coordinator:
         from fleet.coordination.coordinator import Coordinator
+        from fleet.runtime.service_host import ServiceHost
 
         if self.traffic:
             from fleet.traffic.policy import traffic_from_config
 
             self.traffic_policy = traffic_from_config(self.config)
-        return Coordinator(
+        self.host = host = ServiceHost(self.config, world.clock, self.state_dir, self.api)
+        coordinator = Coordinator(
             self.config,
             bus,
             world.clock,
             traffic=self.traffic_policy,
             local_robots=set(self.agent_names),
             task_kind=self.tree_kind,
+            first_id=host.service.first_assignment_id,
         )
+        host.service.attach(coordinator.state)
+        return coordinator
+
+    def _start_service(self, session: zenoh.Session, bus: StatusBus) -> None:
+        """Control-state sinks (latch, agents, coordinator), the task service's faces."""
+        host = self.host
+        if host is None:  # no coordinator here: follow the one on the bus
+            bus.subscribe_control(self.latch.follow)
+            return
+        svc = host.service
+        svc.switch.add_sink(self.latch.follow)  # first: the world stops at its next step
+        for a in self.agents:
+            svc.switch.add_sink(a.set_control)
+        if self.coordinator is not None:
+            state = self.coordinator.state
+            svc.switch.add_sink(lambda ctl: setattr(state, "halted", ctl.paused))
+        svc.robot_source = self.records
+        svc.on_input = self.wake
+        svc.views["traffic_enabled"] = lambda: self.traffic
+        if self.traffic_policy is not None:
+            from fleet.runtime.service_host import traffic_view
+
+            svc.views["traffic"] = traffic_view(self.traffic_policy)
+        host.start(session, bus)
+        api = f", API {host.api.url} (docs: {host.api.url}/docs)" if host.api is not None else ""
+        book = host.state_dir if host.state_dir is not None else "in memory (no --state)"
+        print(f"tasks: {book}{api}", file=self.out, flush=True)
 
     def _make_agent(self, namespace: str, world: World, bus: StatusBus) -> RobotAgent:
         from fleet.runtime.agent import RobotAgent
@@ -266,10 +331,10 @@ class FleetRunner:
         self.goal_logs[namespace.strip("/")] = log
         return RobotAgent(
             namespace,
-            log,
+            LatchedBackend(log, self.latch),
             world.clock,
             bus,
-            tree_kind=self.tree_kind,
+            tree_kind=TreeKind.TASKS,
             battery_model=self.config.sim.battery,
             tick_hz=self.config.tick_hz,
             on_status=self.coordinator.feed_local if self.coordinator is not None else None,
@@ -292,8 +357,12 @@ class FleetRunner:
                     break
                 if ticks.due(now):
                     self._tick(now)
+                elif self._wakeup.is_set():
+                    self._react()
+                if self._world_latch is not None:
+                    self._world_latch.apply()
                 world.advance()
-                pacer.wait(self._sleep)
+                self._pace(pacer)
                 w = self._wall.now()
                 if w >= next_show:
                     display.show(self.snapshot())
@@ -302,9 +371,30 @@ class FleetRunner:
             self._t_end = clock.now()  # a remote world's clock runs on while the run closes
             display.close(self.snapshot())
 
-    def _sleep(self, seconds: float) -> None:
-        """The pacer's sleep: ends early when :meth:`stop` is called."""
-        self.stop_event.wait(seconds)
+    def _pace(self, pacer: Pacer) -> None:
+        """Wait for real time to catch up (``speed``), reacting to commands meanwhile."""
+        woke: list[bool] = []
+
+        def sleep(seconds: float) -> None:
+            if self._wakeup.wait(seconds):
+                woke.append(True)
+
+        while not self.stop_event.is_set():
+            woke.clear()
+            pacer.wait(sleep)
+            if not woke or self.stop_event.is_set():
+                return
+            self._react()
+
+    def _react(self) -> None:
+        """A command arrived: one coordinator cycle now, and a tick of every agent it (or the
+        control state) gave something to do, so the order takes effect at the next step."""
+        self._wakeup.clear()
+        if self.coordinator is not None:
+            self.coordinator.cycle()
+        for a in self.agents:
+            if a.pending():
+                a.tick()
 
     def _tick(self, now: float) -> None:
         """One agent tick: every local agent, then the coordinator cycle, then the observers."""
@@ -312,6 +402,8 @@ class FleetRunner:
             a.tick()
         if self.coordinator is not None:
             self.coordinator.cycle()
+        if self.host is not None:
+            self.host.tick(now)
         for observe in self.observers:
             observe(now, self)
 
@@ -360,6 +452,8 @@ class FleetRunner:
             safety_stops={a.name: a.watchdog.trips for a in self.agents},
             bus_trajectory=self.bus_view.trajectory,
             malformed=self.bus.malformed if self.bus is not None else 0,
+            tasks=self.host.task_summary() if self.host is not None else None,
+            control_events=self.host.control_events() if self.host is not None else (),
         )
 
     def collision_points(self) -> list[tuple[float, float]]:
@@ -367,6 +461,8 @@ class FleetRunner:
         return self.world.collision_points() if self.world is not None else []
 
     def _close(self, session: zenoh.Session) -> None:
+        if self.host is not None:
+            _try(self.host.close, "closing the task service")
         for a in self.agents:
             _try(a.close, f"closing agent {a.name}")
         if self.world is not None:

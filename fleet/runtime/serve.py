@@ -4,7 +4,10 @@
 :class:`fleet.clock.Pacer`, applies the navigation requests received before every step and
 publishes the robots' states and the simulated clock ``publish_hz`` times per wall second
 (:class:`fleet.bus.nav_server.SimNavServer`). It prints nothing: progress goes to an optional
-callback (``fleet sim`` shows it with :mod:`fleet.viz.display`).
+callback (``fleet sim`` shows it with :mod:`fleet.viz.display`). It follows the fleet's
+control state on the bus (``fleet/control/state``): while the coordinator's e-stop is latched,
+every robot is stalled before each step (:class:`fleet.runtime.latch.WorldLatch`), whatever
+its agent sends.
 """
 
 from __future__ import annotations
@@ -21,9 +24,11 @@ from typing import TYPE_CHECKING
 import zenoh
 
 from fleet.bus.nav_server import SimNavServer
+from fleet.bus.status_bus import StatusBus
 from fleet.clock import Pacer, WallClock
 from fleet.config.model import FleetConfig
 from fleet.errors import BackendError
+from fleet.runtime.latch import Latch, WorldLatch
 
 if TYPE_CHECKING:
     from sim.simulator import Simulator
@@ -112,7 +117,9 @@ def serve_simulator(
     sess = open_session(endpoint or DEFAULT_ENDPOINT, "router") if session is None else session
     server: SimNavServer | None = None
     loop = _ServeLoop(sim, speed, duration, stop, 1.0 / publish_hz)
+    bus = StatusBus(sess)
     try:
+        bus.subscribe_control(loop.latch.latch.follow)  # the e-stop latch, from the coordinator
         with _sigterm_sets(stop):
             server = SimNavServer(sess, sim)
             server.speed = speed
@@ -120,6 +127,7 @@ def serve_simulator(
     finally:
         if server is not None:
             server.close()
+        bus.close()
         if session is None:
             sess.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves Session.close unannotated
     return ServeResult(sim, loop.steps, float(sim.clock.now() - loop.t0), loop.wall_s(), loop.interrupted)
@@ -141,6 +149,8 @@ class _ServeLoop:
         self.end = None if duration is None else self.t0 + duration
         self.steps = 0
         self.interrupted = False
+        #: The e-stop latch below every agent, applied before each step (``fleet.runtime.latch``).
+        self.latch = WorldLatch(Latch(), sim)
 
     def wall_s(self) -> float:
         return self.wall.now() - self.w0
@@ -161,6 +171,7 @@ class _ServeLoop:
                 ahead = self.pacer.ahead()
                 if ahead <= 0:  # due (or unpaced): one step
                     server.process()
+                    self.latch.apply()
                     self.sim.step()
                     self.steps += 1
                 else:  # early: wait for the step's time or the next publication

@@ -87,6 +87,7 @@ class ReservationTraffic:
         self._purpose: dict[str, Purpose] = {}
         self._seq: dict[str, int] = {}
         self._coord_dead: set[str] = set()
+        self._once: set[str] = set()  # robots whose pending route is driven once (a task)
         self._last_dl = -math.inf
         self.errands = Errands(
             self.manager, roadmap, self._purpose, self._set_path, self.chargers, self.parking, park_idle_s
@@ -100,12 +101,17 @@ class ReservationTraffic:
     def on_assign(
         self, robot: str, route: RouteLike, poses: tuple[Pose2D, ...], task_id: str | None = None
     ) -> tuple[Pose2D, ...]:
-        """``robot`` patrols ``route`` (a loop through its waypoint nodes) for ``task_id``
-        from the next cycle on; ``poses`` are returned unchanged."""
+        """``robot`` drives ``route`` for ``task_id`` from the next cycle on: a loop through its
+        waypoint nodes (a patrol), or, if ``route.loop`` is false, once through them, stopping
+        at each (a task's stops); ``poses`` are returned unchanged."""
         nodes = [str(n) for n in route.nodes]
         if nodes:
             self._pending[robot] = nodes
             self._task[robot] = task_id
+            if getattr(route, "loop", True):
+                self._once.discard(robot)
+            else:
+                self._once.add(robot)
             self._apply_pending(robot)
         return poses
 
@@ -113,7 +119,7 @@ class ReservationTraffic:
         """``robot`` lost its patrol: it stops at the end of its current grant."""
         self._pending.pop(robot, None)
         self._task[robot] = None
-        if self._purpose.get(robot) is Purpose.PATROL:
+        if self._purpose.get(robot) in (Purpose.PATROL, Purpose.TASK):
             self._purpose.pop(robot, None)
         if robot in self.manager.robots and self.manager.is_alive(robot):
             self.manager.clear_path(robot, self._now)
@@ -159,7 +165,7 @@ class ReservationTraffic:
         self._seq[robot] = seq
         purpose = self._purpose.get(robot)
         patrol = purpose is Purpose.PATROL
-        task = self._task.get(robot) if patrol else None
+        task = self._task.get(robot) if purpose in (Purpose.PATROL, Purpose.TASK) else None
         laps = self.manager.laps(robot) if patrol else 0
         return msgspec.structs.replace(g, task_id=task, purpose=purpose or "", laps=laps, seq=seq)
 
@@ -225,6 +231,11 @@ class ReservationTraffic:
             return
         del self._pending[robot]
         self.errands.forget(robot)
+        if robot in self._once:  # a task's stops, driven once; every stop must be visited
+            path = self.roadmap.expand_route(nodes, closed=False)
+            stops = set(nodes)
+            self._set_path(robot, path, Purpose.TASK, must=[i for i, n in enumerate(path) if n in stops])
+            return
         loop = self.roadmap.expand_route(nodes, closed=True)
         wps = set(nodes)
         if len(loop) < 2:

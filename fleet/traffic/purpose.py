@@ -8,11 +8,13 @@ from enum import StrEnum
 class Purpose(StrEnum):
     """The errand a grant serves (a robot without one gets ``""`` on its grant).
 
-    ``PATROL``: its patrol loop; ``CHARGE``: to a free charger dock; ``CHARGE_WAIT``: to a
+    ``PATROL``: its patrol loop; ``TASK``: once through a task's stops (a pick, a go_to, an
+    inspection); ``CHARGE``: to a free charger dock; ``CHARGE_WAIT``: to a
     parking dock near the chargers, to wait for a charger; ``PARK``: idle, to a parking dock.
     """
 
     PATROL = "patrol"
+    TASK = "task"
     CHARGE = "charge"
     CHARGE_WAIT = "charge-wait"
     PARK = "park"

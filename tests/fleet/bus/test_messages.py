@@ -244,7 +244,7 @@ def test_status_from_dict_rejects_non_finite_numbers_and_defaults_picks_done() -
 
 
 TASK_ERRORS = [
-    ("unknown kind", b'{"v":1,"task_id":"x","kind":"dance"}', "task.kind: 'dance' is not one of patrol, pick, idle"),
+    ("unknown kind", b'{"v":1,"task_id":"x","kind":"dance"}', "task.kind: 'dance' is not one of patrol, pick, go_to, inspection, charge, park, idle"),
     ("patrol without poses", b'{"v":1,"task_id":"p","kind":"patrol"}', "task.poses: a patrol task needs at least one pose"),
     ("patrol without id", b'{"v":1,"task_id":null,"kind":"patrol","poses":[[1,2,3]]}', "task.task_id: a patrol task needs an id"),
     ("pick without pick", b'{"v":1,"task_id":"k","kind":"pick"}', "task.pick: missing (a pick task needs shelf, drop and dwell_s)"),
@@ -353,7 +353,10 @@ def test_a_wrongly_typed_status_is_caught_when_a_number_is_not_a_number() -> Non
 def test_inconsistent_orders_are_refused_on_send() -> None:
     with pytest.raises(ValueError, match=r"^task\.poses: a patrol task needs at least one pose$"):
         TaskMessage("p-1", "patrol", "robot1").to_json()
-    with pytest.raises(ValueError, match=r"^task\.kind: 'dance' is not one of patrol, pick, idle$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^task\.kind: 'dance' is not one of patrol, pick, go_to, inspection, charge, park, idle$",
+    ):
         TaskMessage("p-1", "dance").to_json()
     with pytest.raises(TypeError, match="not a navigation goal"):
         goal_to_dict("go there")  # type: ignore[arg-type]  # on purpose

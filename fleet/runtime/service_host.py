@@ -1,0 +1,160 @@
+"""What the coordinator's process serves besides the coordinator (``docs/service.md``): the
+task service and its durable store (``--state DIR``), the fleet's control state and where it
+goes (the e-stop latch, the agents, the bus), the Zenoh face and the HTTP API (``--api``).
+
+:class:`ServiceHost` is built by the :class:`~fleet.runtime.runner.FleetRunner` when it runs
+the coordinator; it never owns the loop: the runner calls :meth:`ServiceHost.tick` once per
+agent tick (re-publishing the control state every :data:`CONTROL_REPUBLISH_S`).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import logging
+import os
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from fleet.errors import ConfigError
+from fleet.messages import FleetControl
+from fleet.service.records import iso
+from fleet.service.service import TaskService
+from fleet.service.store import TaskStore
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from fleet.api.server import ApiServer
+    from fleet.bus.status_bus import StatusBus
+    from fleet.config.model import FleetConfig
+    from fleet.navigation import Clock
+    from fleet.service.bus_face import ServiceBus
+    from fleet.traffic.policy import ReservationTraffic
+
+logger = logging.getLogger(__name__)
+
+#: The control state is published again this often (fleet s), for processes that join late.
+CONTROL_REPUBLISH_S = 1.0
+#: Where runs keep their durable task book unless ``--state`` says otherwise.
+DEFAULT_STATE_ROOT = Path("out") / "state"
+
+
+def default_state_dir(config: FleetConfig) -> Path:
+    """``out/state/<fleet>-<UTC time>-<pid>``: a new book per run (resume one with ``--state``)."""
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%d-%H%M%S")
+    return DEFAULT_STATE_ROOT / f"{config.name}-{stamp}-{os.getpid()}"
+
+
+def traffic_view(policy: ReservationTraffic) -> Callable[[], dict[str, Any]]:
+    """``/api/traffic``: the nodes and edge segments every robot holds, with positions."""
+    m = policy.manager
+
+    def view() -> dict[str, Any]:
+        segments: list[dict[str, Any]] = []
+        nodes: list[dict[str, Any]] = []
+        for robot in m.robots:
+            for res in sorted(m.held(robot), key=str):
+                if isinstance(res, tuple):
+                    a, b = res
+                    segments.append({"robot": robot, "a": list(m.node_pos(a)), "b": list(m.node_pos(b))})
+                else:
+                    x, y = m.node_pos(res)
+                    nodes.append({"robot": robot, "name": res, "x": x, "y": y})
+        return {"enabled": True, "segments": segments, "nodes": nodes}
+
+    return view
+
+
+class ServiceHost:
+    """The task service of one coordinator and its faces (see the module docstring).
+
+    Args:
+        config: the fleet config.
+        clock: the fleet clock.
+        state_dir: the durable task book's directory (``None``: an in-memory book, nothing
+            survives the process; the CLI passes :func:`default_state_dir` unless ``--state``).
+        api: ``HOST:PORT`` to serve the HTTP API on (``None``: no HTTP).
+    """
+
+    def __init__(self, config: FleetConfig, clock: Clock, state_dir: Path | None, api: str | None) -> None:
+        from fleet.api.server import parse_address
+
+        self.config = config
+        self.api_address: tuple[str, int] | None = None
+        if api is not None:
+            try:
+                self.api_address = parse_address(api)
+            except ValueError as e:
+                raise ConfigError(str(config.path), "api", str(e)) from None
+        self.state_dir = state_dir
+        self.store = TaskStore(state_dir) if state_dir is not None else None
+        self.service = TaskService(config, clock, self.store)
+        self.bus: StatusBus | None = None
+        self.api: ApiServer | None = None
+        self.face: ServiceBus | None = None
+        self._last_publish = -1e18
+
+    @property
+    def control(self) -> FleetControl:
+        return self.service.control
+
+    def start(self, session: zenoh.Session, bus: StatusBus) -> None:
+        """Publish the control state on ``bus``, serve the Zenoh face and (``api``) the HTTP API."""
+        from fleet.service.bus_face import ServiceBus
+
+        self.bus = bus
+        self.service.switch.add_sink(bus.publish_control)
+        self.face = ServiceBus(session, self.service)
+        if self.api_address is not None:
+            from fleet.api.app import create_app
+            from fleet.api.server import ApiServer
+
+            host, port = self.api_address
+            self.api = ApiServer(create_app(self.service), host, port).start()
+
+    def tick(self, now: float) -> None:
+        """Re-publish the control state every :data:`CONTROL_REPUBLISH_S` fleet seconds."""
+        if self.bus is not None and now - self._last_publish >= CONTROL_REPUBLISH_S:
+            self._last_publish = now
+            try:
+                self.bus.publish_control(self.service.control)
+            except Exception as e:  # noqa: BLE001 - the session may be closing
+                logger.debug("publishing the control state: %s", e)
+
+    def task_summary(self) -> dict[str, Any]:
+        """Tasks by state and by kind, and the state directory (for the run report)."""
+        recs = self.service.tasks()
+        return {
+            "state_dir": str(self.state_dir) if self.state_dir is not None else None,
+            "total": len(recs),
+            "by_state": dict(Counter(r.state.value for r in recs)),
+            "by_kind": dict(Counter(r.kind for r in recs)),
+        }
+
+    def control_events(self) -> list[dict[str, Any]]:
+        """Every control change of this run (and the one read back at start)."""
+        out = []
+        for c in self.service.switch.history:
+            d = c.to_dict()
+            d["at"] = iso(c.wall) if c.wall else None
+            out.append(d)
+        return out
+
+    def close(self) -> None:
+        """Stop the HTTP API and the Zenoh face; close the store."""
+        closers: list[Callable[[], None]] = []
+        if self.api is not None:
+            closers.append(self.api.stop)
+        if self.face is not None:
+            closers.append(self.face.close)
+        for close in closers:
+            try:
+                close()
+            except Exception as e:  # noqa: BLE001 - keep closing the rest
+                logger.warning("closing the task service: %s", e)
+        self.api = None
+        self.face = None
+        if self.store is not None:
+            self.store.close()
