@@ -334,7 +334,8 @@ class FleetRunner:
             LatchedBackend(log, self.latch),
             world.clock,
             bus,
-            tree_kind=TreeKind.TASKS,
+            # an XML tree reads the orders of its own kind; the built-in tree takes every kind
+            tree_kind=TreeKind.TASKS if self.tree_file is None else self.tree_kind,
             battery_model=self.config.sim.battery,
             tick_hz=self.config.tick_hz,
             on_status=self.coordinator.feed_local if self.coordinator is not None else None,
