@@ -8,7 +8,8 @@ A Nav2 bringup (or ``fleet sim-ros``) under a robot's namespace serves ``<node>/
 ``BasicNavigator.waitUntilNav2Active`` does) without blocking: :meth:`LifecycleWatch.poll`
 is called on the executor thread, sends one request at a time at most every
 :data:`POLL_S` wall seconds and keeps the last answer in ``state`` (``"unknown"`` until the
-first). :meth:`LifecycleWatch.startup` sends STARTUP to every manager once (what
+first; ``"unknown"`` again when the service vanishes or a request goes unanswered for
+:data:`ANSWER_S`). :meth:`LifecycleWatch.startup` sends STARTUP to every manager once (what
 ``BasicNavigator.lifecycleStartup`` does for the robot's managers), for robots whose Nav2 was
 launched without ``autostart``.
 """
@@ -26,6 +27,8 @@ MANAGERS = ("lifecycle_manager_localization", "lifecycle_manager_navigation")
 NAVIGATOR = "bt_navigator"
 #: Wall seconds between two state requests.
 POLL_S = 1.0
+#: Wall seconds a state request may go unanswered before the state is ``"unknown"``.
+ANSWER_S = 3.0
 
 
 class LifecycleWatch:
@@ -55,6 +58,11 @@ class LifecycleWatch:
             res = self._pending.result()
             self.state = str(res.current_state.label) if res is not None else "unknown"
             self._pending = None
+        elif self._pending is not None and now - self._asked_at > ANSWER_S:
+            self._get.remove_pending_request(self._pending)  # no answer: gone or hung
+            self._pending.cancel()
+            self._pending = None
+            self.state = "unknown"
         if self._pending is None and now - self._asked_at >= POLL_S:
             if self._get.service_is_ready():
                 self._asked_at = now

@@ -12,10 +12,10 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import pytest
-from conftest import WAREHOUSE
 from waiting import DISCOVERY_S, GOAL_S
 
 from fleet.ros.env import ros_available
@@ -28,6 +28,8 @@ if ros_available() or TYPE_CHECKING:
     from fleet.ros.conversions import pose2d_to_pose_stamped
 
 pytestmark = pytest.mark.ros
+
+WAREHOUSE = Path(__file__).resolve().parents[3] / "configs" / "warehouse_patrol.yaml"
 
 NAVIGATION = (
     "controller_server",

@@ -16,10 +16,10 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import pytest
-from conftest import WAREHOUSE
 from waiting import DISCOVERY_S, GOAL_S
 
 from fleet.diagnostics import SafetyWatchdog
@@ -33,6 +33,8 @@ if ros_available() or TYPE_CHECKING:
     from fleet.ros.conversions import pose2d_to_pose_stamped
 
 pytestmark = pytest.mark.ros
+
+WAREHOUSE = Path(__file__).resolve().parents[3] / "configs" / "warehouse_patrol.yaml"
 
 ERROR, OK = b"\x02", b"\x00"
 
