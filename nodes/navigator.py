@@ -11,7 +11,8 @@ simulator step; bt_navigator ticks every ``bt_loop_duration``).
 What it does, as Nav2 Jazzy's bt_navigator:
 
 * **Which tree.** A goal's ``behavior_tree`` (a path to an XML file) picks the tree; empty
-  means the default of its action (``nav_to_pose_xml`` / ``nav_through_poses_xml``, by default
+  means the default of its action (an empty default in :attr:`BtNavigator.defaults`: no
+  tree, the goal goes to the inner backend's own navigation) (``nav_to_pose_xml`` / ``nav_through_poses_xml``, by default
   this project's ``nodes/trees/navigate_to_pose.xml`` / ``navigate_through_poses.xml``). A
   tree is loaded once and kept (and its blackboard with it) for the next goals naming the same
   file. A tree that cannot be loaded ends the goal ABORTED (its message says why) at once.
@@ -155,8 +156,12 @@ class BtNavigator:
             if getattr(goal, "kind", None) in MOTION_GOAL_KINDS and self._active is not None:
                 self._end(GoalStatus.ABORTED, 0, f"preempted by a {goal.kind} goal")
             return self.inner.send_goal(goal)
-        gid = f"{self._ns}#n{next(self._ids)}"
         tree_file = goal.behavior_tree or self.defaults[goal.kind]
+        if not tree_file:  # no tree: the inner backend's own navigation
+            if self._active is not None:
+                self._end(GoalStatus.ABORTED, 0, f"preempted by a {goal.kind} goal")
+            return self.inner.send_goal(goal)
+        gid = f"{self._ns}#n{next(self._ids)}"
         rec = _NavGoal(gid, goal, tree_file, self.clock.now())
         self._remember(rec)
         active = self._active

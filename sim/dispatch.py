@@ -80,6 +80,9 @@ class GoalDispatch:
                 compute(record, robot.pose, self)
             return record.goal_id
         old = self.tasks.get(robot.index)
+        # a FollowPath replacing a running FollowPath is a path update, as in Nav2's controller
+        # server: the progress checker keeps timing (replanning cannot hide a stuck robot)
+        path_update = old is not None and not old.done and old.record.kind == record.kind == "follow_path"
         if old is not None and not old.done:
             preempt(old.record, record, old.feedback())
         self._set_task(robot, None)
@@ -90,7 +93,8 @@ class GoalDispatch:
         if not task.done:
             self._set_task(robot, task)
             s, i = self.state, robot.index
-            s.px[i], s.py[i], s.pt[i] = s.x[i], s.y[i], now
+            if not path_update:
+                s.px[i], s.py[i], s.pt[i] = s.x[i], s.y[i], now
         return record.goal_id
 
     def goal_state(self, goal_id: str) -> GoalState:

@@ -555,7 +555,9 @@ class Simulator:
             pt[far] = now
             s.stuck[:n][far] = False
         near_p = ~far
-        trying = s.has_task[:n] & s.drives[:n]
+        # a path follower wants to move until it stands at its final position, also while it
+        # turns in place to get round something in its way
+        trying = s.has_task[:n] & (s.drives[:n] | (s.fol[:n] & ~s.f_xy[:n]))
         pt[near_p & ~trying] = now
         stuck = np.flatnonzero(near_p & trying & (now - pt >= self.params.stuck_time_s - 1e-9))
         for i in stuck.tolist():

@@ -239,3 +239,73 @@ def test_inspection_tree_acts_at_every_waypoint_of_the_route() -> None:
         assert backend.sent[i + 1].target_yaw == pytest.approx(6.2832)
     goals = {(round(backend.sent[i].pose.x, 1), round(backend.sent[i].pose.y, 1)) for i in visits}
     assert goals == {(round(p.x, 1), round(p.y, 1)) for p in route}
+
+
+#: (tree body, ticks, the root's status after them): BehaviorTree.CPP's control nodes and
+#: decorators on leaves without goals (AlwaysSuccess / AlwaysFailure, Sleep on the sim clock).
+CONTROL_CASES = {
+    "Inverter": ("<Inverter><AlwaysFailure/></Inverter>", 1, "SUCCESS"),
+    "ForceSuccess": ("<ForceSuccess><AlwaysFailure/></ForceSuccess>", 1, "SUCCESS"),
+    "ForceFailure": ("<ForceFailure><AlwaysSuccess/></ForceFailure>", 1, "FAILURE"),
+    "KeepRunningUntilFailure": (
+        "<KeepRunningUntilFailure><AlwaysSuccess/></KeepRunningUntilFailure>",
+        3,
+        "RUNNING",
+    ),
+    "KeepRunningUntilFailure fails": (
+        "<KeepRunningUntilFailure><AlwaysFailure/></KeepRunningUntilFailure>",
+        1,
+        "FAILURE",
+    ),
+    "Fallback": ("<Fallback><AlwaysFailure/><AlwaysSuccess/></Fallback>", 1, "SUCCESS"),
+    "Sequence": ("<Sequence><AlwaysSuccess/><AlwaysFailure/></Sequence>", 1, "FAILURE"),
+    "ReactiveSequence": (
+        '<ReactiveSequence><AlwaysSuccess/><Sleep msec="500"/></ReactiveSequence>',
+        2,
+        "RUNNING",
+    ),
+    "IfThenElse": ("<IfThenElse><AlwaysFailure/><AlwaysFailure/><AlwaysSuccess/></IfThenElse>", 1, "SUCCESS"),
+    "WhileDoElse": (
+        "<WhileDoElse><AlwaysSuccess/><AlwaysFailure/><AlwaysSuccess/></WhileDoElse>",
+        1,
+        "FAILURE",
+    ),
+    "Parallel": (
+        '<Parallel success_count="1" failure_count="2"><AlwaysSuccess/><AlwaysFailure/></Parallel>',
+        1,
+        "SUCCESS",
+    ),
+    "RetryUntilSuccessful": (
+        '<RetryUntilSuccessful num_attempts="3"><AlwaysFailure/></RetryUntilSuccessful>',
+        3,  # one attempt per tick (BehaviorTree.CPP makes them all in one tick)
+        "FAILURE",
+    ),
+    "Repeat": ('<Repeat num_cycles="3"><AlwaysSuccess/></Repeat>', 3, "SUCCESS"),
+    "Timeout": ('<Timeout msec="200"><Sleep msec="1000"/></Timeout>', 6, "FAILURE"),
+    "Delay": ('<Delay delay_msec="200"><AlwaysSuccess/></Delay>', 6, "SUCCESS"),
+    "RunOnce": ('<RunOnce then_skip="true"><AlwaysFailure/></RunOnce>', 2, "SUCCESS"),
+    "RecoveryNode": (
+        '<RecoveryNode number_of_retries="2"><AlwaysFailure/><AlwaysSuccess/></RecoveryNode>',
+        1,
+        "FAILURE",
+    ),
+    "RoundRobin": ("<RoundRobin><AlwaysFailure/><AlwaysSuccess/></RoundRobin>", 1, "SUCCESS"),
+    "PipelineSequence": (
+        '<PipelineSequence><AlwaysSuccess/><Sleep msec="500"/></PipelineSequence>',
+        2,
+        "RUNNING",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CONTROL_CASES))
+def test_control_nodes_behave_as_behaviortree_cpp(case: str) -> None:
+    body, ticks, expected = CONTROL_CASES[case]
+    sim, ns, _rm = _world()
+    text = f'<root BTCPP_format="4"><BehaviorTree ID="T">{body}</BehaviorTree></root>'
+    tree = load_tree(text, ns, sim.backend(ns), sim.clock, None)
+    for _ in range(ticks):
+        for _ in range(2):  # 0.1 s of simulated time per tick
+            sim.step()
+        tree.root.tick_once()
+    assert tree.root.status.name == expected

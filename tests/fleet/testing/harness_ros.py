@@ -84,7 +84,7 @@ def _serve(argv: list[str]) -> int:
     sim = Simulator(conformance_grid(), SIM_PARAMS, SimClock())
     sim.add_robot(RobotSpec("robot1", "/robot1", SIM_WORLD.start))
     return serve(
-        sim, ready_file=ready, speed=speed, feedback_hz=20.0, odom_hz=20.0, amcl_hz=2.0, profile="lean"
+        sim, ready_file=ready, speed=speed, feedback_hz=20.0, odom_hz=20.0, amcl_hz=2.0, profile="full"
     )
 
 

@@ -43,9 +43,9 @@ def test_summary_lines() -> None:
     assert lines[1] == "patrols: 3 assigned, 2 completed, 7 laps (aisles_1_2: 4, perimeter: 3)"
     assert lines[2].startswith("collisions: 1   deadlocks: 2   reassignments: 1   throughput: 21.0")
     assert lines[3] == "  t=185.1 s perimeter: robot2 charging -> robot1 at 185.1 s"
-    assert lines[4].split() == ["robot", "dist", "m", "laps", "battery", "state"]
-    assert lines[5].split() == ["robot1", "356.7", "4", "58%", "patrol"]
-    assert lines[6].split() == ["robot2", "120.0", "3", "41%", "dead"]
+    assert lines[4].split() == ["robot", "dist", "m", "laps", "battery", "goals", "state"]
+    assert lines[5].split() == ["robot1", "356.7", "4", "58%", "-", "patrol"]  # no goal metrics
+    assert lines[6].split() == ["robot2", "120.0", "3", "41%", "-", "dead"]
 
 
 def test_interrupted_picks_traffic_and_many_events() -> None:
