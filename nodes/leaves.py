@@ -35,6 +35,8 @@ from fleet.navigation import Clock, NavigationBackend
 from fleet.types import (
     COMPUTE_GOAL_KINDS,
     BackUp,
+    ClearCostmaps,
+    Costmap,
     DriveOnHeading,
     ErrorCode,
     FollowWaypoints,
@@ -380,6 +382,30 @@ class DriveOnHeadingAction(GoalAction):
     def make_goal(self) -> Goal | None:
         d = resolve(self._distance)
         return None if d is None else DriveOnHeading(float(d), self.speed_mps, self.time_allowance_s)
+
+
+class ClearCostmapsAction(GoalAction):
+    """Clear the robot's learned obstacles (Nav2's ``ClearEntireCostmap`` services, as the
+    ClearingActions of Nav2's navigator trees do before their recoveries).
+
+    Goal: ``ClearCostmaps(which)`` (``global``, ``local`` or ``both``; the static map stays).
+    SUCCESS once cleared; FAILURE where the backend has no costmaps to clear (SUMO rejects
+    the goal). Statuses and cancel as :class:`GoalAction`.
+    """
+
+    def __init__(
+        self,
+        backend: NavigationBackend,
+        which: Costmap = Costmap.BOTH,
+        *,
+        name: str = "ClearCostmaps",
+        mode: Mode | None = None,
+    ) -> None:
+        super().__init__(name, backend, mode=mode)
+        self._which = which
+
+    def make_goal(self) -> Goal | None:
+        return ClearCostmaps(self._which)
 
 
 class WaitAction(GoalAction):

@@ -21,7 +21,7 @@ from py_trees.common import Status
 
 from fleet.navigation import NavigationBackend
 from fleet.types import Mode
-from nodes.leaves import BackUpAction, SpinAction, WaitAction
+from nodes.leaves import BackUpAction, ClearCostmapsAction, SpinAction, WaitAction
 
 
 class RecoveryNode(py_trees.composites.Composite):
@@ -183,8 +183,9 @@ def recovery_actions(
     round_robin: bool = True,
     name: str = "RecoveryActions",
 ) -> Behaviour:
-    """The default recovery subtree: Wait -> BackUp -> Spin, as in Nav2's default navigate
-    trees (minus the costmap clearing, which the backends do not expose).
+    """The default recovery subtree, as in Nav2's default navigate trees: clear the robot's
+    costmaps (learned obstacles; a backend without costmaps refuses, which is ignored), then
+    Wait -> BackUp -> Spin.
 
     With ``round_robin`` (default) each recovery runs the next action of the cycle (a failing
     action, e.g. a BackUp with something behind the robot, moves on to the next one at once);
@@ -196,6 +197,12 @@ def recovery_actions(
         BackUpAction(backend, backup_m, backup_speed_mps, name="RecoveryBackUp", mode=Mode.RECOVERY),
         SpinAction(backend, spin_rad, name="RecoverySpin", mode=Mode.RECOVERY),
     ]
-    if round_robin:
-        return RoundRobin(name, children)
-    return py_trees.composites.Sequence(name, memory=True, children=children)
+    actions: Behaviour = (
+        RoundRobin(f"{name}Cycle", children)
+        if round_robin
+        else py_trees.composites.Sequence(f"{name}Sequence", memory=True, children=children)
+    )
+    clear = py_trees.decorators.FailureIsSuccess(
+        "ClearingActions", ClearCostmapsAction(backend, name="RecoveryClearCostmaps", mode=Mode.RECOVERY)
+    )
+    return py_trees.composites.Sequence(name, memory=True, children=[clear, actions])

@@ -77,7 +77,7 @@ def test_has_assignment_reads_only_its_robot() -> None:
     assert has1.status == Status.FAILURE
 
 
-def test_recovery_runs_wait_backup_spin_and_retry_succeeds_when_unblocked() -> None:
+def test_recovery_clears_costmaps_runs_wait_backup_spin_and_retry_succeeds_when_unblocked() -> None:
     sim = make_ring_world(NS, Pose2D(1.5, 0.6, 0.0), stuck_time_s=2.0)
     b = sim.backend(NS)
     nav = NavigateToPoseAction(b, Pose2D(7.0, 0.6))
@@ -85,7 +85,9 @@ def test_recovery_runs_wait_backup_spin_and_retry_succeeds_when_unblocked() -> N
     root = RecoveryNode(nav, actions, retries=4)
     obstacle = sim.add_obstacle(*RING_PLUG)
     loop = Loop(sim, root)
-    wait, backup, spin = actions.children
+    clear_guard, cycle = actions.children
+    clear = clear_guard.children[0]  # ClearingActions: the costmaps are cleared first
+    wait, backup, spin = cycle.children
     modes: list[str] = []
     loop.on_tick.append(lambda: modes.append(py_trees.blackboard.Blackboard.get(f"{NS}/mode")))
 
@@ -101,6 +103,8 @@ def test_recovery_runs_wait_backup_spin_and_retry_succeeds_when_unblocked() -> N
             and b.goal_state(leaf.goal_id).status is GoalStatus.SUCCEEDED
         )
     assert nav.goals_sent == 4
+    assert isinstance(clear, GoalAction) and clear.goals_sent == 3  # once per recovery
+    assert clear.goal_id is not None and b.goal_state(clear.goal_id).status is GoalStatus.SUCCEEDED
     assert "recovery" in modes
     assert pose_of(sim, NS).distance_to(Pose2D(7.0, 0.6)) < 0.3
 
