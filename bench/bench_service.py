@@ -82,12 +82,14 @@ def config_for(robots: int, tmp: Path) -> Path:
 class Live:
     """An in-process ``fleet run`` with its API, and a per-step hook on the world."""
 
-    def __init__(self, cfg: Path, robots: int, speed: float, tmp: Path, traffic: bool = True) -> None:
+    def __init__(
+        self, cfg: Path, robots: int, speed: float, tmp: Path, traffic: bool = True, tree: str = "picking"
+    ) -> None:
         config = load_config(cfg, robots=robots if cfg == PATROL else None)
         self.runner = FleetRunner(
             config, duration=None, speed=speed, endpoint=f"tcp/127.0.0.1:{free_port()}",
             display=NullDisplay(), traffic=traffic, state_dir=tmp / "state", api="127.0.0.1:0",
-            tree_kind="picking",
+            tree_kind=tree,
         )  # fmt: skip
         self.thread = threading.Thread(target=self.runner.run, daemon=True)
         self.thread.start()
@@ -143,7 +145,7 @@ def _stopped(live: Live) -> Callable[[], bool]:
 
 
 def _driving(live: Live, n: int) -> Callable[[], bool]:
-    return lambda: sum(s > 1e-3 for s in live.speeds()) >= max(1, n // 4)
+    return lambda: sum(s > 1e-3 for s in live.speeds()) >= max(1, n // 10)
 
 
 def _idle_robot(live: Live) -> tuple[str, int] | None:
@@ -190,7 +192,7 @@ def bench_estop(args: argparse.Namespace, tmp: Path) -> list[dict[str, Any]]:
     out = []
     for n in args.robots:
         cfg = config_for(n, tmp / f"w{n}")
-        live = Live(cfg, n, 0.0, tmp / f"e{n}", traffic=not args.no_traffic)
+        live = Live(cfg, n, 0.0, tmp / f"e{n}", traffic=not args.no_traffic, tree="patrol")
         try:
             lat, steps = [], []
             for _ in range(args.samples):
