@@ -145,7 +145,7 @@ def _stopped(live: Live) -> Callable[[], bool]:
 
 
 def _driving(live: Live, n: int) -> Callable[[], bool]:
-    return lambda: sum(s > 1e-3 for s in live.speeds()) >= max(1, n // 10)
+    return lambda: sum(s > 1e-3 for s in live.speeds()) >= max(1, min(10, n // 10))
 
 
 def _idle_robot(live: Live) -> tuple[str, int] | None:
