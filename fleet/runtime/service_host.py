@@ -42,9 +42,11 @@ DEFAULT_STATE_ROOT = Path("out") / "state"
 
 
 def default_state_dir(config: FleetConfig) -> Path:
-    """``out/state/<fleet>-<UTC time>-<pid>``: a new book per run (resume one with ``--state``)."""
+    """``out/state/<fleet>-<UTC time>-<pid>`` (the root may be moved with ``$FLEET_STATE_ROOT``):
+    a new book per run (resume one with ``--state``)."""
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%d-%H%M%S")
-    return DEFAULT_STATE_ROOT / f"{config.name}-{stamp}-{os.getpid()}"
+    root = Path(os.environ.get("FLEET_STATE_ROOT") or DEFAULT_STATE_ROOT)
+    return root / f"{config.name}-{stamp}-{os.getpid()}"
 
 
 def traffic_view(policy: ReservationTraffic) -> Callable[[], dict[str, Any]]:

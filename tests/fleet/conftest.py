@@ -77,3 +77,10 @@ def spawn() -> Iterator[Callable[..., subprocess.Popen[str]]]:
         for f in (p.stdout, p.stderr, p.stdin):
             if f is not None:
                 f.close()
+
+
+@pytest.fixture(autouse=True)
+def _state_root(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Runs without ``--state`` keep their task book under a temporary directory, not the
+    repository's ``out/state`` (subprocesses inherit it)."""
+    monkeypatch.setenv("FLEET_STATE_ROOT", str(tmp_path_factory.getbasetemp() / "fleet-state"))
