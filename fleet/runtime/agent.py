@@ -124,6 +124,8 @@ class RobotAgent:
         self.seq = 0
         self.ticks = 0
         self.charges = 0
+        #: The lowest battery fraction this robot reported since the agent started.
+        self.min_battery = 1.0
         self.last_status: StatusRecord | None = None
         self._seen: dict[str, None] = {}
         self._inbox: list[TaskMessage] = []
@@ -210,6 +212,7 @@ class RobotAgent:
             self.charges += 1
         self._last_mode = mode
         rec = self.status()
+        self.min_battery = min(self.min_battery, float(rec.battery))
         self.last_status = rec
         self._publish(rec)
         if self.on_status is not None:

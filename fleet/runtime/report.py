@@ -18,6 +18,7 @@ JSON fields (``RunReport.to_dict``), units in the names:
   ``from_robot``, ``reason``, ``old_task_id``, ``to_robot``, ``new_task_id``,
   ``t_reassigned``); ``assignments``: every assignment (``task_id``, ``route``, ``robot``,
   ``t_assigned``, ``laps``, ``t_first_lap``, ``ended``, ``end_reason``);
+* ``min_battery``: the lowest battery fraction any robot reported during the run;
 * ``throughput_laps_per_robot_hour``: ``laps_completed`` per robot per simulated hour;
   ``mean_wait_s`` (traffic management only): mean over robots of the time they waited for
   right of way; ``traffic`` (traffic management only, else ``null``): ``robots_managed``,
@@ -26,7 +27,7 @@ JSON fields (``RunReport.to_dict``), units in the names:
   found and broke), ``reroutes``, ``sidesteps``, ``nudges``, ``stalls`` (robots treated as
   stopped after no progress);
 * ``per_robot``: one entry per robot: ``name``, ``namespace``, ``distance_m``, ``laps``,
-  ``battery_final``, ``final_state`` (the tree's mode at the end, or ``dead`` / ``unknown``),
+  ``battery_final``, ``battery_min`` (the lowest it reported), ``final_state`` (the tree's mode at the end, or ``dead`` / ``unknown``),
   ``leaf``, ``task_id``, ``collisions``, ``charges`` (times it went to charge).
 
 Trajectories (for :mod:`fleet.viz.plot`) are kept on the object but not written to JSON:
@@ -84,6 +85,7 @@ class RobotReport:
     task_id: str | None = None
     collisions: int = 0
     charges: int = 0
+    battery_min: float = 1.0
 
 
 @dataclass
@@ -113,6 +115,7 @@ class RunReport:
     traffic: dict[str, Any] | None = None
     picks_assigned: int = 0
     picks_completed: int = 0
+    min_battery: float = 1.0
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -127,6 +130,8 @@ class RunReport:
         for r in d["per_robot"]:
             r["distance_m"] = round(r["distance_m"], 2)
             r["battery_final"] = round(r["battery_final"], 4)
+            r["battery_min"] = round(r["battery_min"], 4)
+        d["min_battery"] = round(self.min_battery, 4)
         return d
 
     def write_json(self, path: str | Path) -> Path:
@@ -172,15 +177,17 @@ class ReportBuilder:
         state: CoordinatorState | None = None,
         traffic: ReservationTraffic | None = None,
         charges: Mapping[str, int] | None = None,
+        min_battery: Mapping[str, float] | None = None,
         bus_trajectory: Callable[[str], list[tuple[float, float, float]]] = lambda name: [],
         malformed: int = 0,
     ) -> RunReport:
         """The report: ``records`` are the latest status per robot; ``state`` the coordinator's
         (``None`` without a coordinator: laps come from the records); ``traffic`` the traffic
         policy when traffic management was on; ``charges`` times each local robot went to
-        charge; ``malformed`` bus payloads dropped."""
+        charge; ``min_battery`` the lowest battery each local robot reported (robots of other
+        processes: their last one); ``malformed`` bus payloads dropped."""
         names = [r.name for r in self.config.robots if r.name in records or r.name in self.local]
-        rows = [self._row(n, records.get(n), state, charges or {}) for n in names]
+        rows = [self._row(n, records.get(n), state, charges or {}, min_battery or {}) for n in names]
         trajectories = {n: self._trajectory(world, n, bus_trajectory) for n in names}
         collisions = world.collisions()
         if collisions is None:  # a blind world: every robot reports its own contacts
@@ -218,6 +225,7 @@ class ReportBuilder:
             traffic=traffic_dict(traffic, now) if traffic is not None else None,
             picks_assigned=len(state.pick_assignments) if state is not None else 0,
             picks_completed=state.picks_completed() if state is not None else 0,
+            min_battery=min((r.battery_min for r in rows), default=1.0),
         )
 
     def _row(
@@ -226,6 +234,7 @@ class ReportBuilder:
         rec: StatusRecord | None,
         state: CoordinatorState | None,
         charges: Mapping[str, int],
+        min_battery: Mapping[str, float],
     ) -> RobotReport:
         spec = self.config.robot(name)
         dead = state is not None and name in state.robots and not state.robots[name].alive
@@ -239,6 +248,7 @@ class ReportBuilder:
             distance_m=float(rec.distance_m) if rec is not None else 0.0,
             laps=laps,
             battery_final=float(rec.battery) if rec is not None else float(spec.battery),
+            battery_min=min_battery.get(name, float(rec.battery) if rec is not None else float(spec.battery)),
             final_state="dead" if dead else (str(rec.mode) if rec is not None else "unknown"),
             leaf=str(rec.leaf) if rec is not None else "",
             task_id=rec.task_id if rec is not None else None,

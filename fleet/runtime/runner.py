@@ -97,7 +97,8 @@ class FleetRunner:
         listen: listen on the endpoint (router) instead of connecting; default: listen for
             in-process worlds, connect for remote ones.
         traffic: reservation-based traffic management (``docs/traffic.md``); default: the
-            config's ``traffic.enabled``.
+            config's ``traffic.enabled`` (on unless the config turns it off; a non-patrol tree
+            then runs without it).
         display: what shows the running fleet (default: :func:`fleet.viz.display.default_display`
             on ``out``; :class:`fleet.viz.display.NullDisplay` shows nothing).
 
@@ -134,6 +135,9 @@ class FleetRunner:
         self.tree_kind = tree_kind
         self.listen = listen
         self.traffic = config.traffic.enabled if traffic is None else bool(traffic)
+        if self.traffic and tree_kind != TreeKind.PATROL and traffic is None:
+            logger.warning("traffic management drives patrol trees only: off for the %s tree", tree_kind)
+            self.traffic = False
         if self.traffic and tree_kind != TreeKind.PATROL:
             raise ConfigError(
                 str(config.path), "traffic", f"traffic management drives patrol trees only, not {tree_kind!r}"
@@ -326,6 +330,7 @@ class FleetRunner:
             state=self.coordinator.state if self.coordinator is not None else None,
             traffic=self.traffic_policy,
             charges={a.name: a.charges for a in self.agents},
+            min_battery={a.name: a.min_battery for a in self.agents},
             bus_trajectory=self.bus_view.trajectory,
             malformed=self.bus.malformed if self.bus is not None else 0,
         )

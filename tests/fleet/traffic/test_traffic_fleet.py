@@ -52,6 +52,20 @@ def run_cli(tmp_path: Path, cfg: Path, *args: str) -> dict[str, Any]:
     return dict(json.loads(report.read_text()))
 
 
+def test_traffic_management_is_on_by_default_and_no_traffic_turns_it_off(tmp_path: Path) -> None:
+    """Without a flag ``fleet run`` on a shipped config manages traffic (the report has the
+    traffic block and the wait figures); ``--no-traffic`` runs without it."""
+    reports = {}
+    for flag in ("", "--no-traffic"):
+        report = tmp_path / f"r{flag}.json"
+        args = ["run", str(PATROL), "--speed", "0", "--no-live", "--duration", "30"]
+        args += ["--endpoint", free_endpoint(), "--report", str(report)] + ([flag] if flag else [])
+        assert main(args) == 0
+        reports[flag] = json.loads(report.read_text())
+    assert reports[""]["traffic"] is not None and reports[""]["mean_wait_s"] is not None
+    assert reports["--no-traffic"].get("traffic") is None
+
+
 # ----------------------------------------------------------------------------- docks
 
 
