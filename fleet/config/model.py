@@ -70,13 +70,15 @@ class TrafficSettings:
     ``park_idle_s``: an idle robot standing off its parking spot this long is sent to park;
     ``horizon_m``: how much path ahead a robot is granted; ``stall_timeout_s``: a robot with
     a grant ahead that makes no progress this long is treated as stopped (its reservations
-    ahead are released)."""
+    ahead are released); ``dead_release_s``: a robot whose agent or bus link died keeps its
+    whole grant this long, then only the node it stands on."""
 
     enabled: bool = True
     deadlock_s: float = 30.0
     park_idle_s: float = 5.0
     horizon_m: float = 6.0
     stall_timeout_s: float = 20.0
+    dead_release_s: float = 10.0
 
 
 @dataclass

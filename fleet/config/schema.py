@@ -204,6 +204,10 @@ class TrafficSection(Section):
     stall_timeout_s: Positive = Field(
         default=_TRAFFIC.stall_timeout_s, description="no progress with a grant ahead = stopped robot (s)"
     )
+    dead_release_s: NonNegative = Field(
+        default=_TRAFFIC.dead_release_s,
+        description="a robot whose agent died keeps its grant this long, then only its node (s)",
+    )
 
     def to_settings(self) -> TrafficSettings:
         return TrafficSettings(**self.model_dump())

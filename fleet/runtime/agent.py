@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Protocol
 
 from fleet.messages import Grant, StatusRecord, TaskMessage
@@ -94,6 +94,7 @@ class RobotAgent:
         on_status: Callable[[StatusRecord], None] | None = None,
         traffic: bool = False,
         status_hz: float | None = None,
+        chargers: Sequence[Pose2D] = (),
     ) -> None:
         from fleet.robots import BatteryModel
         from nodes import build_tree
@@ -118,6 +119,9 @@ class RobotAgent:
         clear_robot_blackboard(self.namespace)
         self.bb = robot_blackboard(self.namespace, name=f"agent{self.namespace}")
         self.traffic = traffic
+        #: The config's chargers: until the coordinator names one, the battery guard uses
+        #: the one nearest the robot (so a robot never given work still charges).
+        self.chargers = tuple(chargers)
         self.root = build_tree(
             tree_kind, self.namespace, backend, clock, battery_model or BatteryModel(), traffic=traffic
         )
@@ -126,6 +130,8 @@ class RobotAgent:
         self.charges = 0
         #: The lowest battery fraction this robot reported since the agent started.
         self.min_battery = 1.0
+        #: Ticks spent in each tree mode (``Mode`` values) since the agent started.
+        self.mode_ticks: dict[str, int] = {}
         self.last_status: StatusRecord | None = None
         self._seen: dict[str, None] = {}
         self._inbox: list[TaskMessage] = []
@@ -201,16 +207,27 @@ class RobotAgent:
 
     # -- ticking -----------------------------------------------------------------------
 
+    def _default_charger(self) -> None:
+        """Set the blackboard ``charger`` to the config charger nearest the robot."""
+        pose = self.backend.robot_state().pose
+        if pose is not None:
+            self.bb.charger = min(
+                self.chargers, key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y)
+            )
+
     def tick(self) -> StatusRecord:
         """Apply queued orders, tick the tree once, publish (see ``status_hz``) and return
         the status record."""
         self._apply_orders()
+        if self.bb.charger is None and self.chargers:
+            self._default_charger()
         self.root.tick_once()
         self.ticks += 1
         mode = str(self.bb.mode)
         if mode == Mode.CHARGING and self._last_mode != Mode.CHARGING:
             self.charges += 1
         self._last_mode = mode
+        self.mode_ticks[mode] = self.mode_ticks.get(mode, 0) + 1
         rec = self.status()
         self.min_battery = min(self.min_battery, float(rec.battery))
         self.last_status = rec

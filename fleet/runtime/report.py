@@ -19,10 +19,12 @@ JSON fields (``RunReport.to_dict``), units in the names:
   ``t_reassigned``); ``assignments``: every assignment (``task_id``, ``route``, ``robot``,
   ``t_assigned``, ``laps``, ``t_first_lap``, ``ended``, ``end_reason``);
 * ``min_battery``: the lowest battery fraction any robot reported during the run;
+  ``idle_fraction``: share of the local robots' agent ticks spent idle (no work, not charging);
+  ``p95_wait_s`` (traffic management only): 95th percentile over robots of their total wait;
 * ``throughput_laps_per_robot_hour``: ``laps_completed`` per robot per simulated hour;
   ``mean_wait_s`` (traffic management only): mean over robots of the time they waited for
   right of way; ``traffic`` (traffic management only, else ``null``): ``robots_managed``,
-  ``deadlock_s``, ``deadlock_events`` (``t``, ``robots``), ``mean_wait_s``, ``max_wait_s``,
+  ``deadlock_s``, ``deadlock_events`` (``t``, ``robots``), ``mean_wait_s``, ``p95_wait_s``, ``max_wait_s``,
   ``wait_events``, ``cycles_detected`` / ``cycles_resolved`` (wait-for cycles the manager
   found and broke), ``reroutes``, ``sidesteps``, ``nudges``, ``stalls`` (robots treated as
   stopped after no progress);
@@ -43,6 +45,7 @@ world, the coordinator's state, the traffic policy, the latest status of each ro
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -116,6 +119,8 @@ class RunReport:
     picks_assigned: int = 0
     picks_completed: int = 0
     min_battery: float = 1.0
+    p95_wait_s: float | None = None
+    idle_fraction: float = 0.0
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -132,6 +137,9 @@ class RunReport:
             r["battery_final"] = round(r["battery_final"], 4)
             r["battery_min"] = round(r["battery_min"], 4)
         d["min_battery"] = round(self.min_battery, 4)
+        d["idle_fraction"] = round(self.idle_fraction, 4)
+        if self.p95_wait_s is not None:
+            d["p95_wait_s"] = round(self.p95_wait_s, 3)
         return d
 
     def write_json(self, path: str | Path) -> Path:
@@ -178,6 +186,7 @@ class ReportBuilder:
         traffic: ReservationTraffic | None = None,
         charges: Mapping[str, int] | None = None,
         min_battery: Mapping[str, float] | None = None,
+        mode_ticks: Mapping[str, int] | None = None,
         bus_trajectory: Callable[[str], list[tuple[float, float, float]]] = lambda name: [],
         malformed: int = 0,
     ) -> RunReport:
@@ -185,7 +194,8 @@ class ReportBuilder:
         (``None`` without a coordinator: laps come from the records); ``traffic`` the traffic
         policy when traffic management was on; ``charges`` times each local robot went to
         charge; ``min_battery`` the lowest battery each local robot reported (robots of other
-        processes: their last one); ``malformed`` bus payloads dropped."""
+        processes: their last one); ``mode_ticks`` agent ticks per tree mode over the local robots;
+        ``malformed`` bus payloads dropped."""
         names = [r.name for r in self.config.robots if r.name in records or r.name in self.local]
         rows = [self._row(n, records.get(n), state, charges or {}, min_battery or {}) for n in names]
         trajectories = {n: self._trajectory(world, n, bus_trajectory) for n in names}
@@ -195,6 +205,7 @@ class ReportBuilder:
         now = world.clock.now()
         laps = state.laps_completed() if state is not None else sum(r.laps for r in rows)
         robot_hours = len(rows) * max(0.0, now - self.t0) / 3600.0
+        tblock = traffic_dict(traffic, now) if traffic is not None else None
         deadlocks = (
             traffic.deadlocks if traffic is not None else (state.deadlocks if state is not None else 0)
         )
@@ -222,10 +233,12 @@ class ReportBuilder:
             trajectories=trajectories,
             throughput_laps_per_robot_hour=laps / robot_hours if robot_hours > 0 else 0.0,
             mean_wait_s=traffic.mean_wait_s(now) if traffic is not None else None,
-            traffic=traffic_dict(traffic, now) if traffic is not None else None,
+            traffic=tblock,
             picks_assigned=len(state.pick_assignments) if state is not None else 0,
             picks_completed=state.picks_completed() if state is not None else 0,
             min_battery=min((r.battery_min for r in rows), default=1.0),
+            p95_wait_s=float(tblock["p95_wait_s"]) if tblock is not None else None,
+            idle_fraction=_idle_fraction(mode_ticks or {}),
         )
 
     def _row(
@@ -273,6 +286,7 @@ def traffic_dict(tp: ReservationTraffic, now: float) -> dict[str, Any]:
         "deadlock_s": tp.deadlock_s,
         "deadlock_events": [{"t": round(t, 3), "robots": list(rs)} for t, rs in tp.deadlock_events],
         "mean_wait_s": round(tp.mean_wait_s(now), 3),
+        "p95_wait_s": round(p95(waits), 3),
         "max_wait_s": round(max(waits, default=0.0), 3),
         "wait_events": met.wait_events,
         "cycles_detected": met.deadlocks_detected,
@@ -282,6 +296,20 @@ def traffic_dict(tp: ReservationTraffic, now: float) -> dict[str, Any]:
         "nudges": met.nudges,
         "stalls": met.deaths,
     }
+
+
+def _idle_fraction(mode_ticks: Mapping[str, int]) -> float:
+    """Share of agent ticks spent in mode ``idle`` (0 when nothing ticked)."""
+    total = sum(mode_ticks.values())
+    return mode_ticks.get("idle", 0) / total if total else 0.0
+
+
+def p95(values: Sequence[float]) -> float:
+    """The 95th percentile of ``values`` (nearest rank; 0 for none)."""
+    if not values:
+        return 0.0
+    s = sorted(values)
+    return float(s[min(len(s) - 1, max(0, math.ceil(0.95 * len(s)) - 1))])
 
 
 def reassignment_dict(r: Reassignment) -> dict[str, Any]:

@@ -29,7 +29,7 @@ import logging
 import math
 import sys
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import TYPE_CHECKING, TextIO
 
 from fleet.clock import Pacer, WallClock
@@ -255,6 +255,7 @@ class FleetRunner:
             on_status=self.coordinator.feed_local if self.coordinator is not None else None,
             traffic=self.traffic,
             status_hz=self.config.status_hz,
+            chargers=[c.pose for c in self.config.chargers],
         )
 
     def _loop(self, world: World) -> None:
@@ -331,6 +332,7 @@ class FleetRunner:
             traffic=self.traffic_policy,
             charges={a.name: a.charges for a in self.agents},
             min_battery={a.name: a.min_battery for a in self.agents},
+            mode_ticks=_sum_counts(a.mode_ticks for a in self.agents),
             bus_trajectory=self.bus_view.trajectory,
             malformed=self.bus.malformed if self.bus is not None else 0,
         )
@@ -350,6 +352,15 @@ class FleetRunner:
             session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves Session.close unannotated
         except Exception as e:  # noqa: BLE001 - already closed by the bus
             logger.debug("closing the session: %s", e)
+
+
+def _sum_counts(counts: Iterable[Mapping[str, int]]) -> dict[str, int]:
+    """Key-wise sum of count mappings."""
+    out: dict[str, int] = {}
+    for c in counts:
+        for k, v in c.items():
+            out[k] = out.get(k, 0) + v
+    return out
 
 
 def _try(close: Callable[[], None], what: str) -> None:
