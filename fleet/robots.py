@@ -40,9 +40,9 @@ class BatteryModel:
     low: float = 0.1
     resume: float = 0.95
     initial: float = 1.0
-    reserve: float = 0.05
+    reserve: float = 0.08
     margin: float = 0.5
-    wait_s: float = 120.0
+    wait_s: float = 240.0
     detour: float = 1.2
     cruise_mps: float = 0.6
 

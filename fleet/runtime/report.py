@@ -21,6 +21,7 @@ JSON fields (``RunReport.to_dict``), units in the names:
 * ``min_battery``: the lowest battery fraction any robot reported during the run;
   ``idle_fraction``: share of the local robots' agent ticks spent idle (no work, not charging);
   ``p95_wait_s`` (traffic management only): 95th percentile over robots of their total wait;
+  ``teleports`` (SUMO only, else ``null``): vehicles SUMO moved on after waiting too long;
 * ``throughput_laps_per_robot_hour``: ``laps_completed`` per robot per simulated hour;
   ``mean_wait_s`` (traffic management only): mean over robots of the time they waited for
   right of way; ``traffic`` (traffic management only, else ``null``): ``robots_managed``,
@@ -121,6 +122,7 @@ class RunReport:
     min_battery: float = 1.0
     p95_wait_s: float | None = None
     idle_fraction: float = 0.0
+    teleports: int | None = None
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -239,6 +241,7 @@ class ReportBuilder:
             min_battery=min((r.battery_min for r in rows), default=1.0),
             p95_wait_s=float(tblock["p95_wait_s"]) if tblock is not None else None,
             idle_fraction=_idle_fraction(mode_ticks or {}),
+            teleports=_teleports(world),
         )
 
     def _row(
@@ -296,6 +299,13 @@ def traffic_dict(tp: ReservationTraffic, now: float) -> dict[str, Any]:
         "nudges": met.nudges,
         "stalls": met.deaths,
     }
+
+
+def _teleports(world: World) -> int | None:
+    """SUMO's teleports (vehicles it moved on after waiting too long: its deadlocks); ``None``
+    for worlds that do not teleport."""
+    n = getattr(world, "teleports", None)
+    return int(n) if isinstance(n, int) else None
 
 
 def _idle_fraction(mode_ticks: Mapping[str, int]) -> float:
