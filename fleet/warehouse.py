@@ -35,14 +35,13 @@ through another charger or through a lane other robots patrol). Parking spots co
 of rows facing a parking lane (``<col>_p<k>``) that connectors (``w_p*``, ``e_p*`` and one
 under every fourth aisle) join to the south corridor, so every spot can be reached without
 passing another spot. Robots start with batteries spread over [0.6, 1.0]
-(:func:`start_battery`). Patrol routes loop up one aisle and down the next
-(``aisles_<i>_<i+1>``; with an odd aisle count the last aisle loops with the east corridor,
-``aisle_<K>_east``), plus one ``perimeter`` loop: every loop runs clockwise, so loops that
-share a corridor drive it the same way.
+(:func:`start_battery`). Patrol routes loop up one aisle and down the next (``aisles_<i>_<i+1>``;
+with an odd aisle count the last aisle loops with the east corridor, ``aisle_<K>_east``),
+plus one ``perimeter`` loop: every loop runs clockwise (shared corridors are driven one way).
 
-The default (``n_robots <= 49``) warehouse is 30 m x 20 m with 7 aisles and two parking rows
-of 25 spots. Larger fleets get more aisles, longer shelves and more parking rows. Given the
-same arguments the output is byte-for-byte the same.
+The default (``n_robots <= 49``) warehouse is 30 m x 20 m with 7 aisles and two parking rows of
+25 spots. Larger fleets get more aisles, longer shelves and more parking rows. Given the same
+arguments the output is byte-for-byte the same.
 
 Command line: ``python -m fleet.warehouse --robots N --out DIR`` (``--help`` for options;
 ``--shipped`` regenerates the configs shipped in ``configs/``).
@@ -351,10 +350,8 @@ def chargers_of(lay: Layout, n_robots: int, chargers: int | None) -> list[Entry]
 
 
 def _spread(items: list[tuple[float, float, float]], n: int) -> list[tuple[float, float, float]]:
-    """``n`` of ``items`` evenly spread over the list (in list order)."""
-    if n <= 0:
-        return []
-    return [items[(2 * j + 1) * len(items) // (2 * n)] for j in range(n)]
+    """``n`` of ``items`` evenly spread over the list (in list order; none for ``n <= 0``)."""
+    return [items[(2 * j + 1) * len(items) // (2 * n)] for j in range(max(0, n))]
 
 
 def stations_of(lay: Layout) -> tuple[list[Entry], list[str]]:
