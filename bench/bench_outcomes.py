@@ -29,11 +29,17 @@ MATRIX: dict[str, tuple[list[str], bool]] = {
     "demo6-traffic": (["run", "configs/warehouse_patrol.yaml", "--duration", "300", "--traffic"], False),
     "demo30": (["run", "configs/warehouse_patrol_30.yaml", "--duration", "300", "--no-traffic"], False),
     "demo30-traffic": (["run", "configs/warehouse_patrol_30.yaml", "--duration", "300", "--traffic"], False),
-    "picking": (["run", "configs/warehouse_picking.yaml", "--tree", "picking", "--duration", "300"], False),
-    "lt100": (["loadtest", "--robots", "100", "--duration", "120"], False),
+    "picking": (
+        ["run", "configs/warehouse_picking.yaml", "--tree", "picking", "--duration", "300", "--no-traffic"],
+        False,
+    ),
+    "lt100": (["loadtest", "--robots", "100", "--duration", "120", "--no-traffic"], False),
     "lt100-traffic": (["loadtest", "--robots", "100", "--duration", "120", "--traffic"], False),
     "lt1000-traffic": (["loadtest", "--robots", "1000", "--duration", "60", "--traffic"], False),
-    "sumo6": (["run", "configs/warehouse_patrol.yaml", "--backend", "sumo", "--duration", "120"], True),
+    "sumo6": (
+        ["run", "configs/warehouse_patrol.yaml", "--backend", "sumo", "--duration", "120", "--no-traffic"],
+        True,
+    ),
 }
 
 FIELDS = (

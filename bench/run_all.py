@@ -39,6 +39,7 @@ SMALL_ARGS: dict[str, list[str]] = {
     "sim_vs_sumo.py": ["--robots", "200", "--steps", "200"],
     "bench_ros_scale.py": ["--robots", "20"],
     "bench_demo.py": ["--duration", "300"],
+    "bench_fleet_table.py": ["--sizes", "6", "--duration", "120", "--no-sumo"],
 }
 #: Never run as benchmarks.
 SKIP = {"run_all.py", "__init__.py"}

@@ -25,15 +25,33 @@ class RobotModel:
 
 @dataclass(frozen=True)
 class BatteryModel:
-    """Battery drain and charge. The battery guard sends a robot to charge below ``low`` and
-    the charge leaf releases it at ``resume``."""
+    """Battery drain and charge. The battery guard sends a robot to charge when its battery
+    falls below :meth:`charge_threshold` of its distance to the charger (never below
+    ``low``) and the charge leaf releases it at ``resume``.
+
+    The threshold is the energy the trip needs (``drain_per_m`` per meter of
+    ``detour`` times the map distance, ``drain_per_s`` over the drive at ``cruise_mps`` and
+    ``wait_s`` of waiting for a charger) times ``1 + margin``, plus ``reserve``: a robot far
+    from a charger leaves early, one beside it works on."""
 
     drain_per_m: float = 0.004
     drain_per_s: float = 0.0005
     charge_per_s: float = 0.02
-    low: float = 0.25
+    low: float = 0.1
     resume: float = 0.95
     initial: float = 1.0
+    reserve: float = 0.08
+    margin: float = 0.5
+    wait_s: float = 240.0
+    detour: float = 1.2
+    cruise_mps: float = 0.6
+
+    def charge_threshold(self, distance_m: float) -> float:
+        """The battery fraction below which a robot ``distance_m`` meters (straight or
+        Manhattan distance in the map frame) from its charger must go and charge."""
+        d = max(0.0, distance_m) * self.detour
+        need = self.drain_per_m * d + self.drain_per_s * (d / self.cruise_mps + self.wait_s)
+        return max(self.low, self.reserve + (1.0 + self.margin) * need)
 
     def integrate(
         self, level: npt.ArrayLike, distance_m: npt.ArrayLike, dt: float, charging: npt.ArrayLike

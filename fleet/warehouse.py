@@ -4,15 +4,21 @@ Layout (map frame, meters; ``x`` east, ``y`` north; 0.1 m cells; 0.2 m walls all
 
     north wall
     ─────────────────────────────────────────────────────────────
+          c c       c c       c c       c c      north chargers (when the south side is full)
      w_n ── a1_n ── a2_n ── ... ── aK_n ── e_n      north corridor
       │  ██  │  ██  │  ██      ██   │  ██  │
-  C   w_2   a1_2   a2_2   ...      aK_2   e_2   D   C = chargers (west wall)
-  C   │  ██  │  ██  │  ██      ██   │  ██  │   D   D = drop-off (east wall)
-      w_1   a1_1   a2_1   ...      aK_1   e_1       ██ = shelf rows (1 m deep)
-      │  ██  │  ██  │  ██      ██   │  ██  │        aisles 2 m wide between shelves
-     w_s ── a1_s ── a2_s ── ... ── aK_s ── e_s      south corridor
-     P P P P P P P P P P P P P P P P P P P P P P   parking rows (1 m apart in x,
-     P P P P P P P P P P P P P P P P P P P P P P    2 m apart in y)
+      w_2   a1_2   a2_2   ...      aK_2   e_2   D   D = drop-off (east wall)
+      │  ██  │  ██  │  ██      ██   │  ██  │   D   ██ = shelf rows (1 m deep)
+      w_1   a1_1   a2_1   ...      aK_1   e_1       aisles 2 m wide between shelves
+      │  ██  │  ██  │  ██      ██   │  ██  │
+     w_s ── a1_s ── a2_s ── a3_s ─ a4_s ── e_s      south corridor
+      │   C C   C C   C C   C C │   C C   C C │    C = chargers, 1 m off the corridor
+      │ P P P P P P P P P P P P │ P P P P P P │    parking row (facing the lane)
+     w_p1 ─────────────────── a4_p1 ──────── e_p1   parking lane
+      │ P P P P P P P P P P P P │ P P P P P P │    parking row
+      │ P P P P P P P P P P P P │ P P P P P P │    (next pair of rows, back to back)
+     w_p2 ─────────────────── a4_p2 ──────── e_p2   parking lane
+      │ P P P P P P P P P P P P │ P P P P P P │
     ─────────────────────────────────────────────────────────────
     south wall
 
@@ -21,14 +27,21 @@ center lines, ``a<i>_<j>`` in between, one per shelf bay of about 5 m) and on th
 corridors (``w_*``, ``e_*``). Every edge keeps at least 1 m from shelves and walls, so robots of
 radius 0.3 m can use it and two of them can pass in an aisle. Stations are pick poses in the
 aisles (``pick_a<i>_<j>_e`` / ``_w``, 0.4 m off the center line, facing the shelf) and
-drop-off poses (``drop<k>``) at the east wall; chargers face the west wall. Robots start
-with batteries spread over [0.6, 1.0] (:func:`start_battery`). Patrol routes
-loop up one aisle and down the next (``aisles_<i>_<i+1>``; with an odd aisle count the last
-aisle loops with the east corridor, ``aisle_<K>_east``), plus one ``perimeter`` loop.
+drop-off poses (``drop<k>``) at the east wall.
 
-The default (``n_robots <= 49``) warehouse is 30 m x 20 m with 7 aisles and two parking rows
-of 29 spots. Larger fleets get more aisles, longer shelves and more parking rows. Given the
-same arguments the output is byte-for-byte the same.
+Chargers stand 1 m off the south corridor (and, when more are needed, the north one), two
+in every gap between aisle ends, each with its own way in and out (no charger is reached
+through another charger or through a lane other robots patrol). Parking spots come in pairs
+of rows facing a parking lane (``<col>_p<k>``) that connectors (``w_p*``, ``e_p*`` and one
+under every fourth aisle) join to the south corridor, so every spot can be reached without
+passing another spot. Robots start with batteries spread over [0.6, 1.0]
+(:func:`start_battery`). Patrol routes loop up one aisle and down the next (``aisles_<i>_<i+1>``;
+with an odd aisle count the last aisle loops with the east corridor, ``aisle_<K>_east``),
+plus one ``perimeter`` loop: every loop runs clockwise (shared corridors are driven one way).
+
+The default (``n_robots <= 49``) warehouse is 30 m x 20 m with 7 aisles and two parking rows of
+25 spots. Larger fleets get more aisles, longer shelves and more parking rows. Given the same
+arguments the output is byte-for-byte the same.
 
 Command line: ``python -m fleet.warehouse --robots N --out DIR`` (``--help`` for options;
 ``--shipped`` regenerates the configs shipped in ``configs/``).
@@ -53,9 +66,12 @@ SHELF_DEPTH = 1.0  # m, a shelf row seen from above (double-sided rack)
 AISLE_WIDTH = 2.0  # m, free width between two shelf rows
 CORRIDOR_HALF = 1.5  # m from a corridor center line to the nearest shelf
 PARK_DX = 1.0  # m between parking spots in a row
-PARK_DY = 2.0  # m between parking rows (leaves a 1.4 m lane between rows)
+PARK_LANE = 1.0  # m from a parking lane to the spots on either side of it
+PAIR_DY = 3.0  # m from one pair of parking rows (and their lane) to the next
 PARK_MARGIN = 0.8  # m from a parking spot to the west / east / south inner wall face
-CHARGER_DY = 1.5  # m between chargers along the west wall
+CHARGER_OFFSET = 1.0  # m from a corridor center line to the chargers beside it
+CHARGERS_PER_ROBOT = 1.0 / 3.0  # default charger count per robot
+CONNECTOR_EVERY = 4  # a parking connector under every this many aisles
 BAY = 5.0  # m, roadmap node spacing target along aisles
 PICK_OFFSET = 0.4  # m, pick poses sit this far off the aisle center line toward the shelf
 DEFAULT_ROBOT_RADIUS = 0.3  # m
@@ -78,22 +94,69 @@ class Layout:
     y_north: float  # north corridor center line
 
     @property
+    def pairs(self) -> int:
+        """Pairs of parking rows (each pair faces one parking lane)."""
+        return (self.parking_rows + 1) // 2
+
+    def connectors(self) -> list[tuple[str, float]]:
+        """``(column name, x)`` of the connectors from the south corridor down to the parking
+        lanes: the west and east corridors and every :data:`CONNECTOR_EVERY`-th aisle."""
+        mids = [(f"a{i}", self.aisle_x(i)) for i in range(CONNECTOR_EVERY, self.aisles, CONNECTOR_EVERY)]
+        return [("w", self.x_west), *mids, ("e", self.x_east)]
+
+    def spot_xs(self) -> list[float]:
+        """``x`` of the parking spots of a row: every :data:`PARK_DX` m from the west margin,
+        except where a connector passes (closer than 1 m)."""
+        x0 = WALL + PARK_MARGIN
+        n = int(math.floor((self.width - 2 * x0) / PARK_DX + 1e-9)) + 1
+        xs = [x0 + s * PARK_DX for s in range(n)]
+        cx = [x for _, x in self.connectors()]
+        return [x for x in xs if all(abs(x - c) >= 1.0 - 1e-9 for c in cx)]
+
+    @property
     def spots_per_row(self) -> int:
         """Parking spots in one row."""
-        return int(math.floor((self.width - 2 * (WALL + PARK_MARGIN)) / PARK_DX + 1e-9)) + 1
+        return len(self.spot_xs())
 
     @property
     def parking_capacity(self) -> int:
         return self.spots_per_row * self.parking_rows
+
+    def lane_y(self, k: int) -> float:
+        """``y`` of parking lane ``k`` (0 = nearest the south corridor)."""
+        front_row = self.y_south - CHARGER_OFFSET - PARK_DX
+        return front_row - PARK_LANE - PAIR_DY * k
+
+    def row_ys(self) -> list[float]:
+        """``y`` of the parking rows, nearest the south corridor first: the rows of pair
+        ``k`` lie :data:`PARK_LANE` north and south of lane ``k``."""
+        out: list[float] = []
+        for k in range(self.pairs):
+            out.append(self.lane_y(k) + PARK_LANE)
+            if len(out) < self.parking_rows:
+                out.append(self.lane_y(k) - PARK_LANE)
+        return out
 
     @property
     def bays(self) -> int:
         """Roadmap nodes strictly inside each aisle."""
         return max(1, round(self.shelf_len / BAY))
 
+    def charger_sites(self) -> list[tuple[float, float, float]]:
+        """Where chargers may stand, ``(x, y, theta)``: 1 m and 2 m east of each corridor
+        node along the south corridor (1 m south of it), then the same along the north
+        corridor; every site is at least 1 m from corridor nodes, connectors and the spots."""
+        cols = [self.x_west] + [self.aisle_x(i) for i in range(1, self.aisles + 1)] + [self.x_east]
+        xs = []
+        for xa, xb in zip(cols, cols[1:], strict=False):
+            xs += [x for x in (xa + 1.0, xa + 2.0) if xb - x >= 1.0 - 1e-9]
+        south = [(x, self.y_south - CHARGER_OFFSET, -math.pi / 2) for x in xs]
+        north = [(x, self.y_north + CHARGER_OFFSET, math.pi / 2) for x in xs]
+        return south + north
+
     @property
     def charger_capacity(self) -> int:
-        return int(math.floor((self.shelf_len - 1.0) / CHARGER_DY + 1e-9)) + 1
+        return len(self.charger_sites())
 
     def aisle_x(self, i: int) -> float:
         """Center line of aisle ``i`` (1-based)."""
@@ -146,8 +209,9 @@ def plan_layout(
         rows = max(2, math.ceil(n_robots / probe.spots_per_row))
     if rows < 1:
         raise ConfigError(src, "parking_rows", f"must be at least 1, got {rows}")
-    y_last_row = WALL + PARK_MARGIN + (rows - 1) * PARK_DY
-    y_south = y_last_row + PARK_DY
+    # the deepest lane's south row (present or not) keeps PARK_MARGIN from the south wall
+    pairs = (rows + 1) // 2
+    y_south = WALL + PARK_MARGIN + 2 * PARK_LANE + PAIR_DY * (pairs - 1) + PARK_DX + CHARGER_OFFSET
     y_shelf0 = y_south + CORRIDOR_HALF
     y_north = y_shelf0 + sl + CORRIDOR_HALF
     height = y_north + CORRIDOR_HALF + 0.3 + WALL
@@ -216,8 +280,8 @@ def build_world(
     """Everything but the map, as plain data (the sections of a fleet config).
 
     ``chargers`` and ``tasks`` default as in :func:`generate_warehouse`; ``seed`` picks the
-    task shelves. Raises :class:`ConfigError` if more chargers are requested than fit along
-    the west wall.
+    task shelves. Raises :class:`ConfigError` if more chargers are requested than
+    :meth:`Layout.charger_sites` offers.
     """
     nodes, edges = roadmap_of(lay)
     stations, drops = stations_of(lay)
@@ -235,7 +299,9 @@ def build_world(
 
 
 def roadmap_of(lay: Layout) -> tuple[dict[str, list[float]], list[list[str]]]:
-    """Nodes (name -> [x, y]) and edges along the aisles and the four corridors."""
+    """Nodes (name -> [x, y]) and edges along the aisles, the four corridors, the parking
+    connectors (``<col>_p<k>`` below the south corridor node ``<col>_s``) and the parking
+    lanes between them."""
     m = lay.bays
     ys = [lay.y_south] + [lay.bay_y(j) for j in range(1, m + 1)] + [lay.y_north]
     suffix = ["s"] + [str(j) for j in range(1, m + 1)] + ["n"]
@@ -254,24 +320,38 @@ def roadmap_of(lay: Layout) -> tuple[dict[str, list[float]], list[list[str]]]:
     for end in ("s", "n"):
         for (pa, _), (pb, _) in zip(columns, columns[1:], strict=False):
             edges.append([f"{pa}_{end}", f"{pb}_{end}"])
+    conn = lay.connectors()
+    for k in range(lay.pairs):
+        y = lay.lane_y(k)
+        for col, x in conn:
+            nodes[f"{col}_p{k + 1}"] = [_r(x), _r(y)]
+            edges.append([f"{col}_s" if k == 0 else f"{col}_p{k}", f"{col}_p{k + 1}"])
+        for (ca, _), (cb, _) in zip(conn, conn[1:], strict=False):
+            edges.append([f"{ca}_p{k + 1}", f"{cb}_p{k + 1}"])
     return nodes, edges
 
 
 def chargers_of(lay: Layout, n_robots: int, chargers: int | None) -> list[Entry]:
-    """``chargers`` chargers (default ``max(2, ceil(n / 5))`` capped by the wall) facing the
-    west wall. Raises :class:`ConfigError` (field ``chargers``) if they do not fit."""
-    n_ch = max(2, min(lay.charger_capacity, math.ceil(n_robots / 5))) if chargers is None else chargers
-    if not 1 <= n_ch <= lay.charger_capacity:
+    """``chargers`` chargers (default ``max(2, ceil(n / 3))``, at most the sites there are)
+    on :meth:`Layout.charger_sites`: south sites first, spread evenly along the corridor,
+    then north ones. Raises :class:`ConfigError` (field ``chargers``) if they do not fit."""
+    sites = lay.charger_sites()
+    cap = len(sites)
+    want = max(2, math.ceil(n_robots * CHARGERS_PER_ROBOT))
+    n_ch = min(cap, want) if chargers is None else chargers
+    if not 1 <= n_ch <= cap:
         raise ConfigError(
-            "fleet.warehouse",
-            "chargers",
-            f"must be between 1 and {lay.charger_capacity} for this layout, got {n_ch}",
+            "fleet.warehouse", "chargers", f"must be between 1 and {cap} for this layout, got {n_ch}"
         )
-    x = WALL + PARK_MARGIN
-    return [
-        {"name": f"charger{c + 1}", "pose": _pose(x, lay.y_shelf0 + 0.5 + c * CHARGER_DY, math.pi)}
-        for c in range(n_ch)
-    ]
+    half = cap // 2
+    south, north = sites[:half], sites[half:]
+    chosen = _spread(south, min(n_ch, half)) + _spread(north, n_ch - min(n_ch, half))
+    return [{"name": f"charger{c + 1}", "pose": _pose(x, y, th)} for c, (x, y, th) in enumerate(chosen)]
+
+
+def _spread(items: list[tuple[float, float, float]], n: int) -> list[tuple[float, float, float]]:
+    """``n`` of ``items`` evenly spread over the list (in list order; none for ``n <= 0``)."""
+    return [items[(2 * j + 1) * len(items) // (2 * n)] for j in range(max(0, n))]
 
 
 def stations_of(lay: Layout) -> tuple[list[Entry], list[str]]:
@@ -318,12 +398,13 @@ def tasks_of(stations: list[Entry], drops: list[str], n_tasks: int, seed: int) -
 
 
 def parking_of(lay: Layout) -> list[list[float]]:
-    """Parking poses along the south wall, row by row from the wall, facing north."""
+    """Parking poses, row by row from the south wall, each facing its parking lane."""
     parking: list[list[float]] = []
-    for row in range(lay.parking_rows):
-        y = WALL + PARK_MARGIN + row * PARK_DY
-        for s in range(lay.spots_per_row):
-            parking.append(_pose(WALL + PARK_MARGIN + s * PARK_DX, y, math.pi / 2))
+    lanes = [lay.lane_y(k) for k in range(lay.pairs)]
+    for y in sorted(lay.row_ys()):
+        lane = min(lanes, key=lambda ly: abs(ly - y))
+        th = math.pi / 2 if lane > y else -math.pi / 2
+        parking += [_pose(x, y, th) for x in lay.spot_xs()]
     return parking
 
 
@@ -387,7 +468,7 @@ def render_config(name: str, map_rel: str, world: World, lay: Layout, seed: int,
         "  drain_per_m: 0.004",
         "  drain_per_s: 0.0005",
         "  charge_per_s: 0.02",
-        "  low: 0.25",
+        "  low: 0.1",
         "  resume: 0.95",
         "  initial: 1.0",
         "sim:",

@@ -3,6 +3,8 @@ RUNNING. They send no goals, so there is nothing to cancel."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import py_trees
 from py_trees.common import Status
 
@@ -15,14 +17,21 @@ from nodes.leaves import Source, resolve
 class BatteryLow(py_trees.behaviour.Behaviour):
     """True when the robot must go and charge, with hysteresis.
 
-    SUCCESS when the battery is below ``low``; once that happened it stays SUCCESS (latched)
+    SUCCESS when the battery is below ``low`` (or, given ``threshold``, below what it
+    returns at this tick, e.g. the energy to reach the charger from here); once that happened it stays SUCCESS (latched)
     until the battery is back at or above ``resume`` (charging, typically), so the battery
     guard is not released half-way through a charge. FAILURE otherwise (and when the
     backend reports no state). Fractions in [0, 1].
     """
 
     def __init__(
-        self, backend: NavigationBackend, low: float, resume: float, *, name: str = "BatteryLow"
+        self,
+        backend: NavigationBackend,
+        low: float,
+        resume: float,
+        *,
+        threshold: Callable[[], float] | None = None,
+        name: str = "BatteryLow",
     ) -> None:
         super().__init__(name=name)
         if not 0.0 <= low <= resume <= 1.0:
@@ -30,12 +39,14 @@ class BatteryLow(py_trees.behaviour.Behaviour):
         self.backend = backend
         self.low = low
         self.resume = resume
+        self.threshold = threshold
         #: True between falling below ``low`` and reaching ``resume``.
         self.latched = False
 
     def update(self) -> Status:
         battery = self.backend.robot_state().battery
-        if battery < self.low:
+        low = self.low if self.threshold is None else min(self.resume, self.threshold())
+        if battery < low:
             self.latched = True
         elif battery >= self.resume:
             self.latched = False

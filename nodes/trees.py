@@ -201,11 +201,29 @@ def battery_guard(
         "BatteryGuard",
         memory=False,
         children=[
-            BatteryLow(backend, battery.low, battery.resume),
+            BatteryLow(
+                backend, battery.low, battery.resume, threshold=_charge_threshold(namespace, backend, battery)
+            ),
             HasAssignment(namespace, "charger", name="HasCharger"),
             go_charge,
         ],
     )
+
+
+def _charge_threshold(
+    namespace: str, backend: NavigationBackend, battery: BatteryModel
+) -> Callable[[], float]:
+    """``() -> float``: :meth:`BatteryModel.charge_threshold` of the Manhattan distance from the
+    robot to its charger (blackboard ``charger``); ``battery.low`` when either is unknown."""
+    charger = read_key(namespace, "charger")
+
+    def threshold() -> float:
+        c, p = charger(), backend.robot_state().pose
+        if not isinstance(c, Pose2D) or p is None:
+            return battery.low
+        return battery.charge_threshold(abs(c.x - p.x) + abs(c.y - p.y))
+
+    return threshold
 
 
 def _task_watch(namespace: str, key: str) -> Callable[[], object]:

@@ -87,9 +87,14 @@ def add_traffic(p: argparse.ArgumentParser) -> None:
         dest="traffic",
         action="store_true",
         default=None,
-        help="reservation-based traffic management on the roadmap (default: the config's traffic.enabled)",
+        help="reservation-based traffic management on the roadmap (default: the config's traffic.enabled, on unless the config says false)",
     )
-    g.add_argument("--no-traffic", dest="traffic", action="store_false", help="no traffic management")
+    g.add_argument(
+        "--no-traffic",
+        dest="traffic",
+        action="store_false",
+        help="no traffic management (robots drive their routes unreserved)",
+    )
 
 
 def add_service(p: argparse.ArgumentParser) -> None:

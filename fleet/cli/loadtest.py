@@ -59,9 +59,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--duration", "-d", type=positive_float, required=True, metavar="S", help="simulated seconds to run"
     )
     p.add_argument("--backend", default="sim", metavar="NAME", help="sim (default) or sumo")
-    p.add_argument(
-        "--traffic", action="store_true", help="reservation-based traffic management (docs/traffic.md)"
+    g = p.add_mutually_exclusive_group()
+    g.add_argument(
+        "--traffic",
+        dest="traffic",
+        action="store_true",
+        default=True,
+        help="reservation-based traffic management (docs/traffic.md); the default",
     )
+    g.add_argument("--no-traffic", dest="traffic", action="store_false", help="no traffic management")
     p.add_argument(
         "--speed",
         "-s",

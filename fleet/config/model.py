@@ -65,18 +65,20 @@ class CoordinatorParams:
 @dataclass(frozen=True)
 class TrafficSettings:
     """The ``traffic`` section (``docs/traffic.md``). ``enabled``: reservation-based traffic
-    management on the roadmap (``fleet run --traffic`` turns it on too); ``deadlock_s``: a
+    management on the roadmap, on by default (``fleet run --no-traffic`` turns it off); ``deadlock_s``: a
     set of robots waiting on each other longer than this counts as a deadlock in the report;
     ``park_idle_s``: an idle robot standing off its parking spot this long is sent to park;
     ``horizon_m``: how much path ahead a robot is granted; ``stall_timeout_s``: a robot with
     a grant ahead that makes no progress this long is treated as stopped (its reservations
-    ahead are released)."""
+    ahead are released); ``dead_release_s``: a robot whose agent or bus link died keeps its
+    whole grant this long, then only the node it stands on."""
 
-    enabled: bool = False
+    enabled: bool = True
     deadlock_s: float = 30.0
     park_idle_s: float = 5.0
     horizon_m: float = 6.0
     stall_timeout_s: float = 20.0
+    dead_release_s: float = 10.0
 
 
 @dataclass

@@ -126,11 +126,21 @@ class BatterySection(Section):
         default=_BATTERY.charge_per_s, description="fraction per second on a charger"
     )
     low: Fraction = Field(
-        default=_BATTERY.low, description="below this the robot goes to charge; below resume"
+        default=_BATTERY.low,
+        description="below this the robot always goes to charge (farther from a charger it goes earlier); below resume",
     )
     resume: Fraction = Field(default=_BATTERY.resume, description="charging stops at this level")
     initial: Fraction = Field(
         default=_BATTERY.initial, description="start level (per robot: robots[i].battery)"
+    )
+    reserve: Fraction = Field(default=_BATTERY.reserve, description="kept on arrival at a charger")
+    margin: NonNegative = Field(
+        default=_BATTERY.margin, description="extra on the energy a trip to a charger needs (0.5 = 50 %)"
+    )
+    wait_s: NonNegative = Field(default=_BATTERY.wait_s, description="s of waiting for a charger budgeted")
+    detour: Positive = Field(default=_BATTERY.detour, description="roadmap length per meter of map distance")
+    cruise_mps: Positive = Field(
+        default=_BATTERY.cruise_mps, description="m/s assumed on the way to a charger"
     )
 
     @model_validator(mode="after")
@@ -181,7 +191,9 @@ class CoordinatorSection(Section):
 class TrafficSection(Section):
     """traffic: reservation-based traffic management on the roadmap (docs/traffic.md)."""
 
-    enabled: Annotated[bool, Flag()] = Field(default=_TRAFFIC.enabled, description="or `fleet run --traffic`")
+    enabled: Annotated[bool, Flag()] = Field(
+        default=_TRAFFIC.enabled, description="on by default; `fleet run --no-traffic` turns it off"
+    )
     deadlock_s: Positive = Field(
         default=_TRAFFIC.deadlock_s, description="robots waiting on each other this long (s)"
     )
@@ -191,6 +203,10 @@ class TrafficSection(Section):
     horizon_m: Positive = Field(default=_TRAFFIC.horizon_m, description="path granted ahead of a robot (m)")
     stall_timeout_s: Positive = Field(
         default=_TRAFFIC.stall_timeout_s, description="no progress with a grant ahead = stopped robot (s)"
+    )
+    dead_release_s: NonNegative = Field(
+        default=_TRAFFIC.dead_release_s,
+        description="a robot whose agent died keeps its grant this long, then only its node (s)",
     )
 
     def to_settings(self) -> TrafficSettings:

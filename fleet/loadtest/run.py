@@ -189,7 +189,7 @@ def run_loadtest(
     seed: int = 1,
     endpoint: str | None = None,
     dpi: int = 100,
-    traffic: bool = False,
+    traffic: bool = True,
     on_config: Callable[[FleetConfig], None] | None = None,
     on_progress: Callable[[FleetSnapshot], None] | None = None,
 ) -> LoadTestResult:

@@ -41,7 +41,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from fleet.diagnostics import (
@@ -57,6 +57,8 @@ from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
 from fleet.types import Mode, Pose2D, RobotState, TaskKind, TreeKind
 
 if TYPE_CHECKING:
+    from py_trees.behaviour import Behaviour
+
     from fleet.navigation import Clock, NavigationBackend
     from fleet.robots import BatteryModel
 
@@ -134,6 +136,7 @@ class RobotAgent:
         status_hz: float | None = None,
         tree_file: str | None = None,
         health: HealthParams | None = None,
+        chargers: Sequence[Pose2D] = (),
     ) -> None:
         from fleet.robots import BatteryModel
         from nodes.blackboard import clear_robot_blackboard, robot_blackboard
@@ -159,20 +162,20 @@ class RobotAgent:
         self.traffic = traffic
         battery = battery_model or BatteryModel()
         self.tree_file = tree_file
-        if tree_file is not None:
-            from nodes.xml_tree import load_tree
-
-            self.root = load_tree(tree_file, self.namespace, backend, clock, battery).root
-        else:
-            from nodes.task_tree import build_robot_tree
-
-            self.root = build_robot_tree(tree_kind, self.namespace, backend, clock, battery, traffic=traffic)
+        self.root = _build_root(tree_kind, tree_file, self.namespace, backend, clock, battery, traffic)
         self.health = health or HealthParams(battery_low=battery.low)
         #: The fleet-side safety stop (see the module docstring); ``watchdog.trips`` counts stops.
         self.watchdog = SafetyWatchdog(self.health)
+        #: The config's chargers: until the coordinator names one, the battery guard uses
+        #: the one nearest the robot (so a robot never given work still charges).
+        self.chargers = tuple(chargers)
         self.seq = 0
         self.ticks = 0
         self.charges = 0
+        #: The lowest battery fraction this robot reported since the agent started.
+        self.min_battery = 1.0
+        #: Ticks spent in each tree mode (``Mode`` values) since the agent started.
+        self.mode_ticks: dict[str, int] = {}
         self.last_status: StatusRecord | None = None
         self._seen: dict[str, None] = {}
         self._inbox: list[TaskMessage] = []
@@ -274,12 +277,22 @@ class RobotAgent:
 
     # -- ticking -----------------------------------------------------------------------
 
+    def _default_charger(self) -> None:
+        """Set the blackboard ``charger`` to the config charger nearest the robot."""
+        pose = self.backend.robot_state().pose
+        if pose is not None:
+            self.bb.charger = min(
+                self.chargers, key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y)
+            )
+
     def tick(self) -> StatusRecord:
         """Apply queued orders, check the safety watchdog, tick the tree once (unless the
         watchdog holds the robot), publish (see ``status_hz``) and return the status record."""
         from py_trees.common import Status
 
         self._apply_orders()
+        if self.bb.charger is None and self.chargers:
+            self._default_charger()
         st = self.backend.robot_state()
         was = self.watchdog.reason
         reason = self.watchdog.check(st)
@@ -312,7 +325,9 @@ class RobotAgent:
         if mode == Mode.CHARGING and self._last_mode != Mode.CHARGING:
             self.charges += 1
         self._last_mode = mode
+        self.mode_ticks[mode] = self.mode_ticks.get(mode, 0) + 1
         rec = self.status(st)
+        self.min_battery = min(self.min_battery, float(rec.battery))
         self.last_status = rec
         self._publish(rec)
         if self.on_status is not None:
@@ -405,6 +420,25 @@ class RobotAgent:
                 except Exception as e:  # noqa: BLE001 - keep releasing the rest
                     logger.debug("robot %s: undeclare failed: %s", self.name, e)
         self._token = self._sub = self._grant_sub = self._control_sub = None
+
+
+def _build_root(
+    tree_kind: str,
+    tree_file: str | None,
+    namespace: str,
+    backend: NavigationBackend,
+    clock: Clock,
+    battery: BatteryModel,
+    traffic: bool,
+) -> Behaviour:
+    """The robot's tree: the XML file's when one is given, else the built-in tree of ``tree_kind``."""
+    if tree_file is not None:
+        from nodes.xml_tree import load_tree
+
+        return load_tree(tree_file, namespace, backend, clock, battery).root
+    from nodes.task_tree import build_robot_tree
+
+    return build_robot_tree(tree_kind, namespace, backend, clock, battery, traffic=traffic)
 
 
 def _stopped(reason: str) -> Diagnostic:

@@ -18,15 +18,19 @@ JSON fields (``RunReport.to_dict``), units in the names:
   ``from_robot``, ``reason``, ``old_task_id``, ``to_robot``, ``new_task_id``,
   ``t_reassigned``); ``assignments``: every assignment (``task_id``, ``route``, ``robot``,
   ``t_assigned``, ``laps``, ``t_first_lap``, ``ended``, ``end_reason``);
+* ``min_battery``: the lowest battery fraction any robot reported during the run;
+  ``idle_fraction``: share of the local robots' agent ticks spent idle (no work, not charging);
+  ``p95_wait_s`` (traffic management only): 95th percentile over robots of their total wait;
+  ``teleports`` (SUMO only, else ``null``): vehicles SUMO moved on after waiting too long;
 * ``throughput_laps_per_robot_hour``: ``laps_completed`` per robot per simulated hour;
   ``mean_wait_s`` (traffic management only): mean over robots of the time they waited for
   right of way; ``traffic`` (traffic management only, else ``null``): ``robots_managed``,
-  ``deadlock_s``, ``deadlock_events`` (``t``, ``robots``), ``mean_wait_s``, ``max_wait_s``,
+  ``deadlock_s``, ``deadlock_events`` (``t``, ``robots``), ``mean_wait_s``, ``p95_wait_s``, ``max_wait_s``,
   ``wait_events``, ``cycles_detected`` / ``cycles_resolved`` (wait-for cycles the manager
   found and broke), ``reroutes``, ``sidesteps``, ``nudges``, ``stalls`` (robots treated as
   stopped after no progress);
 * ``per_robot``: one entry per robot: ``name``, ``namespace``, ``distance_m``, ``laps``,
-  ``battery_final``, ``final_state`` (the tree's mode at the end, or ``dead`` / ``unknown``),
+  ``battery_final``, ``battery_min`` (the lowest it reported), ``final_state`` (the tree's mode at the end, or ``dead`` / ``unknown``),
   ``leaf``, ``task_id``, ``collisions``, ``charges`` (times it went to charge), ``goals``
   (that robot's goal metrics, as below; robots of other processes: empty);
 * ``goals``: goal-level metrics of the fleet's navigation goals (:mod:`fleet.runtime.goal_log`):
@@ -52,6 +56,7 @@ world, the coordinator's state, the traffic policy, the latest status of each ro
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -97,6 +102,7 @@ class RobotReport:
     charges: int = 0
     goals: dict[str, Any] = field(default_factory=dict)
     safety_stops: int = 0
+    battery_min: float = 1.0
 
 
 @dataclass
@@ -132,6 +138,10 @@ class RunReport:
     tasks: dict[str, Any] | None = None
     #: Every pause, resume, e-stop and release: when (fleet and wall time), by whom, why.
     control_events: list[dict[str, Any]] = field(default_factory=list)
+    min_battery: float = 1.0
+    p95_wait_s: float | None = None
+    idle_fraction: float = 0.0
+    teleports: int | None = None
     trajectories: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -146,6 +156,11 @@ class RunReport:
         for r in d["per_robot"]:
             r["distance_m"] = round(r["distance_m"], 2)
             r["battery_final"] = round(r["battery_final"], 4)
+            r["battery_min"] = round(r["battery_min"], 4)
+        d["min_battery"] = round(self.min_battery, 4)
+        d["idle_fraction"] = round(self.idle_fraction, 4)
+        if self.p95_wait_s is not None:
+            d["p95_wait_s"] = round(self.p95_wait_s, 3)
         return d
 
     def write_json(self, path: str | Path) -> Path:
@@ -194,6 +209,8 @@ class ReportBuilder:
         traffic: ReservationTraffic | None = None,
         charges: Mapping[str, int] | None = None,
         goals: Mapping[str, GoalMetrics] | None = None,
+        min_battery: Mapping[str, float] | None = None,
+        mode_ticks: Mapping[str, int] | None = None,
         bus_trajectory: Callable[[str], list[tuple[float, float, float]]] = lambda name: [],
         malformed: int = 0,
         safety_stops: Mapping[str, int] | None = None,
@@ -203,17 +220,12 @@ class ReportBuilder:
         """The report: ``records`` are the latest status per robot; ``state`` the coordinator's
         (``None`` without a coordinator: laps come from the records); ``traffic`` the traffic
         policy when traffic management was on; ``charges`` times each local robot went to
-        charge; ``goals`` each local robot's goal metrics; ``malformed`` bus payloads dropped."""
-        from fleet.runtime.goal_log import GoalMetrics
-
+        charge; ``goals`` each local robot's goal metrics; ``min_battery`` the lowest battery each
+        local robot reported (robots of other processes: their last one); ``mode_ticks`` agent
+        ticks per tree mode over the local robots; ``malformed`` bus payloads dropped."""
         names = [r.name for r in self.config.robots if r.name in records or r.name in self.local]
-        rows = [self._row(n, records.get(n), state, charges or {}) for n in names]
-        fleet_goals = GoalMetrics()
-        for row in rows:
-            m = (goals or {}).get(row.name)
-            if m is not None:
-                row.goals = m.to_dict()
-                fleet_goals.add(m)
+        rows = [self._row(n, records.get(n), state, charges or {}, min_battery or {}) for n in names]
+        fleet_goals = _merge_goals(rows, goals or {})
         for row in rows:
             row.safety_stops = (safety_stops or {}).get(row.name, 0)
         trajectories = {n: self._trajectory(world, n, bus_trajectory) for n in names}
@@ -223,6 +235,7 @@ class ReportBuilder:
         now = world.clock.now() if self.t_end is None else self.t_end
         laps = state.laps_completed() if state is not None else sum(r.laps for r in rows)
         robot_hours = len(rows) * max(0.0, now - self.t0) / 3600.0
+        tblock = traffic_dict(traffic, now) if traffic is not None else None
         deadlocks = (
             traffic.deadlocks if traffic is not None else (state.deadlocks if state is not None else 0)
         )
@@ -250,13 +263,17 @@ class ReportBuilder:
             trajectories=trajectories,
             throughput_laps_per_robot_hour=laps / robot_hours if robot_hours > 0 else 0.0,
             mean_wait_s=traffic.mean_wait_s(now) if traffic is not None else None,
-            traffic=traffic_dict(traffic, now) if traffic is not None else None,
+            traffic=tblock,
             picks_assigned=len(state.pick_assignments) if state is not None else 0,
             picks_completed=state.picks_completed() if state is not None else 0,
             goals=fleet_goals.to_dict() if goals else {},
             safety_stops=sum(r.safety_stops for r in rows),
             tasks=tasks,
             control_events=list(control_events),
+            min_battery=min((r.battery_min for r in rows), default=1.0),
+            p95_wait_s=float(tblock["p95_wait_s"]) if tblock is not None else None,
+            idle_fraction=_idle_fraction(mode_ticks or {}),
+            teleports=_teleports(world),
         )
 
     def _row(
@@ -265,6 +282,7 @@ class ReportBuilder:
         rec: StatusRecord | None,
         state: CoordinatorState | None,
         charges: Mapping[str, int],
+        min_battery: Mapping[str, float],
     ) -> RobotReport:
         spec = self.config.robot(name)
         dead = state is not None and name in state.robots and not state.robots[name].alive
@@ -278,6 +296,7 @@ class ReportBuilder:
             distance_m=float(rec.distance_m) if rec is not None else 0.0,
             laps=laps,
             battery_final=float(rec.battery) if rec is not None else float(spec.battery),
+            battery_min=min_battery.get(name, float(rec.battery) if rec is not None else float(spec.battery)),
             final_state="dead" if dead else (str(rec.mode) if rec is not None else "unknown"),
             leaf=str(rec.leaf) if rec is not None else "",
             task_id=rec.task_id if rec is not None else None,
@@ -302,6 +321,7 @@ def traffic_dict(tp: ReservationTraffic, now: float) -> dict[str, Any]:
         "deadlock_s": tp.deadlock_s,
         "deadlock_events": [{"t": round(t, 3), "robots": list(rs)} for t, rs in tp.deadlock_events],
         "mean_wait_s": round(tp.mean_wait_s(now), 3),
+        "p95_wait_s": round(p95(waits), 3),
         "max_wait_s": round(max(waits, default=0.0), 3),
         "wait_events": met.wait_events,
         "cycles_detected": met.deadlocks_detected,
@@ -311,6 +331,27 @@ def traffic_dict(tp: ReservationTraffic, now: float) -> dict[str, Any]:
         "nudges": met.nudges,
         "stalls": met.deaths,
     }
+
+
+def _teleports(world: World) -> int | None:
+    """SUMO's teleports (vehicles it moved on after waiting too long: its deadlocks); ``None``
+    for worlds that do not teleport."""
+    n = getattr(world, "teleports", None)
+    return int(n) if isinstance(n, int) else None
+
+
+def _idle_fraction(mode_ticks: Mapping[str, int]) -> float:
+    """Share of agent ticks spent in mode ``idle`` (0 when nothing ticked)."""
+    total = sum(mode_ticks.values())
+    return mode_ticks.get("idle", 0) / total if total else 0.0
+
+
+def p95(values: Sequence[float]) -> float:
+    """The 95th percentile of ``values`` (nearest rank; 0 for none)."""
+    if not values:
+        return 0.0
+    s = sorted(values)
+    return float(s[min(len(s) - 1, max(0, math.ceil(0.95 * len(s)) - 1))])
 
 
 def reassignment_dict(r: Reassignment) -> dict[str, Any]:
@@ -339,3 +380,16 @@ def assignment_dict(a: Assignment) -> dict[str, Any]:
         "ended": None if a.ended is None else round(a.ended, 3),
         "end_reason": a.end_reason,
     }
+
+
+def _merge_goals(rows: Sequence[RobotReport], goals: Mapping[str, GoalMetrics]) -> GoalMetrics:
+    """Put each robot's goal metrics on its row; returns the fleet's (their sum)."""
+    from fleet.runtime.goal_log import GoalMetrics
+
+    fleet = GoalMetrics()
+    for row in rows:
+        m = goals.get(row.name)
+        if m is not None:
+            row.goals = m.to_dict()
+            fleet.add(m)
+    return fleet

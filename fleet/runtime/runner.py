@@ -29,7 +29,7 @@ import logging
 import math
 import sys
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
@@ -104,7 +104,8 @@ class FleetRunner:
         listen: listen on the endpoint (router) instead of connecting; default: listen for
             in-process worlds, connect for remote ones.
         traffic: reservation-based traffic management (``docs/traffic.md``); default: the
-            config's ``traffic.enabled``.
+            config's ``traffic.enabled`` (on unless the config turns it off; an XML tree then
+            runs without it).
         display: what shows the running fleet (default: :func:`fleet.viz.display.default_display`
             on ``out``; :class:`fleet.viz.display.NullDisplay` shows nothing).
         state_dir: the coordinator's durable task book (``docs/service.md``); a directory that
@@ -342,6 +343,7 @@ class FleetRunner:
             traffic=self.traffic,
             status_hz=self.config.status_hz,
             tree_file=self.tree_file,
+            chargers=[c.pose for c in self.config.chargers],
         )
 
     def _loop(self, world: World) -> None:
@@ -451,6 +453,8 @@ class FleetRunner:
             charges={a.name: a.charges for a in self.agents},
             goals={name: log.metrics for name, log in self.goal_logs.items()},
             safety_stops={a.name: a.watchdog.trips for a in self.agents},
+            min_battery={a.name: a.min_battery for a in self.agents},
+            mode_ticks=_sum_counts(a.mode_ticks for a in self.agents),
             bus_trajectory=self.bus_view.trajectory,
             malformed=self.bus.malformed if self.bus is not None else 0,
             tasks=self.host.task_summary() if self.host is not None else None,
@@ -474,6 +478,15 @@ class FleetRunner:
             session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves Session.close unannotated
         except Exception as e:  # noqa: BLE001 - already closed by the bus
             logger.debug("closing the session: %s", e)
+
+
+def _sum_counts(counts: Iterable[Mapping[str, int]]) -> dict[str, int]:
+    """Key-wise sum of count mappings."""
+    out: dict[str, int] = {}
+    for c in counts:
+        for k, v in c.items():
+            out[k] = out.get(k, 0) + v
+    return out
 
 
 def _try(close: Callable[[], None], what: str) -> None:

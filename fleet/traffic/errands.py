@@ -6,7 +6,8 @@
   charger frees. On its way it has base priority ``CHARGE_PRIORITY * (2 - battery)``.
 * A robot idle (no route, mode ``idle``) for ``park_idle_s`` that does not stand on a
   parking or charger dock is sent to the nearest free parking dock, so idle robots do not
-  stand in aisles. A robot on a charger dock that has finished charging is moved to
+  stand in aisles; one below :data:`TOP_UP_BELOW` battery goes to a free charger instead
+  (while more than :data:`SPARE_CHARGERS` of them are free), parked robots too. A robot on a charger dock that has finished charging is moved to
   parking only when another robot waits for a charger.
 * A robot whose target dock another robot stepped onto picks another dock."""
 
@@ -25,6 +26,12 @@ from fleet.types import Mode
 
 if TYPE_CHECKING:
     from fleet.roadmap.graph import Roadmap
+
+#: An idle robot below this battery fraction waits on a free charger instead of a parking spot
+#: (it charges while it waits for work), so idle robots do not all run low together.
+TOP_UP_BELOW = 0.6
+#: ... but only while more than this share of the chargers is free (kept for robots in need).
+SPARE_CHARGERS = 0.34
 
 #: Sends a robot along a node path for a purpose: ``drive(robot, nodes, purpose)``.
 Drive = Callable[[str, list[str], Purpose], None]
@@ -102,15 +109,37 @@ class Errands:
             self._charge_wait.discard(name)
             purpose = None
         since = self._idle_since.setdefault(name, now)
-        if purpose is Purpose.PARK or now - since < self.park_idle_s:
+        if now - since < self.park_idle_s:
             return
         path = self.manager.path(name)
         here = path[0] if path else None
-        if here in self._parking_set:
-            return
-        if here in self._charger_set and not self._charge_wait:
-            return
+        if purpose is Purpose.PARK and here != self._target.get(name):
+            return  # on its way to park
+        if here in self._charger_set:
+            if not self._charge_wait:
+                return  # idle on a charger: it charges there until a robot needs it
+        else:
+            assert obs is not None
+            if self._top_up(name, float(obs.battery)) or here in self._parking_set:
+                return
         self._go(name, self._free_dock(name, self.parking), Purpose.PARK)
+
+    def _top_up(self, name: str, battery: float) -> bool:
+        """Send the idle ``name`` to wait on a free charger (charging there) when its battery
+        is below :data:`TOP_UP_BELOW`, nobody waits for a charger and more than
+        :data:`SPARE_CHARGERS` of the chargers are free; whether it was sent."""
+        if battery >= TOP_UP_BELOW or self._charge_wait or not self.chargers:
+            return False
+        m = self.manager
+        taken = set(self._target.values())
+        free = sum(1 for c in self.chargers if m.holder(c) is None and c not in taken)
+        if free <= SPARE_CHARGERS * len(self.chargers):
+            return False
+        node = self._free_dock(name, self.chargers)
+        if node is None:
+            return False
+        self._go(name, node, Purpose.PARK)
+        return True
 
     def serve_chargers(self, requests: list[tuple[float, str]]) -> None:
         """Free chargers go to the robots with the lowest battery first; the others wait on a

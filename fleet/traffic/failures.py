@@ -3,7 +3,8 @@
 A dead robot keeps only what it physically occupies (the nodes within ``clearance_m`` of
 it, or the edge it stands on mid-edge), or, killed with ``keep_all``, everything it holds;
 the rest is released at once and every live robot's not-yet-granted path is rerouted around
-the nodes it keeps. A dead robot that moves again is revived on its nearest free node."""
+the nodes it keeps; :func:`shrink` later cuts a ``keep_all`` robot down to what it occupies.
+A dead robot that moves again is revived on its nearest free node."""
 
 from __future__ import annotations
 
@@ -76,6 +77,31 @@ def kill(st: TrafficState, r: TrackedRobot, now: float, reason: str, keep_all: b
     r.blockers = set()
     r.blocked_on = set()
     r.prog_x, r.prog_y = r.x, r.y
+    st.changed.add(r.name)
+    for o in st.robots.values():
+        if o.alive and o is not r:
+            avoid_dead(st, o)
+
+
+def shrink(st: TrafficState, r: TrackedRobot, now: float) -> None:
+    """The dead ``r`` (killed keeping everything) keeps only what it physically occupies
+    now; the rest is released and live robots are rerouted around the nodes it keeps."""
+    if r.alive:
+        return
+    occ = occupied(st, r)
+    if not occ and r.path:
+        occ = {r.path[r.cur]}
+    released = st.table.release_all(r.name, keep=occ)
+    for x in released:
+        st.wake(x)
+        if isinstance(x, str) and st.dead_nodes.get(x) == r.name:
+            del st.dead_nodes[x]
+    for x in occ:
+        if isinstance(x, str):
+            st.dead_nodes[x] = r.name
+    r.occupied = frozenset(occ)
+    r.back = {x for x in occ if isinstance(x, str)}
+    st.log(now, f"{r.name} dead: released {len(released)}, keeps {sorted(map(str, occ))}")
     st.changed.add(r.name)
     for o in st.robots.values():
         if o.alive and o is not r:

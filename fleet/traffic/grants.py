@@ -25,6 +25,8 @@ def block(st: TrafficState, r: TrackedRobot) -> list[int]:
         if deg[node] != 2 or j == n - 1 or path[j + 1] == path[j - 1] or path[j + 1] == node:
             break
         j += 1
+    if len(out) > 1 and st.params.follow and following(st, r, out):
+        return out[:1]  # same-direction robots ahead in the corridor: follow them node by node
     if (
         not st.params.hold_far_end
         and len(out) > 1
@@ -34,6 +36,40 @@ def block(st: TrafficState, r: TrackedRobot) -> list[int]:
     ):
         out.pop()  # nobody comes the other way: the far junction is taken when reached
     return out
+
+
+def following(st: TrafficState, r: TrackedRobot, out: list[int]) -> bool:
+    """Whether ``r`` may take only the next node of the corridor block ``out`` (path
+    indices): another robot holds part of the block, every such robot stands in it and
+    drives the same way as ``r`` (its next path node lies further along the block, or it
+    leaves through the block's far end), and nobody is about to come the other way from the
+    far end. Node reservations then keep the followers apart, and a robot coming the other
+    way still needs the whole corridor free."""
+    path, table = r.path, st.table
+    order = {path[j]: k for k, j in enumerate(out)}
+    last = len(out) - 1
+    ahead = False
+    for j in out:
+        h = table.holder(path[j])
+        if h is None or h == r.name:
+            continue
+        o = st.robots.get(h)
+        if o is None or not o.alive or o.cur + 1 >= len(o.path):
+            return False
+        here, nxt = o.path[o.cur], o.path[o.cur + 1]
+        k = order.get(here)
+        if k is None:
+            return False
+        if nxt in order:
+            if order[nxt] <= k:
+                return False
+        elif k != last:
+            return False
+        ahead = True
+    if not ahead:
+        return False
+    far = path[out[-1]]
+    return st.roads.deg[far] == 2 or not oncoming(st, r, far, path[out[-2]])
 
 
 def oncoming(st: TrafficState, r: TrackedRobot, far: str, last: str) -> bool:

@@ -58,7 +58,7 @@ import networkx as nx
 from fleet.errors import TrafficError
 from fleet.messages import Grant
 from fleet.traffic.deadlocks import cycles, detect_and_resolve
-from fleet.traffic.failures import avoid_dead, kill, revive
+from fleet.traffic.failures import avoid_dead, kill, revive, shrink
 from fleet.traffic.grants import extend
 from fleet.traffic.params import TrafficParams
 from fleet.traffic.paths import checked_path, install, join, pose_at
@@ -157,6 +157,13 @@ class TrafficManager:
         r = self._st.get(robot)
         if r.alive:
             kill(self._st, r, now, reason, keep_all=keep_grant)
+
+    def release_dead(self, robot: str, now: float) -> None:
+        """The dead ``robot`` (declared with ``keep_grant``) keeps only what it physically
+        occupies; the rest is released and routes across its old grant are replanned."""
+        r = self._st.get(robot)
+        if not r.alive:
+            shrink(self._st, r, now)
 
     def declare_alive(self, robot: str, now: float) -> None:
         """``robot`` is back: it keeps what it occupies and must be given a path again."""

@@ -37,7 +37,9 @@ class TrafficParams:
     junction as a block of its own when it gets there, unless another robot's next
     :data:`ONCOMING_NODES` path nodes come from that junction into the corridor: then the
     strict rule applies, so robots meeting at a corridor's end stay rare while crossing
-    traffic is not held up at every aisle end.
+    traffic is not held up at every aisle end. ``follow``: a robot may enter a corridor
+    behind robots that drive it the same way, node by node, instead of waiting for the
+    whole corridor (:func:`fleet.traffic.grants.following`).
     """
 
     robot_radius: float = 0.3
@@ -60,6 +62,7 @@ class TrafficParams:
     loop_min_nodes: int = 40
     max_resolutions: int = 8
     hold_far_end: bool = False
+    follow: bool = True
 
     @property
     def clearance(self) -> float:

@@ -49,7 +49,9 @@ class ReservationTraffic:
       count and a per-robot ``seq``, to ``deliver(robot, grant)``. Robots are registered the
       first time their pose is seen (a robot whose node another robot holds waits,
       unregistered and standing still, until it is free). A robot whose view is not
-      ``alive`` is declared dead keeping its whole grant (it may still drive its last goal).
+      ``alive`` is declared dead keeping its whole grant (it may still drive its last goal);
+      ``dead_release_s`` later it keeps only the node it stands on and the routes of the
+      others across its old grant are replanned.
     * Deadlocks for the fleet report: a set of robots waiting on each other (a wait-for
       cycle) for more than ``deadlock_s``; each such set counts once while it lasts
       (:attr:`deadlocks`, episodes in :attr:`deadlock_events`, bounded by
@@ -70,6 +72,7 @@ class ReservationTraffic:
         parking: Sequence[str] = (),
         deadlock_s: float = 30.0,
         park_idle_s: float = 5.0,
+        dead_release_s: float = 10.0,
     ) -> None:
         self.roadmap = roadmap
         self.manager = TrafficManager(roadmap, params)
@@ -78,6 +81,7 @@ class ReservationTraffic:
         self.parking = [n for n in dict.fromkeys(parking) if n not in set(self.chargers)]
         self.deadlock_s = float(deadlock_s)
         self.park_idle_s = float(park_idle_s)
+        self.dead_release_s = float(dead_release_s)
         self.deadlocks = 0
         self.deadlock_events: list[tuple[float, tuple[str, ...]]] = []
         self._open_deadlocks: set[frozenset[str]] = set()
@@ -88,6 +92,8 @@ class ReservationTraffic:
         self._seq: dict[str, int] = {}
         self._coord_dead: set[str] = set()
         self._once: set[str] = set()  # robots whose pending route is driven once (a task)
+        #: When each robot the coordinator lost was declared dead (until it is released).
+        self._dead_since: dict[str, float] = {}
         self._last_dl = -math.inf
         self.errands = Errands(
             self.manager, roadmap, self._purpose, self._set_path, self.chargers, self.parking, park_idle_s
@@ -198,11 +204,18 @@ class ReservationTraffic:
                 # its agent is gone but the robot may still drive its last goal: it
                 # keeps its whole grant
                 m.declare_dead(name, now, "coordinator: dead", keep_grant=True)
+                self._dead_since[name] = now
+            since = self._dead_since.get(name)
+            if since is not None and now - since >= self.dead_release_s:
+                # it has had time to finish its last goal: keep only the node it stands on
+                m.release_dead(name, now)
+                del self._dead_since[name]
             self._coord_dead.add(name)
             self._purpose.pop(name, None)
             return False
         if name in self._coord_dead:
             self._coord_dead.discard(name)
+            self._dead_since.pop(name, None)
             m.declare_alive(name, now)
         if pose is not None:
             m.update(name, pose, now)
@@ -292,4 +305,5 @@ def traffic_from_config(config: FleetConfig, deliver: Deliver | None = None) -> 
         parking=parking,
         deadlock_s=ts.deadlock_s,
         park_idle_s=ts.park_idle_s,
+        dead_release_s=ts.dead_release_s,
     )

@@ -53,11 +53,18 @@ def _counts(r: Mapping[str, Any]) -> list[Text]:
         line.append(f"   safety stops: {r['safety_stops']}", style="bold yellow")
     line.append(f"   throughput: {float(r.get('throughput_laps_per_robot_hour', 0.0)):.1f} laps/robot-hour")
     lines.append(line)
+    if "min_battery" in r:
+        low = float(r["min_battery"])
+        bat = Text("battery: lowest ")
+        bat.append(f"{low:.0%}", style="bold red" if low < 0.05 else "")
+        bat.append(f" seen   idle: {float(r.get('idle_fraction', 0.0)):.0%} of robot time")
+        lines.append(bat)
     t = r.get("traffic")
     if t is not None:
         lines.append(
             Text(
-                f"traffic: mean wait {t['mean_wait_s']:.1f} s (max {t['max_wait_s']:.1f} s), "
+                f"traffic: mean wait {t['mean_wait_s']:.1f} s (p95 {t.get('p95_wait_s', 0.0):.1f} s, "
+                f"max {t['max_wait_s']:.1f} s), "
                 f"wait-for cycles {t['cycles_detected']} found / {t['cycles_resolved']} resolved, "
                 f"{t['reroutes']} reroutes, {t['sidesteps']} side steps, {t['stalls']} stalls"
             )

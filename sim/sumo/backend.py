@@ -48,6 +48,11 @@ class SumoRunnerWorld:
     def collisions(self) -> int | None:
         return self.world.collisions
 
+    @property
+    def teleports(self) -> int:
+        """Vehicles SUMO moved on after they waited too long (its deadlocks), so far."""
+        return int(self.world.teleports)
+
     def collision_points(self) -> list[tuple[float, float]]:
         return [(x, y) for _, _, _, x, y in self.world.collision_events]
 

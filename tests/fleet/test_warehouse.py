@@ -50,6 +50,14 @@ def test_shipped_configs_are_the_generator_output(tmp_path: Path) -> None:
         assert (tmp_path / "maps" / name).read_bytes() == (CONFIGS / "maps" / name).read_bytes()
 
 
+def _seg_dist(p: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
+    """Distance (m) from ``p`` to the segment ``a``-``b``."""
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    t = ((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / ((dx * dx + dy * dy) or 1.0)
+    t = min(1.0, max(0.0, t))
+    return math.dist(p, (a[0] + t * dx, a[1] + t * dy))
+
+
 def test_default_warehouse_layout(tmp_path: Path) -> None:
     cfg = load_config(generate_warehouse(tmp_path, "small", 6))
     xmin, xmax, ymin, ymax = cfg.grid.extent
@@ -58,7 +66,14 @@ def test_default_warehouse_layout(tmp_path: Path) -> None:
     # Walls all around.
     assert not cfg.grid.is_free(0.05, 10.0) and not cfg.grid.is_free(29.95, 10.0)
     assert not cfg.grid.is_free(15.0, 0.05) and not cfg.grid.is_free(15.0, 19.95)
-    assert len(cfg.chargers) >= 2 and all(c.pose.x < 2.0 for c in cfg.chargers)  # at the west wall
+    # chargers beside the corridors, each with its own way in: 1 m off the nearest roadmap
+    # edge, at least 1 m from each other and from the parking spots
+    assert len(cfg.chargers) >= 2
+    segs = [(cfg.roadmap.pos(a), cfg.roadmap.pos(b)) for a, b in cfg.roadmap.edges]
+    for c in cfg.chargers:
+        assert min(_seg_dist((c.pose.x, c.pose.y), a, b) for a, b in segs) == pytest.approx(1.0)
+        others = [o.pose for o in cfg.chargers if o is not c] + list(cfg.parking)
+        assert min(math.hypot(c.pose.x - o.x, c.pose.y - o.y) for o in others) >= 1.0 - 1e-9
     assert len(cfg.routes) >= 3
     assert len(cfg.robots) == 6
     assert_collision_free(cfg)

@@ -20,5 +20,15 @@ def clean_blackboard() -> Iterator[None]:
 
 @pytest.fixture
 def fast_battery() -> BatteryModel:
-    """A battery that drains 5 % per meter and charges 20 % per second."""
-    return BatteryModel(drain_per_m=0.05, drain_per_s=0.0, charge_per_s=0.2, low=0.3, resume=0.9)
+    """A battery that drains 5 % per meter and charges 20 % per second (goes to charge below
+    30 % or the energy of the Manhattan way to the charger, no margin)."""
+    return BatteryModel(
+        drain_per_m=0.05,
+        drain_per_s=0.0,
+        charge_per_s=0.2,
+        low=0.3,
+        resume=0.9,
+        reserve=0.0,
+        margin=0.0,
+        detour=1.0,
+    )

@@ -38,6 +38,31 @@ def test_battery_low_has_hysteresis(fast_battery) -> None:  # type: ignore[no-un
         BatteryLow(sim.backend(NS), 0.9, 0.3)
 
 
+def test_charge_threshold_grows_with_the_way_to_the_charger() -> None:
+    """The trigger is the energy to reach a charger with a margin, not a fixed level: a robot
+    far from its charger goes earlier, one beside it never later than ``low``; every level
+    it leaves at still reaches the charger with ``reserve`` left after the budgeted wait."""
+    from fleet.robots import BatteryModel
+
+    m = BatteryModel()
+    near, far = m.charge_threshold(2.0), m.charge_threshold(150.0)
+    assert m.low <= m.charge_threshold(0.0) < near < far
+    for d in (0.0, 10.0, 40.0, 150.0):
+        trip = m.drain_per_m * d * m.detour + m.drain_per_s * (d * m.detour / m.cruise_mps + m.wait_s)
+        assert m.charge_threshold(d) - trip >= m.reserve - 1e-12
+
+
+def test_battery_low_follows_a_threshold(fast_battery) -> None:  # type: ignore[no-untyped-def]
+    sim = make_world({NS: (Pose2D(2.0, 3.0), 0.6)}, battery=fast_battery)
+    level = [0.5]
+    low = BatteryLow(sim.backend(NS), fast_battery.low, fast_battery.resume, threshold=lambda: level[0])
+    low.tick_once()
+    assert low.status == Status.FAILURE  # 0.6 >= 0.5
+    level[0] = 0.7  # e.g. the robot drove away from its charger
+    low.tick_once()
+    assert low.status == Status.SUCCESS and low.latched
+
+
 def test_is_stuck_is_localized_near_pose() -> None:
     sim = make_world({NS: Pose2D(2.0, 3.0)}, stuck_time_s=1.0)
     b = sim.backend(NS)

@@ -88,7 +88,9 @@ def test_battery_guard_preempts_patrol_charges_and_resumes(fast_battery) -> None
     assert preempted is not None
     assert b.goal_state(preempted).status is GoalStatus.CANCELED
     assert follow.status == Status.INVALID and follow.cancels == 1
-    assert sim.robot_state(NS).battery < fast_battery.low
+    here = pose_of(sim, NS)
+    far = abs(here.x - CHARGER.x) + abs(here.y - CHARGER.y)
+    assert sim.robot_state(NS).battery < fast_battery.charge_threshold(far)
     charge = find(root, "Charge")
     assert loop.run(60.0, until=lambda: charge.status == Status.RUNNING and sim.robot_state(NS).charging)
     assert pose_of(sim, NS).distance_to(CHARGER) <= sim.params.charger_radius

@@ -65,7 +65,7 @@ def test_shipped_patrol_values() -> None:
     assert cfg.tick_hz == 10.0 and cfg.sim.step_s == 0.05 and cfg.sim.seed == 1
     assert cfg.coordinator.stuck_reassign_s == 30.0 and cfg.coordinator.status_timeout_s == 3.0
     assert cfg.endpoint == "tcp/127.0.0.1:7447"
-    assert cfg.sim.battery.low == 0.25 and cfg.sim.battery.resume == 0.95
+    assert cfg.sim.battery.low == 0.1 and cfg.sim.battery.resume == 0.95
     assert cfg.sim.model.radius == 0.3
     xmin, xmax, ymin, ymax = cfg.grid.extent
     assert xmax - xmin == pytest.approx(30.0) and ymax - ymin == pytest.approx(20.0)

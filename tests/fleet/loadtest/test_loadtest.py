@@ -171,6 +171,10 @@ def test_fleet_cli_dispatches_loadtest(tmp_path: Path) -> None:
     assert main(["loadtest", "--robots", "3", "--duration", "10", "--out", str(out)]) == 0
     d = json.loads((out / "report.json").read_text())
     assert d["robots"] == 3 and "loadtest" in d and (out / "congestion.png").is_file()
+    assert d["loadtest"]["traffic"] is True  # traffic management is on by default
+    off = tmp_path / "off"
+    assert main(["loadtest", "--robots", "3", "--duration", "10", "--no-traffic", "--out", str(off)]) == 0
+    assert json.loads((off / "report.json").read_text())["loadtest"]["traffic"] is False
 
 
 def test_status_hz_is_the_configs_bus_rate_honoured_by_the_agents(tmp_path: Path) -> None:

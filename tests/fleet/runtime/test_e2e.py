@@ -60,7 +60,7 @@ def test_six_robots_patrol_every_route_without_collisions(tmp_path: Path) -> Non
 def test_low_battery_robot_charges_and_its_route_is_covered(tmp_path: Path) -> None:
     def edit(doc: dict[str, Any]) -> None:
         two_routes_three_robots(doc, "robot1")
-        doc["robots"][0]["battery"] = 0.32  # reaches battery.low (0.25) after ~15 m
+        doc["robots"][0]["battery"] = 0.5  # reaches its charge threshold (0.3-0.42 here) while patrolling
 
     cfg = temp_config(tmp_path, edit)
     report = tmp_path / "r.json"

@@ -285,7 +285,7 @@ def test_corridor_block_is_atomic_and_its_far_junction_is_taken_separately() -> 
         {"a": (0, 0), "b": (2, 0), "c1": (4, 0), "c2": (6, 0), "d": (8, 0), "s": (2, 2)},
         [("a", "b"), ("b", "c1"), ("c1", "c2"), ("c2", "d"), ("b", "s")],
     )
-    tm = TrafficManager(rm, TrafficParams())
+    tm = TrafficManager(rm, TrafficParams(follow=False))  # the strict rule: no following
     tm.add_robot("A", Pose2D(4, 0), 0.0)
     tm.add_robot("B", Pose2D(8, 0), 0.0)
     tm.set_path("A", ["c1", "b", "a"], 0.0)
@@ -302,6 +302,42 @@ def test_corridor_block_is_atomic_and_its_far_junction_is_taken_separately() -> 
     tm.cycle(1.0)
     assert tm.grant("B").nodes == ("c2", "c1")
     assert tm.holder("b") == "A"
+    tm.check()
+
+
+def test_same_direction_robots_follow_into_a_corridor_opposite_ones_wait() -> None:
+    """With following on, a robot enters a corridor behind one driving it the same way
+    (node by node); one coming the other way still waits for the whole corridor."""
+    rm = roadmap_of(
+        {
+            "a": (0, 0),
+            "b": (2, 0),
+            "c1": (4, 0),
+            "c2": (6, 0),
+            "d": (8, 0),
+            "s": (2, 2),
+            "t": (8, 2),
+            "e": (10, 0),
+        },
+        [("a", "b"), ("b", "c1"), ("c1", "c2"), ("c2", "d"), ("b", "s"), ("d", "t"), ("d", "e")],
+    )
+    tm = TrafficManager(rm, TrafficParams())
+    tm.add_robot("A", Pose2D(4, 0), 0.0)  # in the corridor at c1, driving east to e
+    tm.add_robot("B", Pose2D(2, 0), 0.0)  # at b behind it, also east
+    tm.set_path("A", ["c1", "c2", "d", "e"], 0.0)
+    tm.set_path("B", ["b", "c1", "c2", "d", "e"], 0.0)
+    tm.cycle(0.0)
+    assert tm.holder("c2") == "A"
+    tm.update("A", Pose2D(6, 0), 1.0)  # A reaches c2 and leaves c1 behind
+    tm.cycle(1.0)
+    assert tm.grant("B").nodes[:1] == ("c1",)  # B follows A into the corridor
+    assert tm.holder("c2") == "A"
+    tm.check()
+    # C comes the other way from e into the corridor: it waits for the corridor to empty
+    tm.add_robot("C", Pose2D(8, 2), 1.0)
+    tm.set_path("C", ["t", "d", "c2", "c1", "b", "a"], 1.0)
+    tm.cycle(1.5)
+    assert tm.holder("c2") != "C" and tm.holder("c1") != "C"
     tm.check()
 
 
@@ -606,6 +642,40 @@ def test_reservation_traffic_plugs_into_the_coordinator_protocol() -> None:
     views["r1"].alive = False
     pol.cycle(1.0, views)
     assert got["r1"].alive is False
+
+
+def test_a_dead_agents_grant_shrinks_to_its_node_after_the_timeout_and_others_route_through() -> None:
+    """A robot whose agent dies keeps its whole grant for ``dead_release_s`` (it may still
+    finish its last goal), then only the node it stands on; another robot's path across its
+    old grant is then granted."""
+    from fleet.coordination.coordinator import Observation, PatrolRoute, RobotView
+
+    rm = grid_roadmap(5, 3, 2.0)
+    pol = ReservationTraffic(rm, dead_release_s=10.0)
+    route = PatrolRoute(
+        "loop", rm.poses_for(["n0_1", "n4_1", "n4_2", "n0_2"]), ("n0_1", "n4_1", "n4_2", "n0_2")
+    )
+    pol.on_assign("dead", route, route.poses)
+    views = {
+        "dead": RobotView("dead", obs=Observation(t=0.0, pose=Pose2D(0, 2))),
+        "live": RobotView("live", obs=Observation(t=0.0, pose=Pose2D(4, 0))),
+    }
+    pol.cycle(0.0, views)
+    m = pol.manager
+    grant = set(m.held("dead"))
+    assert {"n1_1", "n2_1"} <= grant
+    views["dead"].alive = False  # its agent (or bus link) is gone
+    pol.cycle(1.0, views)
+    assert not m.is_alive("dead") and set(m.held("dead")) == grant  # it may still be driving
+    pol.cycle(10.9, views)
+    assert set(m.held("dead")) == grant
+    pol.cycle(11.0, views)
+    assert m.held("dead") == frozenset({"n0_1"})  # only the node it stands on
+    # a route across its old grant is planned and granted through it
+    m.set_path("live", ["n2_0", "n2_1", "n2_2"], 11.0)
+    pol.cycle(11.5, views)
+    assert "n2_1" in m.path("live") and "n2_1" in m.held("live")
+    m.check()
 
 
 # ----------------------------------------------------------------------------- fleet scale

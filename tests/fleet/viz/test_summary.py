@@ -49,7 +49,7 @@ def test_summary_lines() -> None:
 
 
 def test_interrupted_picks_traffic_and_many_events() -> None:
-    traffic = {"mean_wait_s": 5.95, "max_wait_s": 40.0, "cycles_detected": 3, "cycles_resolved": 3,
+    traffic = {"mean_wait_s": 5.95, "p95_wait_s": 31.0, "max_wait_s": 40.0, "cycles_detected": 3, "cycles_resolved": 3,
                "reroutes": 2, "sidesteps": 1, "stalls": 0}  # fmt: skip
     event = report()["reassignment_events"][0]
     text = summary_text(
@@ -58,6 +58,6 @@ def test_interrupted_picks_traffic_and_many_events() -> None:
     )  # fmt: skip
     assert text.startswith("interrupted: 2 robots")
     assert "picks: 5 assigned, 4 completed" in text
-    assert "traffic: mean wait 6.0 s (max 40.0 s), wait-for cycles 3 found / 3 resolved" in text
+    assert "traffic: mean wait 6.0 s (p95 31.0 s, max 40.0 s), wait-for cycles 3 found / 3 resolved" in text
     assert text.count("perimeter: robot2 charging") == MAX_EVENTS_SHOWN
     assert "... 5 more reassignments in the report" in text
