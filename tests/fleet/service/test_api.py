@@ -145,6 +145,7 @@ def fleet_cli(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.timeout(900)  # hang guard: several waits of a loaded 2-core machine in a row
 def test_cli_and_client_example(live: Callable[..., LiveFleet]) -> None:
     fleet = live(traffic=True)
     api = fleet.url.removeprefix("http://")
