@@ -78,7 +78,7 @@ def test_bad_input_is_4xx_naming_the_field_and_changes_nothing(
         assert err["status"] == status and words in err["error"], err
         assert err["field"] == field, err
     assert rows(tmp_path / "book") == before
-    assert fleet.http.get("/api/tasks").json() == before_tasks
+    assert [t["id"] for t in fleet.http.get("/api/tasks").json()] == [t["id"] for t in before_tasks]
     # a good one after all that gets the next id
     ids = {t["id"] for t in before_tasks}
     t = fleet.submit({"kind": "go_to", "target": "a1_s"})
