@@ -50,12 +50,14 @@ BAD: list[tuple[Any, int, str, str]] = [
 ]
 
 
-def rows(state_dir: Path) -> tuple[int, int, int]:
+def rows(state_dir: Path) -> tuple[list[str], list[tuple[str, int]], int]:
+    """Task ids, counters and submissions in the store (the fleet's own progress aside)."""
     db = sqlite3.connect(state_dir / "tasks.sqlite3")
     try:
-        return tuple(
-            db.execute(f"SELECT COUNT(*) FROM {t}").fetchone()[0] for t in ("tasks", "events", "counters")
-        )  # type: ignore[return-value]
+        ids = [r[0] for r in db.execute("SELECT id FROM tasks ORDER BY seq")]
+        counters = [(str(n), int(v)) for n, v in db.execute("SELECT name, value FROM counters ORDER BY name")]
+        queued = db.execute("SELECT COUNT(*) FROM events WHERE event='queued'").fetchone()[0]
+        return ids, counters, int(queued)
     finally:
         db.close()
 
