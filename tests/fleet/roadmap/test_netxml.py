@@ -139,7 +139,7 @@ def test_coordinates_are_the_files_own_even_with_a_net_offset(tmp_path: Path) ->
     location = ET.parse(net).getroot().find("location")
     assert location is not None
     dx, dy = (float(v) for v in location.get("netOffset", "").split(","))
-    assert (dx, dy) == (-2.5, -5.0)  # the roadmap's lower left node w_s moved to (0, 0)
+    assert (dx, dy) == (-2.5, -2.0)  # the roadmap's lower left node w_p1 moved to (0, 0)
     back = Roadmap.from_net_file(net)
     for n in g.nodes:
         x, y = g.nodes[n]["pos"]
@@ -293,7 +293,7 @@ def test_the_map_checks_apply_to_the_junctions_and_edges_of_a_network(
     assert err.field.startswith("roadmap.net.edges[") and "passes through an obstacle" in err.reason
     # two separate networks
     g = rm.to_networkx()
-    g.remove_edges_from([("w_s", "a1_s"), ("w_n", "a1_n")])
+    g.remove_edges_from([("w_s", "a1_s"), ("w_n", "a1_n"), ("w_p1", "a4_p1")])  # the west column
     write_network(g, tmp_path / "split.net.xml")
     path = write_config(tmp_path, patrol_doc, {"net": "split.net.xml"})
     expect(config_error(path), path, "roadmap", "not connected")

@@ -46,9 +46,10 @@ def _run(backend: str, **kw: Any) -> Any:
 
 
 def test_demo_over_ros_completes_patrols_like_in_process() -> None:
-    in_process = _run("sim")
+    # without traffic management (the next test runs the default, with it)
+    in_process = _run("sim", traffic=False)
     with ServerProcess.for_config(WAREHOUSE, "--speed", "10", "--odom-hz", "20", "--amcl-hz", "2"):
-        over_ros = _run("ros", listen=True)
+        over_ros = _run("ros", listen=True, traffic=False)
     assert over_ros.sim_time_s >= DURATION_S - 1.0
     assert over_ros.patrols_completed >= 1
     assert over_ros.laps_completed >= 1
