@@ -8,8 +8,9 @@ patrol and picking trees are built from (:mod:`nodes.leaves`, :mod:`nodes.condit
 * ``NextWaypoint`` (``waypoint`` out, ``tolerance``): the next pose of the blackboard
   ``route`` to visit (:class:`nodes.leaves.NextWaypoint`), for trees acting at each waypoint.
 * ``Idle``, ``CompletePick``.
-* ``BatteryLow`` (``low``, ``resume``; default: the battery model): the latched low-battery
-  condition. ``HasAssignment`` (``key``): the blackboard key holds something.
+* ``BatteryLow`` (``low``, ``resume``; default: the battery model, with the energy-based
+  trigger of :func:`nodes.trees.charge_threshold` when no ``low`` is given): the latched
+  low-battery condition. ``HasAssignment`` (``key``): the blackboard key holds something.
   ``NearPose`` (``pose``, ``tolerance``), ``IsLocalized``.
 * ``RestartOnChange`` (``watch``: keys ``"task_id;route"``): restart the child when one of the
   keys changes while it runs.
@@ -28,7 +29,7 @@ from nodes.nav2_leaves import PortedAction, make_follow_waypoints
 from nodes.ports import Literal, PortType, in_port, out_port
 from nodes.recovery import RestartOnChange
 from nodes.registry import Category, NodeArgs, NodeSpec, decorator, leaf
-from nodes.trees import FollowRoute
+from nodes.trees import FollowRoute, charge_threshold
 
 _F, _S = PortType.FLOAT, PortType.STRING
 
@@ -118,10 +119,13 @@ FLEET_SPECS: tuple[NodeSpec, ...] = (
             a.ctx.backend,
             _battery(a, "low", a.ctx.battery.low),
             _battery(a, "resume", a.ctx.battery.resume),
+            threshold=None
+            if a.ports.get("low") is not None
+            else charge_threshold(a.ctx.namespace, a.ctx.backend, a.ctx.battery),
             name=a.name,
         ),
         (in_port("low", _F), in_port("resume", _F)),
-        "battery below low, latched until resume",
+        "battery below the energy to reach the charger (or a fixed low), latched until resume",
     ),
     leaf(
         "HasAssignment",

@@ -202,7 +202,7 @@ def battery_guard(
         memory=False,
         children=[
             BatteryLow(
-                backend, battery.low, battery.resume, threshold=_charge_threshold(namespace, backend, battery)
+                backend, battery.low, battery.resume, threshold=charge_threshold(namespace, backend, battery)
             ),
             HasAssignment(namespace, "charger", name="HasCharger"),
             go_charge,
@@ -210,10 +210,11 @@ def battery_guard(
     )
 
 
-def _charge_threshold(
+def charge_threshold(
     namespace: str, backend: NavigationBackend, battery: BatteryModel
 ) -> Callable[[], float]:
-    """``() -> float``: :meth:`BatteryModel.charge_threshold` of the Manhattan distance from the
+    """The battery guard's energy-based trigger (also the XML ``BatteryLow`` without a ``low``
+    port). ``() -> float``: :meth:`BatteryModel.charge_threshold` of the Manhattan distance from the
     robot to its charger (blackboard ``charger``); ``battery.low`` when either is unknown."""
     charger = read_key(namespace, "charger")
 

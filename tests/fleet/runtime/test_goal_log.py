@@ -41,7 +41,9 @@ def test_succeeded_goal_and_time_against_the_optimum() -> None:
     assert d["recoveries_per_goal"] == 0.0
     # 11.1 m straight at 1 m/s: the robot needs longer (turning, accelerating) but not 3x
     assert 1.0 <= d["time_over_straight"] < 3.0
-    assert 1.0 <= d["time_over_roadmap"] <= d["time_over_straight"]
+    # the roadmap path is never shorter than the straight line; the simulator's planner drives
+    # free space, so it may beat the roadmap's corners a little (0.97x on this warehouse)
+    assert 0.8 <= d["time_over_roadmap"] <= d["time_over_straight"]
 
 
 def test_retries_of_a_failed_goal_are_one_goal_with_its_recoveries() -> None:

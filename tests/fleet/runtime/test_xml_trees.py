@@ -32,6 +32,7 @@ def _run(config: str, kind: TreeKind, tree_file: str | None, duration: float = 3
         live=False,
         tree_kind=kind,
         tree_file=tree_file,
+        traffic=False,  # an XML tree runs without traffic management: compare like with like
         out=io.StringIO(),
     )
     return runner.run().to_dict()
