@@ -245,15 +245,15 @@ class RobotLifecycle:
 
     def guard(self, actions: RobotActions, kinds: Iterable[str]) -> None:
         """Make ``actions``' servers (one per kind of ``kinds``, in order) reject goals while
-        :meth:`accepts` says no."""
+        :meth:`accepts` says no (and else as their own goal filter says)."""
         self._actions = actions
         for server, kind in zip(actions.servers, kinds, strict=True):
-            server.register_goal_callback(self._goal_cb(kind))
+            server.register_goal_callback(self._goal_cb(kind, actions.goal_filter(kind)))
 
-    def _goal_cb(self, kind: str) -> Callable[[object], GoalResponse]:
-        def cb(_request: object) -> GoalResponse:
+    def _goal_cb(self, kind: str, inner: Callable[..., GoalResponse]) -> Callable[[object], GoalResponse]:
+        def cb(request: object) -> GoalResponse:
             if self.accepts(kind):
-                return GoalResponse.ACCEPT
+                return inner(request)
             logger.info("%s/%s: %s is inactive: goal rejected", self._ns, kind, ACTION_OWNERS[kind])
             return GoalResponse.REJECT
 

@@ -123,7 +123,7 @@ class RobotActions:
                 ACTION_TYPES[kind],
                 kind,
                 execute_callback=self._make_execute(kind),
-                goal_callback=self._make_accept(kind),
+                goal_callback=self.goal_filter(kind),
                 cancel_callback=lambda _h: CancelResponse.ACCEPT,
             )
             for kind in actions
@@ -138,7 +138,10 @@ class RobotActions:
         if nav_through_poses_xml is not None:
             self.navigator.defaults["navigate_through_poses"] = str(nav_through_poses_xml)
 
-    def _make_accept(self, kind: str) -> Callable[[GoalMsg], GoalResponse]:
+    def goal_filter(self, kind: str) -> Callable[[GoalMsg], GoalResponse]:
+        """The ``kind`` server's goal callback: a navigation goal is refused while the other
+        navigator runs (as bt_navigator does); everything else is accepted."""
+
         def accept(_req: GoalMsg) -> GoalResponse:
             if kind in NAVIGATION_KINDS:
                 active = self.navigator.active

@@ -231,7 +231,9 @@ def test_status_record_carries_picks_done() -> None:
 
 
 @pytest.mark.parametrize(("traffic", "least"), [("--no-traffic", 12), ("--traffic", 4)])
-def test_fleet_run_picking_completes_picks(tmp_path: Path, zenoh_endpoint: str, traffic: str, least: int) -> None:
+def test_fleet_run_picking_completes_picks(
+    tmp_path: Path, zenoh_endpoint: str, traffic: str, least: int
+) -> None:
     report = tmp_path / "picking.json"
     code = main(["run", str(PICKING), "--tree", "picking", traffic, "--speed", "0", "--duration", "200",
                  "--no-live", "--endpoint", zenoh_endpoint, "--report", str(report)])  # fmt: skip

@@ -67,6 +67,8 @@ class Commander(Node):
         self.feedback: Any = None
         self.status: int | None = None
         self.initial_pose_received = False
+        self.last_amcl: Any = None
+        self.amcl_count = 0
         qos = QoSProfile(
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
             reliability=ReliabilityPolicy.RELIABLE,
@@ -126,8 +128,20 @@ class Commander(Node):
     def _feedback_cb(self, msg: Any) -> None:
         self.feedback = msg.feedback
 
-    def _amcl_pose(self, _msg: Any) -> None:
+    def _amcl_pose(self, msg: Any) -> None:
         self.initial_pose_received = True
+        self.last_amcl = msg
+        self.amcl_count += 1
+
+    def current_estimate(self) -> PoseStamped:
+        """The robot's latest ``amcl_pose`` as a PoseStamped: the second one received, since
+        the first may be the latched one from before the robot's last motion."""
+        seen = self.amcl_count
+        self.spin_until(lambda: self.amcl_count >= max(2, seen + 1), self.timeout_s, "a fresh amcl_pose")
+        ps = PoseStamped()
+        ps.header = self.last_amcl.header
+        ps.pose = self.last_amcl.pose.pose
+        return ps
 
     # -- BasicNavigator's API -----------------------------------------------------------
 

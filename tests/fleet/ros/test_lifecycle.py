@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import pytest
+from starts import start_pose
 from waiting import DISCOVERY_S, GOAL_S
 
 from fleet.ros.env import ros_available
@@ -144,7 +145,7 @@ def test_goals_refused_until_startup_which_stops_at_the_failing_node(
         # BasicNavigator's way: every manager of the graph gets STARTUP, then wait for Nav2
         results = nav.lifecycleStartup()
         assert results.get("/robot1/lifecycle_manager_navigation/manage_nodes") is True, results
-        nav.setInitialPose(_ps(1.0, 3.0))
+        nav.setInitialPose(pose2d_to_pose_stamped(start_pose("/robot1")))
         nav.waitUntilNav2Active()
         assert {n: _state(nav, n) for n in NAVIGATION} == dict.fromkeys(NAVIGATION, "active")
         _diagnostic(nav, "robot1: lifecycle_manager_navigation", lambda s: s.level == b"\x00")

@@ -128,6 +128,7 @@ def test_goals_on_other_actions_do_not_preempt_navigation(make: Any) -> None:
     _wait_executing(nav)
     path = other.getPath(_ps(0, 0), _ps(9.0, 9.0))  # the planner action beside the navigator
     assert path is not None and len(path.poses) >= 2
+    assert nav.status is None or not nav.isTaskComplete(), nav.result_message()
     assert not other.goThroughPoses([_ps(4.0, 5.0)])  # bt_navigator refuses the other navigator
     _run(nav)
     assert nav.getResult() is TaskResult.SUCCEEDED, nav.result_message().error_msg

@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
 import pytest
+from starts import start_pose
 from waiting import DISCOVERY_S, GOAL_S
 
 from fleet.ros.env import ros_available
@@ -31,6 +32,11 @@ def _ps(x: float, y: float, th: float = math.pi / 2) -> Any:
     return pose2d_to_pose_stamped(Pose2D(x, y, th))
 
 
+#: Robots of this module's server already given their initial pose (the server lives as long
+#: as the module).
+_GIVEN_POSE: set[str] = set()
+
+
 @pytest.fixture()
 def navs(warehouse_server: Any, ros_context: Any) -> Iterator[dict[str, Commander]]:
     made: dict[str, Commander] = {}
@@ -40,7 +46,11 @@ def navs(warehouse_server: Any, ros_context: Any) -> Iterator[dict[str, Commande
             made[ns] = Commander(ns, ros_context)
             # as nav2_simple_commander's examples do: the robot's real pose first (the
             # default initial pose, (0, 0), would leave the robot mislocalized and stopped)
-            made[ns].setInitialPose(_ps(float(ns.removeprefix("/robot")), 3.0))
+            if ns not in _GIVEN_POSE:
+                _GIVEN_POSE.add(ns)
+                made[ns].setInitialPose(pose2d_to_pose_stamped(start_pose(ns)))
+            else:  # later tests find the robot where the last left it, localized
+                made[ns].setInitialPose(made[ns].current_estimate())
             self[ns] = made[ns]
             return made[ns]
 
@@ -109,7 +119,7 @@ def test_lifecycle_and_amcl_pose_facade(navs: dict[str, Commander]) -> None:
     assert p.distance_to(Pose2D(1.0, 3.0)) < 0.05
     # initialpose is accepted (the simulator answers with a fresh amcl_pose)
     nav.initial_pose_received = False
-    nav.setInitialPose(_ps(1.0, 3.0))
+    nav.setInitialPose(pose2d_to_pose_stamped(start_pose("/robot1")))
     nav.spin_until(lambda: nav.initial_pose_received, DISCOVERY_S, "amcl_pose answering initialpose")
     # costmap services answer
     assert nav.clear_global.wait_for_service(timeout_sec=DISCOVERY_S)
