@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
 import pytest
-from starts import start_pose
+from starts import LocalizedCommanders, start_pose
 from waiting import DISCOVERY_S, GOAL_S
 
 from fleet.ros.env import ros_available
@@ -38,25 +38,10 @@ _GIVEN_POSE: set[str] = set()
 
 
 @pytest.fixture()
-def navs(warehouse_server: Any, ros_context: Any) -> Iterator[dict[str, Commander]]:
-    made: dict[str, Commander] = {}
-
-    class _Factory(dict):  # type: ignore[type-arg]
-        def __missing__(self, ns: str) -> Commander:
-            made[ns] = Commander(ns, ros_context)
-            # as nav2_simple_commander's examples do: the robot's real pose first (the
-            # default initial pose, (0, 0), would leave the robot mislocalized and stopped)
-            if ns not in _GIVEN_POSE:
-                _GIVEN_POSE.add(ns)
-                made[ns].setInitialPose(pose2d_to_pose_stamped(start_pose(ns)))
-            else:  # later tests find the robot where the last left it, localized
-                made[ns].setInitialPose(made[ns].current_estimate())
-            self[ns] = made[ns]
-            return made[ns]
-
-    yield _Factory()  # type: ignore[misc]
-    for n in made.values():
-        n.close()
+def navs(warehouse_server: Any, ros_context: Any) -> Iterator[LocalizedCommanders]:
+    made = LocalizedCommanders(ros_context, _GIVEN_POSE)
+    yield made
+    made.close()
 
 
 def _run(nav: Commander, timeout_s: float = GOAL_S) -> list[Any]:

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import pytest
-from starts import start_pose
+from starts import LocalizedCommanders, start_pose
 from waiting import DISCOVERY_S, GOAL_S
 
 from fleet.diagnostics import SafetyWatchdog
@@ -89,23 +89,10 @@ _GIVEN_POSE: set[str] = set()
 
 
 @pytest.fixture()
-def navs(server: ServerProcess, ros_context: Any) -> Iterator[dict[str, Commander]]:
-    made: dict[str, Commander] = {}
-
-    class _Factory(dict):  # type: ignore[type-arg]
-        def __missing__(self, ns: str) -> Commander:
-            made[ns] = Commander(ns, ros_context)
-            if ns not in _GIVEN_POSE:
-                _GIVEN_POSE.add(ns)
-                made[ns].setInitialPose(pose2d_to_pose_stamped(start_pose(ns)))
-            else:  # later tests find the robot where the last left it, localized
-                made[ns].setInitialPose(made[ns].current_estimate())
-            self[ns] = made[ns]
-            return made[ns]
-
-    yield _Factory()  # type: ignore[misc]
-    for n in made.values():
-        n.close()
+def navs(server: ServerProcess, ros_context: Any) -> Iterator[LocalizedCommanders]:
+    made = LocalizedCommanders(ros_context, _GIVEN_POSE)
+    yield made
+    made.close()
 
 
 def test_map_tf_and_the_planned_path_for_rviz(navs: dict[str, Commander]) -> None:
