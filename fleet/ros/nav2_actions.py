@@ -10,9 +10,8 @@ the robot's namespace. Every goal goes through the robot's :class:`nodes.navigat
   simulator's planner and controller (``ComputePathToPose``, ``FollowPath``, ``ClearEntireCostmap``,
   ``Spin`` ...), as Nav2's bt_navigator does: the goal's ``behavior_tree`` (a path to an XML
   file) picks the tree, empty means the default (:meth:`RobotActions.set_default_trees`:
-  ``fleet sim-ros --nav-to-pose-xml FILE --nav-through-poses-xml FILE``); without a default
-  the goal runs the simulator's own navigation (plan, follow, replan; no tree, no
-  recoveries: the client's tree recovers). A tree that cannot be loaded ends the goal
+  ``fleet sim-ros --nav-to-pose-xml FILE --nav-through-poses-xml FILE``; else the project's
+  ``nodes/trees/navigate_to_pose.xml`` / ``navigate_through_poses.xml``). A tree that cannot be loaded ends the goal
   ABORTED with the reason. Feedback
   (distance remaining along the planned path, number of recoveries ...) and the result's
   ``error_code`` (the lowest of the tree's planner / controller codes) are bt_navigator's. A
@@ -111,10 +110,10 @@ class RobotActions:
         self._feedback_period = feedback_period
         self._wall = wall
         #: The robot's bt_navigator; every goal goes through it.
+        #: Goals with an empty ``behavior_tree`` run the project's navigator trees
+        #: (``nodes/trees/navigate_to_pose.xml``, ``navigate_through_poses.xml``) unless
+        #: :meth:`set_default_trees` names others.
         self.navigator = BtNavigator(sim.backend(namespace), sim.clock, battery=sim.params.battery)
-        # no default tree unless one is set: goals without behavior_tree run the simulator's own
-        # navigation (plan, follow, replan), as fast as the fleet's in-process runs
-        self.navigator.defaults = {kind: "" for kind in NAVIGATION_KINDS}
         #: Goals executing now, by goal id.
         self.active: dict[str, ServedGoal] = {}
         self.servers = [

@@ -106,7 +106,8 @@ class Nav2SimServer:
         wall: the wall clock the simulator is paced against (default
             :class:`~fleet.clock.WallClock`; tests pass their own).
         nav_to_pose_xml, nav_through_poses_xml: the navigator trees of goals with an empty
-            ``behavior_tree`` (default: none, the simulator's own navigation).
+            ``behavior_tree`` (default: the project's ``nodes/trees/navigate_to_pose.xml`` /
+            ``navigate_through_poses.xml``).
 
     Call :meth:`spin` (blocks until :meth:`request_stop`, e.g. from a signal handler) or
     :meth:`spin_once` in your own loop, then :meth:`close`.
@@ -368,14 +369,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="FILE",
         help="navigator tree (BehaviorTree.CPP XML) of NavigateToPose goals with an empty behavior_tree "
-        "(default: none, the simulator's own navigation; e.g. nodes/trees/navigate_to_pose.xml, or Nav2's own trees)",
+        "(default: the project's nodes/trees/navigate_to_pose.xml; Nav2's own trees load too)",
     )
     ap.add_argument(
         "--nav-through-poses-xml",
         default=None,
         metavar="FILE",
-        help="navigator tree of NavigateThroughPoses goals with an empty behavior_tree (default: none, "
-        "e.g. nodes/trees/navigate_through_poses.xml)",
+        help="navigator tree of NavigateThroughPoses goals with an empty behavior_tree "
+        "(default: the project's nodes/trees/navigate_through_poses.xml)",
     )
     ap.add_argument("--plot", default=None, help="write a PNG of the robots' true trajectories at the end")
     ap.add_argument(
