@@ -28,6 +28,10 @@ from check_layout import ALLOWED, CORE, ROOT, imports, modules, unit_of  # noqa:
 #: Units drawn, and the one line under each name.
 SHOWN: dict[str, str] = {
     "fleet.cli": "one module per command",
+    "fleet.api": "HTTP + WebSocket API (FastAPI)",
+    "fleet.dashboard": "live web dashboard",
+    "fleet.service": "task service, durable store",
+    "fleet.client": "FleetClient (Python API)",
     "fleet.loadtest": "generated fleets, time series",
     "fleet.ros": "ROS 2 / Nav2 edge",
     "fleet.runtime": "worlds, agents, runner, report",
@@ -49,6 +53,7 @@ SHOWN: dict[str, str] = {
     "fleet.robots": "robot, battery models",
     "fleet.maps": "occupancy grids",
     "fleet.errors": "every exception",
+    "fleet.diagnostics": "health levels, watchdog",
 }
 
 
@@ -138,7 +143,7 @@ def draw(out: Path) -> None:
                 facecolor=color, edgecolor="#34495e", lw=1.0,
             )
         )  # fmt: skip
-        name = u.replace(".", "/") + ("/" if u not in CORE and u != "fleet.warehouse" else ".py")
+        name = u.replace(".", "/") + ("/" if (ROOT / u.replace(".", "/")).is_dir() else ".py")
         ax.text(x, y + 0.13, name, ha="center", va="center", fontsize=9.5, weight="bold")
         ax.text(x, y - 0.17, SHOWN[u], ha="center", va="center", fontsize=7.5, color="#333")
     ax.set_title(
