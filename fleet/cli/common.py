@@ -136,22 +136,24 @@ def add_outputs(p: argparse.ArgumentParser) -> None:
 SignalHandler: TypeAlias = "Callable[[int, FrameType | None], Any] | int | signal.Handlers | None"
 
 
-def _sigterm_as_interrupt() -> SignalHandler:
-    """Make SIGTERM raise KeyboardInterrupt (so ``finally`` blocks close the Zenoh session);
-    returns the previous handler (None off the main thread)."""
+def _sigterm_as_interrupt() -> tuple[SignalHandler, SignalHandler]:
+    """Make SIGTERM and SIGINT raise KeyboardInterrupt (so ``finally`` blocks close the Zenoh
+    session). SIGINT too, because a process started in the background of a script inherits
+    it ignored, and then ``kill -INT`` would not stop a run. Returns the previous handlers
+    (``None`` off the main thread)."""
     if threading.current_thread() is not threading.main_thread():
-        return None
+        return None, None
 
     def handler(signum: int, frame: FrameType | None) -> None:
         raise KeyboardInterrupt
 
-    return signal.signal(signal.SIGTERM, handler)
+    return signal.signal(signal.SIGTERM, handler), signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def guard(fn: Callable[[], int]) -> int:
     """Run a command: a project error becomes one ``error: <message>`` line on stderr and exit
     code 2; Ctrl-C / SIGTERM exit code 130."""
-    old = _sigterm_as_interrupt()
+    old_term, old_int = _sigterm_as_interrupt()
     try:
         return int(fn())
     except (ConfigError, BusError, BackendError, ServiceError, TreeError) as e:
@@ -161,8 +163,10 @@ def guard(fn: Callable[[], int]) -> int:
         logger.warning("interrupted")
         return EXIT_INTERRUPTED
     finally:
-        if old is not None:
-            signal.signal(signal.SIGTERM, old)
+        if old_term is not None:
+            signal.signal(signal.SIGTERM, old_term)
+        if old_int is not None:
+            signal.signal(signal.SIGINT, old_int)
 
 
 def load(args: argparse.Namespace) -> FleetConfig:
