@@ -83,7 +83,9 @@ def test_ros_run_matches_the_simulators_ground_truth_at_speed_5(tmp_path: Path) 
         pts = report.trajectories[row.name]
         # the robot stops when the run ends (its goal is canceled as the run closes)
         t_end = pts[-1][0]
-        after = [p for p in true["trajectory"] if p[0] >= t_end]
+        # from the truth at t_end itself (interpolated; the samples are 0.5 s apart)
+        after = [[t_end, *_truth_at(true["trajectory"], t_end)]]
+        after += [p for p in true["trajectory"] if p[0] > t_end]
         driven_after = sum(
             math.hypot(b[1] - a[1], b[2] - a[2]) for a, b in zip(after, after[1:], strict=False)
         )
