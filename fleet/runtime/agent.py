@@ -277,9 +277,8 @@ class RobotAgent:
 
     # -- ticking -----------------------------------------------------------------------
 
-    def _default_charger(self) -> None:
-        """Set the blackboard ``charger`` to the config charger nearest the robot."""
-        pose = self.backend.robot_state().pose
+    def _default_charger(self, pose: Pose2D | None) -> None:
+        """Set the blackboard ``charger`` to the config charger nearest ``pose`` (the robot's)."""
         if pose is not None:
             self.bb.charger = min(
                 self.chargers, key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y)
@@ -291,9 +290,9 @@ class RobotAgent:
         from py_trees.common import Status
 
         self._apply_orders()
-        if self.bb.charger is None and self.chargers:
-            self._default_charger()
         st = self.backend.robot_state()
+        if self.bb.charger is None and self.chargers:
+            self._default_charger(st.pose)
         was = self.watchdog.reason
         reason = self.watchdog.check(st)
         with self._lock:
