@@ -34,6 +34,12 @@ class BusError(FleetError):
     """The status bus could not be opened (bad endpoint, port in use, ...)."""
 
 
+class LeaseError(BusError):
+    """Another process already holds the exclusive lease this one needs (a second coordinator
+    on the bus, a second agent for a robot). The message names the robot or the coordinator,
+    the endpoint and the holder."""
+
+
 class TrafficError(FleetError):
     """The traffic manager was used wrongly (unknown robot or node, bad path, bad parameter)."""
 

@@ -85,6 +85,13 @@ said otherwise.
   the next eligible robot and starts again from the shelf. Unacknowledged pick orders are
   resent like patrols.
 
+Orders on the bus (``docs/protocol.md``): every order and grant the coordinator sends carries
+its ``epoch`` (the epoch of the coordinator lease this process holds) and a per-robot ``seq``
+(orders and grants counted apart, from 1). Agents apply only the live lease's epoch, in
+sequence. A robot's status acknowledges the last order and grant it applied; if that
+acknowledgement is ahead of the coordinator's own count (something else wrote that robot an
+order with this epoch), the count continues above it, so the robot takes the next real order.
+
 Traffic management plugs in through :class:`~fleet.coordination.policy.TrafficPolicy` (the
 default, :class:`~fleet.coordination.policy.NoTraffic`, does nothing): it sees every route
 assignment and release and runs once per cycle.
@@ -95,6 +102,8 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Literal, Protocol
+
+import msgspec
 
 from fleet.coordination.health import PROGRESS_M
 from fleet.coordination.matching import CHARGER_BONUS_M
@@ -164,7 +173,8 @@ class Coordinator:
     ``task_kind`` chooses the config's initial tasks: ``"patrol"`` (its routes),
     ``"picking"`` (its picks) or ``"tasks"`` (both); see :func:`state_from_config`.
     ``first_id``: the first assignment id to hand out (a restarted coordinator continues its
-    durable book's counter). A
+    durable book's counter). ``epoch``: the epoch of the coordinator lease this process holds
+    (``0`` without one), stamped on every order and grant with a per-robot ``seq``. A
     ``traffic`` policy that sends grants (:class:`~fleet.coordination.policy.GrantSender`,
     ``deliver`` unset) has them delivered by :meth:`_deliver_grant`.
     """
@@ -178,8 +188,13 @@ class Coordinator:
         local_robots: set[str] | None = None,
         task_kind: TreeKind | str = TreeKind.PATROL,
         first_id: int = 1,
+        epoch: int = 0,
     ) -> None:
         self.config = config
+        self.epoch = int(epoch)
+        #: Last ``seq`` sent (or acknowledged) per robot, for orders and for bus grants.
+        self.task_seq: dict[str, int] = {}
+        self.grant_seq: dict[str, int] = {}
         self.bus = bus
         self.clock = clock
         self.state = state_from_config(config, traffic, task_kind, first_id)
@@ -239,6 +254,7 @@ class Coordinator:
             inbox, self._inbox = self._inbox, []
         for item in inbox:
             if item[0] == "status":
+                self._heal(item[1])
                 self.state.observe(item[1].robot, now, observation_from_record(item[1]))
             elif item[0] == "join":
                 self.state.robot_joined(item[1], now)
@@ -247,7 +263,8 @@ class Coordinator:
         orders = self.state.step(now)
         self._resend_grants(now)
         for o in orders:
-            msg = task_message(o)
+            seq = self.task_seq[o.robot] = self.task_seq.get(o.robot, 0) + 1
+            msg = msgspec.structs.replace(task_message(o), epoch=self.epoch, seq=seq)
             deliver = self.local_deliver.get(o.robot)
             if deliver is not None:
                 deliver(msg)
@@ -262,9 +279,21 @@ class Coordinator:
         if deliver is not None:
             deliver(grant)
             return
+        seq = self.grant_seq[robot] = self.grant_seq.get(robot, 0) + 1
+        grant = msgspec.structs.replace(grant, epoch=self.epoch, seq=seq)
         self._grants[robot] = (grant, self.clock.now())
         if self.bus is not None:
             self.bus.publish_grant(grant)
+
+    def _heal(self, rec: StatusRecord) -> None:
+        """Continue a robot's sequences above what its status acknowledges for this epoch."""
+        if rec.epoch != self.epoch or rec.robot in self.local_robots:
+            return
+        r = rec.robot
+        if rec.order_seq > self.task_seq.get(r, 0):
+            self.task_seq[r] = rec.order_seq
+        if rec.grant_seq > self.grant_seq.get(r, 0):
+            self.grant_seq[r] = rec.grant_seq
 
     def _resend_grants(self, now: float) -> None:
         if self.bus is None:

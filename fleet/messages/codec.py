@@ -57,6 +57,13 @@ LongText = Annotated[str, Meta(max_length=4096)]
 #: A non-negative integer.
 Count = Annotated[int, Meta(ge=0)]
 
+#: Largest epoch or sequence number on the wire: 2^53, the largest integer every JSON reader
+#: keeps exact (a larger one, such as 2^62, is malformed).
+MAX_SEQ: Final = 2**53
+
+#: An epoch or a sequence number: an integer in [0, 2^53].
+Seq = Annotated[int, Meta(ge=0, le=MAX_SEQ)]
+
 #: What a robot name may look like: one Zenoh key chunk, e.g. ``robot3``.
 ROBOT_NAME_PATTERN: Final = r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$"
 

@@ -21,6 +21,7 @@ from fleet.messages.codec import (
     Pose,
     Poses,
     RobotName,
+    Seq,
     Text,
     check_finite,
     encode,
@@ -68,7 +69,11 @@ class StatusRecord(Struct, frozen=True, tag_field="v", tag=1, omit_defaults=True
     optional on the wire: absent means all OK). ``result_id`` / ``result``: the
     last task id whose steps the robot finished and how (``succeeded`` or ``failed: <why>``;
     repeated until the next order); ``steps_done``: steps of the current task done so far.
-    The JSON carries ``"v": 1``.
+    Acknowledgements (``docs/protocol.md``): ``epoch`` the coordinator epoch of the last order
+    the agent applied, ``order_seq`` that order's sequence number, ``grant_seq`` the sequence
+    number of the last grant applied. Counters of the robot's process: ``malformed`` payloads
+    dropped unparsed, ``rejected`` well-formed orders and grants ignored (not from the live
+    coordinator, stale or out of sequence). The JSON carries ``"v": 1``.
     """
 
     robot: RobotName
@@ -93,6 +98,11 @@ class StatusRecord(Struct, frozen=True, tag_field="v", tag=1, omit_defaults=True
     result_id: Text | None = None
     result: LongText = ""
     steps_done: Count = 0
+    epoch: Seq = 0
+    order_seq: Seq = 0
+    grant_seq: Seq = 0
+    malformed: Count = 0
+    rejected: Count = 0
 
     def to_json(self) -> bytes:
         """UTF-8 JSON. The record is not validated field by field (its types are the caller's
@@ -167,7 +177,9 @@ class TaskMessage(Struct, frozen=True):
     set, see :mod:`fleet.messages.steps`), ``charge`` (go and charge now, at ``charger``) or
     ``idle`` (``task_id`` may be ``None``). ``charger`` is the charger pose to use when low.
     ``robot`` is the addressee (filled from the key on receipt if absent). Task ids are never
-    reused.
+    reused. ``epoch`` is the sending coordinator's epoch and ``seq`` its per-robot sequence
+    number (``docs/protocol.md``): an agent applies an order from the bus only if ``epoch`` is
+    the live coordinator's and ``seq`` is newer than the last one it applied.
     """
 
     task_id: str | None
@@ -178,6 +190,8 @@ class TaskMessage(Struct, frozen=True):
     charger: Pose2D | None = None
     pick: PickLike | None = None
     steps: tuple[Step, ...] = ()
+    epoch: int = 0
+    seq: int = 0
 
     def _wire(self) -> _TaskWire:
         pk = self.pick
@@ -197,6 +211,8 @@ class TaskMessage(Struct, frozen=True):
                 dwell_s=float(pk.dwell_s),
             ),
             steps=tuple(step_wire(st) for st in self.steps),
+            epoch=self.epoch,
+            seq=self.seq,
         )
 
     def to_dict(self) -> dict[str, object]:
@@ -237,6 +253,8 @@ class _TaskWire(Struct, frozen=True, kw_only=True, omit_defaults=True, tag_field
     charger: Pose | None = None
     pick: _PickWire | None = None
     steps: Annotated[tuple[StepWire, ...], Meta(max_length=MAX_STEPS)] = ()
+    epoch: Seq = 0
+    seq: Seq = 0
 
     def check(self, what: str) -> _TaskWire:
         """What the types cannot say: ids, poses and picks that each kind needs."""
@@ -265,6 +283,8 @@ class _TaskWire(Struct, frozen=True, kw_only=True, omit_defaults=True, tag_field
             charger=None if self.charger is None else Pose2D(*self.charger),
             pick=None if pk is None else PickOrder(pk.name, Pose2D(*pk.shelf), Pose2D(*pk.drop), pk.dwell_s),
             steps=tuple(st.step() for st in self.steps),
+            epoch=self.epoch,
+            seq=self.seq,
         )
 
 
@@ -284,7 +304,8 @@ class Grant(Struct, frozen=True):
     defaults): ``task_id`` the coordinator assignment the path serves, ``purpose`` why the
     robot drives (``patrol``, ``charge``, ``charge-wait``, ``park`` or ``""``), ``laps``
     loops completed on the path for ``task_id``, ``seq`` a per-robot counter (a receiver
-    ignores a grant whose ``seq`` is not newer than the last one it applied).
+    ignores a grant whose ``seq`` is not newer than the last one it applied); ``epoch`` the
+    sending coordinator's epoch (``docs/protocol.md``).
     JSON: :meth:`to_dict` / :meth:`from_dict`, :meth:`to_json` / :meth:`from_json`.
     A copy with changes: ``msgspec.structs.replace(grant, seq=2)``.
     """
@@ -303,6 +324,7 @@ class Grant(Struct, frozen=True):
     purpose: str = ""
     laps: int = 0
     seq: int = 0
+    epoch: int = 0
 
     def _wire(self) -> _GrantWire:
         fields = msgspec.structs.asdict(self)
@@ -342,7 +364,8 @@ class _GrantWire(Struct, frozen=True, tag_field="v", tag=1):
     task_id: Text | None = None
     purpose: Text = ""
     laps: Count = 0
-    seq: Count = 0
+    seq: Seq = 0
+    epoch: Seq = 0
 
     def grant(self, what: str) -> Grant:
         if len(self.poses) != len(self.nodes):

@@ -16,6 +16,13 @@ Orders are queued by the bus callback thread and applied on the ticking thread o
 With traffic management the agent also takes the robot's traffic grants
 (``fleet/<robot>/grant``, newest ``seq`` wins) into the blackboard key ``grant``.
 
+Orders and grants from the bus pass an :class:`~fleet.runtime.order_gate.OrderGate` first
+(``docs/protocol.md``): only those of the live coordinator's epoch, in sequence, are applied;
+the others are counted (``rejected`` in the status) and ignored. Orders handed over in-process
+(:meth:`RobotAgent.deliver`, :meth:`RobotAgent.deliver_grant`, from a coordinator in the same
+process) skip the gate. The status acknowledges the last order applied (``epoch``,
+``order_seq``) and the last grant (``grant_seq``).
+
 Safety and health: each tick first reads the robot's state and asks the robot's
 :class:`fleet.diagnostics.SafetyWatchdog`; while it trips (localization lost or stale, the
 navigation server down) the tree is halted at once (its running goal is canceled, so the robot
@@ -54,11 +61,13 @@ from fleet.diagnostics import (
     worst,
 )
 from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
+from fleet.runtime.order_gate import OrderGate
 from fleet.types import Mode, Pose2D, RobotState, TaskKind, TreeKind
 
 if TYPE_CHECKING:
     from py_trees.behaviour import Behaviour
 
+    from fleet.bus.lease import Lease
     from fleet.navigation import Clock, NavigationBackend
     from fleet.robots import BatteryModel
 
@@ -118,10 +127,15 @@ class RobotAgent:
             what its traffic grants (``fleet/<robot>/grant``, or :meth:`deliver_grant`) allow.
         status_hz: publish the status on the bus at most this often (simulated Hz, > 0);
             ``None``: every tick. See the module docstring.
+        leases: the live coordinator lease (:meth:`fleet.bus.lease.LeaseWatch.current`): orders
+            and grants on the bus are then taken through the agent's :class:`OrderGate`.
+            ``None``: the agent takes no orders from the bus (its coordinator runs in the same
+            process and hands them over with :meth:`deliver` / :meth:`deliver_grant`).
 
     ``published`` counts the records published on the bus.
     """
 
+    # long: one attribute per piece of the agent's state, each set once here
     def __init__(
         self,
         namespace: str,
@@ -137,6 +151,7 @@ class RobotAgent:
         tree_file: str | None = None,
         health: HealthParams | None = None,
         chargers: Sequence[Pose2D] = (),
+        leases: Callable[[], Lease | None] | None = None,
     ) -> None:
         from fleet.robots import BatteryModel
         from nodes.blackboard import clear_robot_blackboard, robot_blackboard
@@ -180,8 +195,11 @@ class RobotAgent:
         self._seen: dict[str, None] = {}
         self._inbox: list[TaskMessage] = []
         self._grant: Grant | None = None
-        self._grant_seq = 0
+        self._grant_fresh = False
+        self._grant_seq = self._grant_epoch = 0
         self.grants_applied = 0
+        self.gate = OrderGate(leases) if leases is not None else None  # None: no orders from the bus
+        self.ack: tuple[int, int] = (0, 0)  # (epoch, seq) of the last order applied
         self._lock = threading.Lock()
         self._last_mode: str = Mode.IDLE
         self._control: FleetControl | None = None
@@ -192,9 +210,10 @@ class RobotAgent:
         self._grant_sub: Declared | None = None
         self._control_sub: Declared | None = None
         if bus is not None:
-            self._sub = bus.subscribe_tasks(self.name, self.deliver)
-            if traffic:
-                self._grant_sub = bus.subscribe_grants(self.name, self.deliver_grant)
+            if self.gate is not None:
+                self._sub = bus.subscribe_tasks(self.name, self._on_bus_task)
+                if traffic:
+                    self._grant_sub = bus.subscribe_grants(self.name, self._on_bus_grant)
             if isinstance(bus, ControlBus):
                 self._control_sub = bus.subscribe_control(self.set_control)
             self._token = bus.declare_alive(self.name)
@@ -209,23 +228,32 @@ class RobotAgent:
     def deliver_grant(self, grant: Grant) -> None:
         """Keep a traffic :class:`~fleet.messages.Grant` for the next :meth:`tick`; thread-safe.
         Only the newest (highest ``seq``) of those received counts; older or duplicate copies
-        (the bus copy of a grant also handed over in-process) are ignored."""
+        are ignored."""
         if grant.robot != self.name:
             return
         with self._lock:
             if self._grant is None or grant.seq > self._grant.seq:
                 self._grant = grant
+                self._grant_fresh = True
+
+    def _on_bus_task(self, msg: TaskMessage) -> None:
+        """An order from the bus: queued if the gate admits it."""
+        if msg.robot in (None, self.name) and self.gate is not None and self.gate.admit("task", msg):
+            self.deliver(msg)
+
+    def _on_bus_grant(self, grant: Grant) -> None:
+        """A grant from the bus: kept if the gate admits it (the gate orders them by ``seq``)."""
+        if grant.robot == self.name and self.gate is not None and self.gate.admit("grant", grant):
+            with self._lock:
+                self._grant = grant
+                self._grant_fresh = True
 
     def pending(self) -> bool:
         """Orders, a grant or a control change wait to be applied (thread-safe)."""
         with self._lock:
             ctl = self._control
             halted = ctl is not None and (ctl.estop or ctl.paused)
-            return (
-                bool(self._inbox)
-                or (self._grant is not None and self._grant.seq > self._grant_seq)
-                or (halted != (self.halted is not None))
-            )
+            return bool(self._inbox) or self._grant_fresh or (halted != (self.halted is not None))
 
     def set_control(self, ctl: FleetControl) -> None:
         """Keep the fleet's control state for the next :meth:`tick` (newest ``seq`` wins);
@@ -237,11 +265,12 @@ class RobotAgent:
     def _apply_orders(self) -> None:
         with self._lock:
             inbox, self._inbox = self._inbox, []
-            grant = self._grant
+            grant = self._grant if self._grant_fresh else None
+            self._grant_fresh = False
         for msg in inbox:
             self.apply(msg)
-        if grant is not None and grant.seq > self._grant_seq:
-            self._grant_seq = grant.seq
+        if grant is not None:
+            self._grant_seq, self._grant_epoch = grant.seq, grant.epoch
             self.bb.grant = grant
             self.grants_applied += 1
 
@@ -257,6 +286,7 @@ class RobotAgent:
             self._seen[tid] = None
             if len(self._seen) > SEEN_IDS:
                 self._seen.pop(next(iter(self._seen)))
+        self.ack = (msg.epoch, msg.seq)
         if msg.charger is not None:
             self.bb.charger = _pose(msg.charger)
         bb = self.bb
@@ -378,6 +408,11 @@ class RobotAgent:
             steps_done=int(bb.step_index)
             if bb.steps_task_id is not None and bb.steps_task_id == task_id
             else 0,
+            epoch=self.ack[0],
+            order_seq=self.ack[1],
+            grant_seq=self._grant_seq if self._grant_epoch == self.ack[0] else 0,
+            malformed=int(getattr(self.bus, "malformed", 0)),
+            rejected=self.gate.rejected_total if self.gate is not None else 0,
         )
 
     def _diagnostics(self, st: RobotState) -> tuple[int, tuple[tuple[str, int, str], ...]]:

@@ -14,9 +14,16 @@ always closes it (also on Ctrl-C or an error). With an in-process world it is a 
 *listening* on the endpoint (other processes, e.g. ``fleet status``, connect to it); with a
 remote world it *connects* to the endpoint where ``fleet sim`` listens.
 
-Agents and the coordinator in the same process exchange their messages directly as well as
-over the bus (the coordinator ignores the bus copies of its local robots' statuses), so an
-in-process run with ``speed=0`` does not depend on network timing and is reproducible.
+Agents and the coordinator in the same process exchange their messages directly (the
+coordinator ignores the bus copies of its local robots' statuses, and local agents take no
+orders from the bus), so an in-process run with ``speed=0`` does not depend on network timing
+and is reproducible.
+
+Leases (``docs/protocol.md``): before its agents declare their liveliness tokens the runner
+refuses (:class:`~fleet.errors.LeaseError`) to drive a robot that already has a live agent, and
+a runner with the coordinator takes the coordinator lease (refused if another coordinator is
+live) with a new epoch, kept in the durable task book. Agents without a local coordinator
+follow the live lease and take orders from the bus through their order gate.
 
 Backends are pluggable by name in :data:`fleet.runtime.backends.BACKENDS` (``name ->
 factory``); a factory builds a :class:`~fleet.runtime.worlds.World` lazily, so importing the
@@ -49,6 +56,7 @@ from fleet.viz.table import robot_sort_key
 if TYPE_CHECKING:
     import zenoh
 
+    from fleet.bus.lease import CoordinatorLease, LeaseWatch
     from fleet.bus.status_bus import StatusBus
     from fleet.coordination.coordinator import Coordinator
     from fleet.runtime.agent import RobotAgent
@@ -119,6 +127,7 @@ class FleetRunner:
     speed, a non-positive duration, or a bad ``api`` address.
     """
 
+    # long: one attribute per part of the run, each set once here
     def __init__(
         self,
         config: FleetConfig,
@@ -193,6 +202,8 @@ class FleetRunner:
         self.goal_logs: dict[str, GoalLog] = {}
         self.coordinator: Coordinator | None = None
         self.bus: StatusBus | None = None
+        self.lease: CoordinatorLease | None = None  # held with the coordinator
+        self.lease_watch: LeaseWatch | None = None  # followed by agents whose coordinator is elsewhere
         #: What this process saw of the fleet on the bus (latest statuses, bounded trajectories).
         self.bus_view = BusView()
         #: Called as ``observer(sim_time, runner)`` once per agent tick, after the agents and
@@ -258,6 +269,11 @@ class FleetRunner:
         )
         traced = [s.name for s in specs if world.trajectory(s.namespace) is not None]
         self.bus_view.skip_trajectories(traced)  # the world records these robots' trajectories
+        from fleet.bus.lease import LeaseWatch, claim_robots
+
+        claim_robots(session, self.agent_names, self.endpoint)
+        if not self.run_coordinator and self.agent_names:
+            self.lease_watch = LeaseWatch(session)
         if self.run_coordinator:
             self.coordinator = self._make_coordinator(world, self.bus)
         self.agents = [self._make_agent(spec.namespace, world, self.bus) for spec in specs]
@@ -285,6 +301,7 @@ class FleetRunner:
 
             self.traffic_policy = traffic_from_config(self.config)
         self.host = host = ServiceHost(self.config, world.clock, self.state_dir, self.api)
+        self.lease = _take_lease(bus.session, host, self.endpoint)
         coordinator = Coordinator(
             self.config,
             bus,
@@ -293,6 +310,7 @@ class FleetRunner:
             local_robots=set(self.agent_names),
             task_kind=self.tree_kind,
             first_id=host.service.first_assignment_id,
+            epoch=self.lease.epoch,
         )
         host.service.attach(coordinator.state)
         return coordinator
@@ -344,6 +362,7 @@ class FleetRunner:
             status_hz=self.config.status_hz,
             tree_file=self.tree_file,
             chargers=[c.pose for c in self.config.chargers],
+            leases=self.lease_watch.current if self.lease_watch is not None else None,
         )
 
     def _loop(self, world: World) -> None:
@@ -470,6 +489,10 @@ class FleetRunner:
             _try(self.host.close, "closing the task service")
         for a in self.agents:
             _try(a.close, f"closing agent {a.name}")
+        if self.lease_watch is not None:
+            _try(self.lease_watch.close, "closing the lease watch")
+        if self.lease is not None:
+            _try(self.lease.release, "releasing the coordinator lease")
         if self.world is not None:
             _try(self.world.close, "closing the backend")
         if self.bus is not None:
@@ -478,6 +501,18 @@ class FleetRunner:
             session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves Session.close unannotated
         except Exception as e:  # noqa: BLE001 - already closed by the bus
             logger.debug("closing the session: %s", e)
+
+
+def _take_lease(session: zenoh.Session, host: ServiceHost, endpoint: str) -> CoordinatorLease:
+    """The coordinator lease with the next epoch after the durable book's (kept there)."""
+    from fleet.bus.lease import acquire_coordinator_lease, next_epoch
+
+    store = host.service.store
+    epoch = next_epoch(store.counter("epoch") if store is not None else 0)
+    lease = acquire_coordinator_lease(session, epoch, endpoint)
+    if store is not None:
+        store.raise_counter("epoch", epoch)
+    return lease
 
 
 def _sum_counts(counts: Iterable[Mapping[str, int]]) -> dict[str, int]:

@@ -12,8 +12,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from msgspec.structs import replace
 from ports import free_endpoint
 
+from fleet.bus.lease import LeaseWatch, acquire_coordinator_lease
 from fleet.bus.session import open_session
 from fleet.bus.status_bus import StatusBus
 from fleet.clock import SimClock
@@ -192,15 +194,22 @@ def test_status_and_liveliness_on_the_bus(config: FleetConfig, bus: StatusBus) -
         lambda robot: joined.set() if robot == "robot1" else None,
         lambda robot: left.set() if robot == "robot1" else None,
     )
-    agent, sim = make_agent(config, bus)
+    lease = acquire_coordinator_lease(bus.session, 7, "test")
+    watch = LeaseWatch(bus.session)
+    agent, sim = make_agent(config, bus, leases=watch.current)
     try:
         assert joined.wait(WAIT_S)
         agent.tick()
         assert got.wait(WAIT_S)
         assert seen[0].robot == "robot1" and seen[0].battery == pytest.approx(1.0)
-        # an order published on the bus reaches the agent (applied at its next tick)
-        bus.publish_task(patrol_msg(config, "p-0007"))
+        wait_until(lambda: watch.current() == lease.lease, "the coordinator lease")
+        # an order of the live coordinator's epoch on the bus reaches the agent (applied at
+        # its next tick) and is acknowledged in the status
+        bus.publish_task(replace(patrol_msg(config, "p-0007"), epoch=7, seq=1))
         wait_until(lambda: agent.bb.task_id == "p-0007", "the order on the agent", act=agent.tick)
+        assert (agent.tick().epoch, agent.tick().order_seq) == (7, 1)
     finally:
         agent.close()
+        watch.close()
+        lease.release()
     assert left.wait(WAIT_S)
