@@ -56,10 +56,12 @@ class PickTask:
 @dataclass(frozen=True)
 class CoordinatorParams:
     """``stuck_reassign_s``: a robot stuck this long loses its patrol to another robot;
-    ``status_timeout_s``: a robot silent this long is considered dead."""
+    ``status_timeout_s``: a robot silent this long is considered dead; ``ack_timeout_s``: an
+    order the robot has not acknowledged this long is re-issued under a new id."""
 
     stuck_reassign_s: float = 30.0
     status_timeout_s: float = 3.0
+    ack_timeout_s: float = 5.0
 
 
 @dataclass(frozen=True)

@@ -183,6 +183,10 @@ class CoordinatorSection(Section):
     status_timeout_s: Positive = Field(
         default=_COORDINATOR.status_timeout_s, description="a robot silent this long is considered dead (s)"
     )
+    ack_timeout_s: Positive = Field(
+        default=_COORDINATOR.ack_timeout_s,
+        description="an order the robot has not acknowledged this long is re-issued under a new id (s)",
+    )
 
     def to_params(self) -> CoordinatorParams:
         return CoordinatorParams(**self.model_dump())

@@ -271,6 +271,8 @@ class CoordinatorState:
                 continue
             if health.charging(v) and a.kind is not TaskKind.CHARGE:
                 out.append(self._release(v, now, Reason.CHARGING))
+            elif a.t_started is None and not a.restored and now - a.t_assigned >= p.ack_timeout_s:
+                out.append(self._release(v, now, Reason.NO_ACK))  # matched again, under a new id
             elif v.obs.mode == Mode.SAFETY_STOP:
                 out.append(self._release(v, now, Reason.SAFETY_STOP))
             elif self.traffic.waiting(v.name):
@@ -522,6 +524,7 @@ def state_from_config(
     params = CoordinatorParams(
         stuck_reassign_s=config.coordinator.stuck_reassign_s,
         status_timeout_s=config.coordinator.status_timeout_s,
+        ack_timeout_s=config.coordinator.ack_timeout_s,
         battery_low=config.sim.battery.low,
     )
     routes = tree in (TreeKind.PATROL, TreeKind.TASKS)

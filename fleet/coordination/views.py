@@ -31,6 +31,8 @@ class Reason(enum.StrEnum):
     RESTART = "restart"
     #: the task was canceled while the robot held it
     CANCELED = "canceled"
+    #: the robot did not acknowledge the order in time: re-issued under a new id
+    NO_ACK = "no_ack"
 
 
 REASON_DEAD = Reason.DEAD
@@ -179,3 +181,5 @@ class CoordinatorParams:
     stuck_reassign_s: float = 30.0
     status_timeout_s: float = 3.0
     battery_low: float = 0.25
+    #: an order whose id the robot's status has not carried this long is re-issued (s)
+    ack_timeout_s: float = 5.0

@@ -10,8 +10,9 @@ Orders (``fleet/<robot>/task``) are applied to the blackboard keys of
 ``docs/architecture.md``: a ``patrol`` order sets ``route`` (the lap of poses), ``task_id``
 and ``charger``; a ``go_to``, ``inspection``, ``park`` or ``pick`` order sets ``steps``
 (the legacy picking tree gets ``pick``); a ``charge`` order sets ``charge_now``; an ``idle``
-order clears them all and ``task_id``. An order whose id was already applied (a duplicate, or a late copy
-of an order that has been superseded) is ignored, so a message can never be applied twice.
+order clears them all and ``task_id``. An order whose id was already applied under the same
+coordinator epoch (a duplicate, or a late copy of an order that has been superseded) is
+ignored, so a message can never be applied twice.
 Orders are queued by the bus callback thread and applied on the ticking thread only.
 With traffic management the agent also takes the robot's traffic grants
 (``fleet/<robot>/grant``, newest ``seq`` wins) into the blackboard key ``grant``.
@@ -281,9 +282,10 @@ class RobotAgent:
             return False
         tid = msg.task_id
         if tid is not None:
-            if tid in self._seen:
+            seen = f"{msg.epoch}/{tid}"  # ids are unique per coordinator epoch
+            if seen in self._seen:
                 return False
-            self._seen[tid] = None
+            self._seen[seen] = None
             if len(self._seen) > SEEN_IDS:
                 self._seen.pop(next(iter(self._seen)))
         self.ack = (msg.epoch, msg.seq)

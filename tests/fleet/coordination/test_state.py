@@ -18,6 +18,7 @@ from fleet.coordination.views import (
     REASON_STUCK,
     CoordinatorParams,
     Observation,
+    Reason,
     TaskOrder,
 )
 from fleet.roadmap.graph import Roadmap
@@ -159,7 +160,7 @@ def test_reassign_when_robot_goes_silent() -> None:
 
 
 def test_reassign_when_stuck_and_cooldown() -> None:
-    s = line_state(stuck_reassign_s=30.0)
+    s = line_state(stuck_reassign_s=30.0, ack_timeout_s=1000.0)  # "b" never acknowledges its order
     s.observe("a", 0.0, idle(1, 0))
     s.observe("b", 0.0, idle(99, 0))
     tid = patrols(s.step(0.0))["a"].task_id
@@ -328,3 +329,30 @@ def test_event_log_is_bounded() -> None:
         s.robot_joined(f"r{k}", float(k))
     assert len(s.events) == MAX_EVENTS
     assert s.events[-1] == (float(MAX_EVENTS + 49), f"r{MAX_EVENTS + 49} joined")
+
+
+def test_an_order_never_acknowledged_is_reissued_under_a_new_id() -> None:
+    s = line_state(ack_timeout_s=5.0)
+    s.observe("a", 0.0, idle(1, 0))
+    s.observe("b", 0.0, idle(99, 0))
+    orders = patrols(s.step(0.0))
+    tid_a, first = orders["a"].task_id, orders["b"]
+    issued = [first.task_id]
+    t = 0.0
+    while t < 12.0:  # "b" never shows its order: it was lost (its agent started after it was sent)
+        t += 1.0
+        s.observe("a", t, patrol(1 + t, 0, tid_a))
+        s.observe("b", t, idle(99, 0))
+        got = patrols(s.step(t)).get("b")
+        if got is not None and got.task_id not in issued:
+            assert got.route == first.route
+            issued.append(got.task_id)
+    # re-issued every ack_timeout_s, each time under a new id (never the same id forever)
+    assert len(issued) == 3 and len(set(issued)) == 3
+    assert [(r.reason, r.to_robot) for r in s.reassignments] == [(Reason.NO_ACK, "b")] * 2
+    # once the robot shows the id, it keeps its task
+    for dt in range(1, 10):
+        s.observe("a", t + dt, patrol(1 + t + dt, 0, tid_a))
+        s.observe("b", t + dt, patrol(99 - dt, 0, issued[-1]))
+        assert patrols(s.step(t + dt)).get("b") is None
+    assert len(s.reassignments) == 2
