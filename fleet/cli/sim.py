@@ -66,7 +66,7 @@ def handle(args: argparse.Namespace) -> int:
                 wall_s=p.wall_s,
                 duration_s=args.duration,
                 robots=len(config.robots),
-                note=f"{p.steps} steps, {p.requests} requests",
+                note=f"{p.steps} steps, {p.requests} requests, {p.malformed} malformed dropped",
                 label="fleet sim",
             )
         )
@@ -82,6 +82,7 @@ def handle(args: argparse.Namespace) -> int:
         )
     finally:
         display.close()
+    print(f"fleet sim: {result.malformed} malformed messages dropped", flush=True)
     if args.plot is not None:
         from fleet.viz.plot import plot_run
 

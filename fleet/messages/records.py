@@ -71,9 +71,9 @@ class StatusRecord(Struct, frozen=True, tag_field="v", tag=1, omit_defaults=True
     repeated until the next order); ``steps_done``: steps of the current task done so far.
     Acknowledgements (``docs/protocol.md``): ``epoch`` the coordinator epoch of the last order
     the agent applied, ``order_seq`` that order's sequence number, ``grant_seq`` the sequence
-    number of the last grant applied. Counters of the robot's process: ``malformed`` payloads
-    dropped unparsed, ``rejected`` well-formed orders and grants ignored (not from the live
-    coordinator, stale or out of sequence). The JSON carries ``"v": 1``.
+    number of the last grant applied. Counters: ``malformed`` payloads the status bus of the
+    robot's process dropped unparsed, ``rejected`` well-formed orders and grants for this robot
+    its agent ignored (not from the live coordinator, stale or out of sequence). The JSON carries ``"v": 1``.
     """
 
     robot: RobotName

@@ -126,6 +126,7 @@ class RunReport:
     reassignment_events: list[dict[str, Any]] = field(default_factory=list)
     assignments: list[dict[str, Any]] = field(default_factory=list)
     malformed_messages: int = 0
+    rejected_orders: int = 0
     interrupted: bool = False
     throughput_laps_per_robot_hour: float = 0.0
     mean_wait_s: float | None = None
@@ -198,6 +199,7 @@ class ReportBuilder:
     t0: float = 0.0
     t_end: float | None = None
 
+    # long: one keyword per part of the report, passed straight through
     def build(
         self,
         world: World,
@@ -213,6 +215,7 @@ class ReportBuilder:
         mode_ticks: Mapping[str, int] | None = None,
         bus_trajectory: Callable[[str], list[tuple[float, float, float]]] = lambda name: [],
         malformed: int = 0,
+        rejected: int = 0,
         safety_stops: Mapping[str, int] | None = None,
         tasks: dict[str, Any] | None = None,
         control_events: Sequence[dict[str, Any]] = (),
@@ -222,7 +225,9 @@ class ReportBuilder:
         policy when traffic management was on; ``charges`` times each local robot went to
         charge; ``goals`` each local robot's goal metrics; ``min_battery`` the lowest battery each
         local robot reported (robots of other processes: their last one); ``mode_ticks`` agent
-        ticks per tree mode over the local robots; ``malformed`` bus payloads dropped."""
+        ticks per tree mode over the local robots; ``malformed`` payloads this process dropped
+        unparsed (status bus, clock, navigation states, task service queries); ``rejected``
+        well-formed orders and grants its agents ignored (``docs/protocol.md``)."""
         names = [r.name for r in self.config.robots if r.name in records or r.name in self.local]
         rows = [self._row(n, records.get(n), state, charges or {}, min_battery or {}) for n in names]
         fleet_goals = _merge_goals(rows, goals or {})
@@ -259,6 +264,7 @@ class ReportBuilder:
             else [],
             assignments=[assignment_dict(a) for a in state.assignments] if state is not None else [],
             malformed_messages=int(malformed),
+            rejected_orders=int(rejected),
             interrupted=interrupted,
             trajectories=trajectories,
             throughput_laps_per_robot_hour=laps / robot_hours if robot_hours > 0 else 0.0,

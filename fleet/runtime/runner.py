@@ -475,10 +475,21 @@ class FleetRunner:
             min_battery={a.name: a.min_battery for a in self.agents},
             mode_ticks=_sum_counts(a.mode_ticks for a in self.agents),
             bus_trajectory=self.bus_view.trajectory,
-            malformed=self.bus.malformed if self.bus is not None else 0,
+            malformed=self.malformed(),
+            rejected=sum(a.gate.rejected_total for a in self.agents if a.gate is not None),
             tasks=self.host.task_summary() if self.host is not None else None,
             control_events=self.host.control_events() if self.host is not None else (),
         )
+
+    def malformed(self) -> int:
+        """Payloads this process dropped unparsed: on the status bus, from a remote simulator
+        (clock, navigation states) and on the task service's bus face."""
+        n = self.bus.malformed if self.bus is not None else 0
+        world_count = getattr(self.world, "malformed", None)
+        if callable(world_count):
+            n += int(world_count())
+        face = self.host.face if self.host is not None else None
+        return n + (face.malformed if face is not None else 0)
 
     def collision_points(self) -> list[tuple[float, float]]:
         """Where robots touched, ``(x, y)`` in the ``map`` frame (empty if the world cannot see)."""

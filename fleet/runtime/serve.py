@@ -39,24 +39,28 @@ logger = logging.getLogger(__name__)
 @dataclass
 class ServeResult:
     """What :func:`serve_simulator` returns: the simulator, steps taken, simulated and wall
-    seconds, and whether it was interrupted (Ctrl-C / SIGTERM / ``stop_event``)."""
+    seconds, and whether it was interrupted (Ctrl-C / SIGTERM / ``stop_event``);
+    ``malformed``: payloads dropped unparsed (navigation requests and control states)."""
 
     simulator: Simulator
     steps: int
     sim_time_s: float
     wall_time_s: float
     interrupted: bool
+    malformed: int = 0
 
 
 @dataclass(frozen=True)
 class ServeProgress:
     """Progress of :func:`serve_simulator`: simulated seconds served, wall seconds since the
-    start, simulator steps taken and navigation requests applied so far."""
+    start, simulator steps taken and navigation requests applied so far, and payloads
+    dropped unparsed (``malformed``)."""
 
     sim_time_s: float
     wall_s: float
     steps: int
     requests: int
+    malformed: int = 0
 
 
 def simulator_from_config(config: FleetConfig) -> Simulator:
@@ -130,7 +134,10 @@ def serve_simulator(
         bus.close()
         if session is None:
             sess.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves Session.close unannotated
-    return ServeResult(sim, loop.steps, float(sim.clock.now() - loop.t0), loop.wall_s(), loop.interrupted)
+    malformed = bus.malformed + (server.malformed if server is not None else 0)
+    return ServeResult(
+        sim, loop.steps, float(sim.clock.now() - loop.t0), loop.wall_s(), loop.interrupted, malformed
+    )
 
 
 class _ServeLoop:
@@ -183,7 +190,11 @@ class _ServeLoop:
                 server.publish()
                 next_pub = max(next_pub + self.period_s, w)
                 if progress is not None and w >= next_progress:
-                    progress(ServeProgress(self.sim.clock.now(), w - self.w0, self.steps, server.requests))
+                    progress(
+                        ServeProgress(
+                            self.sim.clock.now(), w - self.w0, self.steps, server.requests, server.malformed
+                        )
+                    )
                     next_progress = w + progress_every_s
         except KeyboardInterrupt:
             self.interrupted = True

@@ -139,6 +139,10 @@ class RemoteWorld(BlindWorld):
         self._last = self.clock.now()
         self._last_wall = self._wall.now()
 
+    def malformed(self) -> int:
+        """Payloads dropped unparsed: clock messages and robots' navigation states."""
+        return self.clock.malformed + sum(b.malformed for b in self._backends.values())
+
     def backend(self, namespace: str) -> NavigationBackend:
         from fleet.bus.nav_client import ZenohNavBackend
 

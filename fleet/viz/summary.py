@@ -53,6 +53,14 @@ def _counts(r: Mapping[str, Any]) -> list[Text]:
         line.append(f"   safety stops: {r['safety_stops']}", style="bold yellow")
     line.append(f"   throughput: {float(r.get('throughput_laps_per_robot_hour', 0.0)):.1f} laps/robot-hour")
     lines.append(line)
+    if r.get("malformed_messages") or r.get("rejected_orders"):
+        lines.append(
+            Text(
+                f"dropped on the bus: {r.get('malformed_messages', 0)} malformed, "
+                f"{r.get('rejected_orders', 0)} orders not from the live coordinator (docs/protocol.md)",
+                style="yellow",
+            )
+        )
     if "min_battery" in r:
         low = float(r["min_battery"])
         bat = Text("battery: lowest ")
