@@ -112,7 +112,8 @@ class StatusBus:
     Counters (read at any time): ``received`` valid status, task and grant messages,
     ``malformed`` dropped payloads (``last_malformed`` says why: ``<key>: <field>: <reason>``),
     ``callback_errors`` exceptions raised by user callbacks, ``events_dropped`` events pushed
-    out of the bounded event queue.
+    out of the bounded event queue, ``early`` valid orders that arrived before their agent
+    subscribed (:meth:`guard_orders`).
     """
 
     def __init__(
@@ -126,6 +127,7 @@ class StatusBus:
         self.callback_errors = 0
         self.last_callback_error: str | None = None
         self.events_dropped = 0
+        self.early = 0
         self._lock = threading.Lock()
         self._latest: dict[str, StatusRecord] = {}
         self._alive: set[str] = set()
@@ -262,6 +264,36 @@ class StatusBus:
         """A copy of the latest valid record of every robot seen (by robot name)."""
         with self._lock:
             return dict(self._latest)
+
+    def guard_orders(self, robots: list[str]) -> BusHandle:
+        """Count what arrives on the robots' task and grant keys before their agents subscribe
+        (while the process starts): a malformed payload is counted in ``malformed`` like any
+        other, a valid one in ``early`` (it is dropped: the coordinator sends again). The handle
+        ends the guard (undeclare it once the agents are up)."""
+        subs: list[Declaration] = []
+
+        def guard(key: str, parse: Callable[[bytes], object]) -> Callable[[zenoh.Sample], None]:
+            def on_sample(sample: zenoh.Sample) -> None:
+                try:
+                    if _is_delete(sample):
+                        return
+                    parse(sample.payload.to_bytes())
+                except Exception as e:  # noqa: BLE001 - count and drop
+                    self._bad(key, str(e))
+                    return
+                with self._lock:
+                    self.early += 1
+
+            return on_sample
+
+        for r in robots:
+            subs.append(
+                self.session.declare_subscriber(task_key(r), guard(task_key(r), TaskMessage.from_json))
+            )
+            subs.append(self.session.declare_subscriber(grant_key(r), guard(grant_key(r), Grant.from_json)))
+        h = BusHandle(lambda: undeclare_all(subs))
+        self._handles.append(h)
+        return h
 
     def subscribe_tasks(self, robot: str, callback: TaskCallback) -> BusHandle:
         """Call ``callback(msg)`` (on Zenoh's thread) for every valid order on

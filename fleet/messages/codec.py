@@ -54,12 +54,12 @@ Text = Annotated[str, Meta(max_length=256)]
 #: A long string (error messages, behavior tree file names).
 LongText = Annotated[str, Meta(max_length=4096)]
 
-#: A non-negative integer.
-Count = Annotated[int, Meta(ge=0)]
-
-#: Largest epoch or sequence number on the wire: 2^53, the largest integer every JSON reader
-#: keeps exact (a larger one, such as 2^62, is malformed).
+#: Largest count, epoch or sequence number on the wire: 2^53, the largest integer every JSON
+#: reader keeps exact (a larger one, such as 2^62, is malformed).
 MAX_SEQ: Final = 2**53
+
+#: A non-negative integer, at most 2^53.
+Count = Annotated[int, Meta(ge=0, le=MAX_SEQ)]
 
 #: An epoch or a sequence number: an integer in [0, 2^53].
 Seq = Annotated[int, Meta(ge=0, le=MAX_SEQ)]
@@ -253,6 +253,7 @@ _REASONS: tuple[tuple[str, str], ...] = (
     (r"Expected `float`", "expected a finite number"),
     (r"Number out of range", "expected a finite number"),
     (r"Expected `int` >= (\S+)", "must be >= {0}"),
+    (r"Expected `int` <= (\S+)", "must be <= {0}"),
     (r"Expected `int`", "expected an integer"),
     (r"Expected `bool`", "expected true or false"),
     (r"Expected `str` of length <= (\d+)", "string longer than {0} characters"),

@@ -261,6 +261,7 @@ class FleetRunner:
 
         self.bus = StatusBus(session)
         self.bus.subscribe_statuses(self.bus_view.see)
+        guard = self.bus.guard_orders(self.agent_names)  # counts what arrives while we start
         specs = [self.config.robot(n) for n in self.agent_names]
         self.world = world = factory(self.config, specs, session)
         sim = getattr(world, "sim", None)
@@ -277,6 +278,7 @@ class FleetRunner:
         if self.run_coordinator:
             self.coordinator = self._make_coordinator(world, self.bus)
         self.agents = [self._make_agent(spec.namespace, world, self.bus) for spec in specs]
+        guard.undeclare()
         if self.coordinator is not None:
             self.coordinator.local_deliver = {a.name: a.deliver for a in self.agents}
             self.coordinator.local_grant_deliver = {a.name: a.deliver_grant for a in self.agents}
