@@ -75,9 +75,10 @@ class BodyLimit:
     """ASGI middleware: a request whose body is larger than ``limit`` bytes gets 413 before
     anything reads it (by its Content-Length, or while it streams in)."""
 
-    def __init__(self, app: ASGIApp, limit: int) -> None:
+    def __init__(self, app: ASGIApp, limit: int, on_reject: Callable[[], None] = lambda: None) -> None:
         self.app = app
         self.limit = limit
+        self.on_reject = on_reject
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -85,6 +86,7 @@ class BodyLimit:
             return
         for k, v in scope.get("headers", []):
             if k == b"content-length" and v.isdigit() and int(v) > self.limit:
+                self.on_reject()
                 await error(413, f"request body of {int(v)} bytes is larger than {self.limit}")(
                     scope, receive, send
                 )
@@ -102,6 +104,7 @@ class BodyLimit:
         try:
             await self.app(scope, limited, send)
         except _TooLarge:
+            self.on_reject()
             await error(413, f"request body larger than {self.limit} bytes")(scope, receive, send)
 
 
@@ -151,12 +154,14 @@ def create_app(
     @app.exception_handler(RequestValidationError)
     async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
         e = explain_errors(list(exc.errors()))
+        service.bad_requests += 1
         status = 400 if e.reason.startswith("invalid JSON") else 422
         return error(status, e.reason, e.field)
 
     @app.exception_handler(ServiceError)
     async def _service_error(request: Request, exc: ServiceError) -> JSONResponse:
         if isinstance(exc, InvalidTask):
+            service.bad_requests += 1
             return error(400 if exc.reason.startswith("invalid JSON") else 422, exc.reason, exc.field)
         if isinstance(exc, UnknownTask):
             return error(404, str(exc), "id")
@@ -333,7 +338,9 @@ def create_app(
     inner = app.build_middleware_stack
 
     def build() -> ASGIApp:
-        return BodyLimit(inner(), max_body)
+        return BodyLimit(
+            inner(), max_body, lambda: setattr(service, "bad_requests", service.bad_requests + 1)
+        )
 
     app.build_middleware_stack = build  # type: ignore[method-assign]
     return app

@@ -490,8 +490,10 @@ class FleetRunner:
         world_count = getattr(self.world, "malformed", None)
         if callable(world_count):
             n += int(world_count())
-        face = self.host.face if self.host is not None else None
-        return n + (face.malformed if face is not None else 0)
+        if self.host is not None:
+            n += self.host.service.bad_requests
+            n += self.host.face.malformed if self.host.face is not None else 0
+        return n
 
     def collision_points(self) -> list[tuple[float, float]]:
         """Where robots touched, ``(x, y)`` in the ``map`` frame (empty if the world cannot see)."""

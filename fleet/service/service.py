@@ -105,6 +105,8 @@ class TaskService:
         self.robot_source: Callable[[], Sequence[StatusRecord]] = list
         #: Called when a submission, cancel or command arrives (the runner wakes its loop).
         self.on_input: Callable[[], None] | None = None
+        #: HTTP requests refused as malformed (invalid JSON or fields, too large; the API counts).
+        self.bad_requests = 0
         #: Extra read-only views for the API (traffic reservations...), by name.
         self.views: dict[str, Callable[[], Any]] = {}
 
