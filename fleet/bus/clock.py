@@ -11,13 +11,21 @@ from fleet.bus.keys import CLOCK_KEY
 from fleet.bus.session import undeclare_all
 from fleet.messages.nav import CLOCK_CODEC
 
+#: A clock message more than this many simulated seconds ahead of the clock is a jump: applied
+#: only once the next message confirms it (docs/protocol.md).
+MAX_CLOCK_JUMP_S = 300.0
+
 
 class BusClock:
     """A :class:`~fleet.navigation.Clock` following ``fleet/sim/clock`` (simulated seconds).
 
     :meth:`now` is the latest time received (``start`` before the first message); ``speed``
     and ``step_s`` are the simulator's (``None`` before the first message). A malformed clock
-    message is counted in ``malformed`` (``last_malformed`` says why) and dropped. Call
+    message is counted in ``malformed`` (``last_malformed`` says why) and dropped. A message
+    more than :data:`MAX_CLOCK_JUMP_S` ahead of the clock is held back and applied only if the
+    next message confirms the jump (is not earlier and not again that far ahead); a lone one
+    (a message such as ``t = 1e9`` put by an outsider, which would end every run at once) is
+    counted in ``rejected`` and dropped. Going back (a restarted simulator) is followed. Call
     :meth:`close` when done (the session stays open).
     """
 
@@ -28,6 +36,8 @@ class BusClock:
         self.updates = 0
         self.malformed = 0
         self.last_malformed: str | None = None
+        self.rejected = 0
+        self._jump: float | None = None
         self.speed: float | None = None
         self.step_s: float | None = None
         self._sub: zenoh.Subscriber[None] | None = session.declare_subscriber(CLOCK_KEY, self._on_clock)
@@ -41,10 +51,23 @@ class BusClock:
                 self.last_malformed = f"{CLOCK_KEY}: {e}"
             return
         with self._cond:
+            if not self._admit(msg.t):
+                return
             self._t = msg.t
             self.speed, self.step_s = msg.speed, msg.step_s
             self.updates += 1
             self._cond.notify_all()
+
+    def _admit(self, t: float) -> bool:
+        # caller holds self._lock
+        jump, self._jump = self._jump, None
+        confirmed = jump is not None and jump <= t <= jump + MAX_CLOCK_JUMP_S
+        if jump is not None and not confirmed:
+            self.rejected += 1  # the jump held back was a lone message: dropped
+        if self.updates == 0 or t <= self._t + MAX_CLOCK_JUMP_S or confirmed:
+            return True
+        self._jump = t
+        return False
 
     def now(self) -> float:
         with self._lock:

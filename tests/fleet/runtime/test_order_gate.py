@@ -1,7 +1,9 @@
 """Orders the coordinator did not send change nothing (docs/protocol.md): the order gate's
 rules, then the outsider probes of issue 11 replayed on real Zenoh sessions against a real
 agent (real simulator, real tree): a forged idle order on the wildcard key, a grant with a
-huge seq, a NaN grant, a grant with 100,000 laps, orders from a dead or a made-up coordinator.
+huge seq, a NaN grant, a grant with 100,000 laps, orders from a dead or a made-up coordinator,
+a simulator clock message with t = 1e9; leases (one coordinator, one agent per robot); a
+dropped first order recovered.
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ import pytest
 from msgspec.structs import replace
 from ports import free_endpoint
 
-from fleet.bus.keys import grant_key
+from fleet.bus.clock import BusClock
+from fleet.bus.keys import CLOCK_KEY, grant_key
 from fleet.bus.lease import Lease, LeaseWatch, acquire_coordinator_lease, claim_robots
 from fleet.bus.session import open_session
 from fleet.bus.status_bus import StatusBus
@@ -27,6 +30,7 @@ from fleet.config.model import FleetConfig
 from fleet.coordination.coordinator import Coordinator
 from fleet.errors import LeaseError
 from fleet.messages import Grant, TaskMessage
+from fleet.messages.nav import ClockMsg
 from fleet.runtime.agent import RobotAgent
 from fleet.runtime.order_gate import MAX_SEQ_GAP, OrderGate
 from fleet.types import Pose2D
@@ -245,3 +249,25 @@ def test_a_dropped_first_order_is_recovered_and_the_robot_gets_work(net: Net) ->
     finally:
         agent.close()
         lease.release()
+
+
+def test_a_lone_clock_jump_is_dropped_and_a_confirmed_one_followed(net: Net) -> None:
+    """The probe ``t = 1e9`` on the simulator clock made every process exit: a lone jump is
+    now dropped (counted), a jump the simulator confirms with its next message is followed."""
+    clock = BusClock(net.agent_s)
+    try:
+        put = net.router.put
+        wait_until(lambda: put(CLOCK_KEY, ClockMsg(10.0).to_json()) or clock.now() == 10.0, "the clock")
+        net.outsider.put(CLOCK_KEY, ClockMsg(1e9).to_json())
+        wait_until(
+            lambda: put(CLOCK_KEY, ClockMsg(10.5).to_json()) or clock.rejected == 1, "the jump dropped"
+        )
+        assert clock.now() < 1000.0
+        put(CLOCK_KEY, ClockMsg(5000.0).to_json())  # the simulator really jumped
+        put(CLOCK_KEY, ClockMsg(5000.1).to_json())
+        wait_until(lambda: clock.now() == 5000.1, "the confirmed jump")
+        put(CLOCK_KEY, ClockMsg(0.0).to_json())  # a restarted simulator starts again
+        wait_until(lambda: clock.now() == 0.0, "the restarted clock")
+        assert clock.rejected == 1 and clock.malformed == 0
+    finally:
+        clock.close()
