@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
 import zenoh
 
@@ -25,11 +26,16 @@ class BusClock:
     more than :data:`MAX_CLOCK_JUMP_S` ahead of the clock is held back and applied only if the
     next message confirms the jump (is not earlier and not again that far ahead); a lone one
     (a message such as ``t = 1e9`` put by an outsider, which would end every run at once) is
-    counted in ``rejected`` and dropped. Going back (a restarted simulator) is followed. Call
+    counted in ``rejected`` and dropped. Going back (a restarted simulator) is followed. With
+    ``sources`` (:meth:`fleet.bus.lease.SimLeaseWatch.admits`), a message whose ``src`` is not
+    a live simulator's is counted in ``rejected`` and dropped. Call
     :meth:`close` when done (the session stays open).
     """
 
-    def __init__(self, session: zenoh.Session, *, start: float = 0.0) -> None:
+    def __init__(
+        self, session: zenoh.Session, *, start: float = 0.0, sources: Callable[[str], bool] | None = None
+    ) -> None:
+        self.sources = sources
         self._t = float(start)
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
@@ -51,6 +57,9 @@ class BusClock:
                 self.last_malformed = f"{CLOCK_KEY}: {e}"
             return
         with self._cond:
+            if self.sources is not None and not self.sources(msg.src):
+                self.rejected += 1  # not from a live simulator
+                return
             if not self._admit(msg.t):
                 return
             self._t = msg.t

@@ -31,6 +31,8 @@ from fleet.errors import LeaseError
 #: Every coordinator lease token.
 LEASE_KEYS = "fleet/coordinator/lease/**"
 _PREFIX = "fleet/coordinator/lease/"
+#: Every simulator lease token (``fleet sim``): ``fleet/sim/lease/<owner>``.
+SIM_LEASE_KEYS = "fleet/sim/lease/*"
 #: How long a liveliness query for existing holders may take (wall seconds).
 QUERY_TIMEOUT_S = 2.0
 
@@ -138,6 +140,40 @@ def claim_robots(session: zenoh.Session, robots: Iterable[str], endpoint: str) -
             f"robot {names} already has a live agent on {endpoint} (its token fleet/<robot>/alive "
             "is held): only one agent may drive a robot; stop the other one first"
         )
+
+
+def sim_lease_key(owner: str) -> str:
+    """``fleet/sim/lease/<owner>``: the token of the simulator whose session id is ``owner``."""
+    return f"fleet/sim/lease/{owner}"
+
+
+class SimLeaseWatch:
+    """Which simulators are live (the tokens ``fleet/sim/lease/*``, history included):
+    :meth:`admits` tells whether a navigation state or clock message's ``src`` is one of them.
+    Call :meth:`close` when done (the session stays open)."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self._lock = threading.Lock()
+        self._live: set[str] = set()
+        self._sub: Declaration | None = session.liveliness().declare_subscriber(
+            SIM_LEASE_KEYS, self._on_sample, history=True
+        )
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        owner = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._live.add(owner)
+            else:
+                self._live.discard(owner)
+
+    def admits(self, src: str) -> bool:
+        with self._lock:
+            return src in self._live
+
+    def close(self) -> None:
+        sub, self._sub = self._sub, None
+        undeclare_all([sub])
 
 
 class LeaseWatch:

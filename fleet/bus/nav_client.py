@@ -42,7 +42,9 @@ class ZenohNavBackend:
     ``timeout_s``: wall seconds without a state message (or without an acknowledgement of a
     goal) before a non-terminal goal ends ``ABORTED`` / ``SERVER_UNAVAILABLE``.
     ``resend_s``: how often an unacknowledged goal or cancel is re-sent (from the polling
-    thread). Call :meth:`close` when done (the session stays open).
+    thread). ``sources`` (:meth:`fleet.bus.lease.SimLeaseWatch.admits`): only states whose
+    ``src`` is a live simulator's are used; the others are counted in ``rejected``. Call
+    :meth:`close` when done (the session stays open).
     """
 
     def __init__(
@@ -53,6 +55,7 @@ class ZenohNavBackend:
         timeout_s: float = DEFAULT_TIMEOUT_S,
         resend_s: float = DEFAULT_RESEND_S,
         wall: Callable[[], float] = time.monotonic,
+        sources: Callable[[str], bool] | None = None,
     ) -> None:
         self._namespace = "/" + namespace.strip("/")
         self._robot = robot_key_name(namespace)
@@ -70,6 +73,9 @@ class ZenohNavBackend:
         self.states_received = 0
         self.malformed = 0
         self.last_malformed: str | None = None
+        #: States ignored: not from a live simulator (``sources``).
+        self.rejected = 0
+        self.sources = sources
         self._first_state = threading.Event()
         self._goal_pub = session.declare_publisher(
             nav_key(namespace, "goal"), congestion_control=zenoh.CongestionControl.BLOCK
@@ -91,6 +97,10 @@ class ZenohNavBackend:
     def _on_state(self, sample: zenoh.Sample) -> None:
         try:
             msg = NAV_STATE_CODEC.decode(sample.payload.to_bytes())
+            if self.sources is not None and not self.sources(msg.src):
+                with self._lock:
+                    self.rejected += 1
+                return
             t = msg.t
             rs = robot_state_of(msg.robot_state)
             with self._lock:

@@ -13,6 +13,7 @@ from typing import Protocol
 import zenoh
 
 from fleet.bus.keys import CLOCK_KEY, nav_key, robot_key_name
+from fleet.bus.lease import sim_lease_key
 from fleet.bus.session import Declaration, undeclare_all
 from fleet.messages.nav import (
     CANCEL_REQUEST_CODEC,
@@ -112,6 +113,9 @@ class SimNavServer:
         self._precanceled: dict[str, OrderedDict[str, None]] = {r: OrderedDict() for r in self._ns}
         self._state_pubs = {r: session.declare_publisher(nav_key(ns, "state")) for r, ns in self._ns.items()}
         self._clock_pub = session.declare_publisher(CLOCK_KEY)
+        #: This simulator's session id, stamped on its states and clock: the key of its lease.
+        self.src = str(session.zid())
+        self._lease: Declaration | None = session.liveliness().declare_token(sim_lease_key(self.src))
         self._subs: list[Declaration] = [
             session.declare_subscriber("fleet/*/nav/goal", self._on_request),
             session.declare_subscriber("fleet/*/nav/cancel", self._on_request),
@@ -224,15 +228,16 @@ class SimNavServer:
                         del shown[g.goal_id]
                         continue
                 goals[g.goal_id] = st
-            msg = NavState.build(robot, t, self.sim.robot_state(ns), goals)
+            msg = NavState.build(robot, t, self.sim.robot_state(ns), goals, self.src)
             self._state_pubs[robot].put(msg.to_json())
         clock = ClockMsg(
-            t, int(getattr(self.sim, "steps", 0)), float(self.sim.params.step_s), float(self.speed)
+            t, int(getattr(self.sim, "steps", 0)), float(self.sim.params.step_s), float(self.speed), self.src
         )
         self._clock_pub.put(clock.to_json())
 
     def close(self) -> None:
         """Undeclare the subscribers and publishers (the session stays open)."""
-        undeclare_all([*self._subs, *self._state_pubs.values(), self._clock_pub])
+        undeclare_all([*self._subs, *self._state_pubs.values(), self._clock_pub, self._lease])
+        self._lease = None
         self._subs = []
         self._state_pubs = {}

@@ -409,18 +409,22 @@ class CancelRequest(Struct, frozen=True, tag_field="v", tag=1):
 class NavState(Struct, frozen=True, tag_field="v", tag=1):
     """``fleet/<robot>/nav/state``: simulated time ``t`` (s), the robot state, and the goal
     states by goal id, each kept as raw JSON so that a client parses only its own goals
-    (:meth:`goal_state`)."""
+    (:meth:`goal_state`). ``src``: the serving simulator's session id (its lease,
+    ``docs/protocol.md``; ``""`` from an older simulator)."""
 
     robot: RobotName
     t: Finite
     robot_state: RobotStateMsg
     goals: dict[str, Raw]
+    src: Text = ""
 
     @classmethod
-    def build(cls, robot: str, t: float, state: RobotState, goals: dict[str, GoalState]) -> NavState:
+    def build(
+        cls, robot: str, t: float, state: RobotState, goals: dict[str, GoalState], src: str = ""
+    ) -> NavState:
         """The state message of ``robot`` (goal states keyed by the client's goal ids)."""
         raw = {gid: Raw(encode(goal_state_message(st), f"state.goals[{gid!r}]")) for gid, st in goals.items()}
-        return cls(robot, float(t), robot_state_message(state), raw)
+        return cls(robot, float(t), robot_state_message(state), raw, src)
 
     def to_json(self) -> bytes:
         return encode(self, "state")
@@ -434,12 +438,14 @@ class NavState(Struct, frozen=True, tag_field="v", tag=1):
 
 class ClockMsg(Struct, frozen=True, tag_field="v", tag=1):
     """``fleet/sim/clock``: simulated time ``t`` (s), the simulator's ``step`` count and
-    ``step_s``, and its ``speed`` (x real time, ``0`` as fast as possible)."""
+    ``step_s``, and its ``speed`` (x real time, ``0`` as fast as possible); ``src`` the
+    simulator's session id (its lease, ``docs/protocol.md``; ``""`` from an older one)."""
 
     t: Finite
     step: Count = 0
     step_s: Finite = 0.0
     speed: Finite = 0.0
+    src: Text = ""
 
     def to_json(self) -> bytes:
         return encode(self, "clock")

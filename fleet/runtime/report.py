@@ -126,7 +126,7 @@ class RunReport:
     reassignment_events: list[dict[str, Any]] = field(default_factory=list)
     assignments: list[dict[str, Any]] = field(default_factory=list)
     malformed_messages: int = 0
-    rejected_orders: int = 0
+    rejected_messages: int = 0
     interrupted: bool = False
     throughput_laps_per_robot_hour: float = 0.0
     mean_wait_s: float | None = None
@@ -227,7 +227,8 @@ class ReportBuilder:
         local robot reported (robots of other processes: their last one); ``mode_ticks`` agent
         ticks per tree mode over the local robots; ``malformed`` payloads this process dropped
         unparsed (status bus, clock, navigation states, task service queries); ``rejected``
-        well-formed orders and grants its agents ignored (``docs/protocol.md``)."""
+        well-formed messages it ignored: orders and grants not from the live coordinator,
+        clock and navigation states not from a live simulator (``docs/protocol.md``)."""
         names = [r.name for r in self.config.robots if r.name in records or r.name in self.local]
         rows = [self._row(n, records.get(n), state, charges or {}, min_battery or {}) for n in names]
         fleet_goals = _merge_goals(rows, goals or {})
@@ -264,7 +265,7 @@ class ReportBuilder:
             else [],
             assignments=[assignment_dict(a) for a in state.assignments] if state is not None else [],
             malformed_messages=int(malformed),
-            rejected_orders=int(rejected),
+            rejected_messages=int(rejected),
             interrupted=interrupted,
             trajectories=trajectories,
             throughput_laps_per_robot_hour=laps / robot_hours if robot_hours > 0 else 0.0,

@@ -478,7 +478,7 @@ class FleetRunner:
             mode_ticks=_sum_counts(a.mode_ticks for a in self.agents),
             bus_trajectory=self.bus_view.trajectory,
             malformed=self.malformed(),
-            rejected=sum(a.gate.rejected_total for a in self.agents if a.gate is not None),
+            rejected=self.rejected(),
             tasks=self.host.task_summary() if self.host is not None else None,
             control_events=self.host.control_events() if self.host is not None else (),
         )
@@ -494,6 +494,13 @@ class FleetRunner:
             n += self.host.service.bad_requests
             n += self.host.face.malformed if self.host.face is not None else 0
         return n
+
+    def rejected(self) -> int:
+        """Well-formed messages this process ignored: orders and grants not from the live
+        coordinator (its agents' gates), clock and navigation states not from a live simulator."""
+        n = sum(a.gate.rejected_total for a in self.agents if a.gate is not None)
+        world_count = getattr(self.world, "rejected", None)
+        return n + (int(world_count()) if callable(world_count) else 0)
 
     def collision_points(self) -> list[tuple[float, float]]:
         """Where robots touched, ``(x, y)`` in the ``map`` frame (empty if the world cannot see)."""

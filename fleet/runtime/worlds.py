@@ -124,14 +124,18 @@ class RemoteWorld(BlindWorld):
 
     def __init__(self, config: FleetConfig, robots: list[RobotSpec], session: zenoh.Session) -> None:
         from fleet.bus.clock import BusClock
+        from fleet.bus.lease import SimLeaseWatch
 
         self._session = session
         self._wall = WallClock()
-        self.clock = BusClock(session)
+        #: The live simulators: only their states and clock are used (``docs/protocol.md``).
+        self.sims = SimLeaseWatch(session)
+        self.clock = BusClock(session, sources=self.sims.admits)
         self.step_s = config.sim.step_s
         self._backends: dict[str, ZenohNavBackend] = {}
         if not self.clock.wait_first(CONNECT_TIMEOUT_S):
             self.clock.close()
+            self.sims.close()
             raise BusError(
                 f"no simulator clock on the bus after {CONNECT_TIMEOUT_S:g} s: start `fleet sim "
                 f"{config.path}` on the same endpoint first"
@@ -143,12 +147,19 @@ class RemoteWorld(BlindWorld):
         """Payloads dropped unparsed: clock messages and robots' navigation states."""
         return self.clock.malformed + sum(b.malformed for b in self._backends.values())
 
+    def rejected(self) -> int:
+        """Well-formed clock and state messages ignored: not from a live simulator, or a lone
+        clock jump."""
+        return self.clock.rejected + sum(b.rejected for b in self._backends.values())
+
     def backend(self, namespace: str) -> NavigationBackend:
         from fleet.bus.nav_client import ZenohNavBackend
 
         b = self._backends.get(namespace)
         if b is None:
-            b = self._backends[namespace] = ZenohNavBackend(self._session, namespace)
+            b = self._backends[namespace] = ZenohNavBackend(
+                self._session, namespace, sources=self.sims.admits
+            )
         return b
 
     def advance(self) -> None:
@@ -166,3 +177,4 @@ class RemoteWorld(BlindWorld):
         for b in self._backends.values():
             b.close()
         self.clock.close()
+        self.sims.close()

@@ -53,11 +53,11 @@ def _counts(r: Mapping[str, Any]) -> list[Text]:
         line.append(f"   safety stops: {r['safety_stops']}", style="bold yellow")
     line.append(f"   throughput: {float(r.get('throughput_laps_per_robot_hour', 0.0)):.1f} laps/robot-hour")
     lines.append(line)
-    if r.get("malformed_messages") or r.get("rejected_orders"):
+    if r.get("malformed_messages") or r.get("rejected_messages"):
         lines.append(
             Text(
                 f"dropped on the bus: {r.get('malformed_messages', 0)} malformed, "
-                f"{r.get('rejected_orders', 0)} orders not from the live coordinator (docs/protocol.md)",
+                f"{r.get('rejected_messages', 0)} not from the live coordinator or simulator (docs/protocol.md)",
                 style="yellow",
             )
         )

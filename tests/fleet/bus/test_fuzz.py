@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from ports import free_endpoint
@@ -89,12 +90,16 @@ class Rig:
         self.closers = [self.client.close, self.server.close, self.clock.close, self.bus.close]
         # the subscriptions are up once a valid message sent now arrives on each
         probe = FleetControl(estop=False, paused=False, seq=1)
-        put = self.outsider.put
+        put = self.put
         wait_until(lambda: put(CONTROL_KEY, probe.to_json()) or bool(self.controls), "the subscriptions")
         wait_until(lambda: put(CLOCK_KEY, b"not json") or self.clock.malformed > 0, "the clock subscription")
         wait_until(lambda: put(nav_key("/robot1", "cancel"), b"x") or self.server.malformed > 0, "the server")
         wait_until(lambda: put(nav_key("/robot1", "state"), b"x") or self.client.malformed > 0, "the client")
         self.controls.clear()
+
+    def put(self, key: str, payload: bytes) -> None:
+        """An outsider's put, blocking rather than dropped when the link is congested."""
+        self.outsider.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
 
     def close(self) -> None:
         for c in self.closers:
@@ -219,7 +224,7 @@ def _fuzz_key(rig: Rig, name: str, data: st.DataObject) -> None:
     t = TARGETS[name]
     payload = data.draw(garbage(t), label="payload")
     before, count = rig.changed(), t.count(rig)
-    rig.outsider.put(t.key, payload)
+    rig.put(t.key, payload)
     wait_until(lambda: t.count(rig) >= count + 1, f"the malformed {name} message to be counted")
     assert t.count(rig) == count + 1
     assert rig.changed() == before  # nothing applied, nothing half-applied
@@ -239,10 +244,10 @@ def test_malformed_payloads_are_counted_and_dropped(rig: Rig, name: str, data: s
 
 def test_receivers_still_work_after_the_garbage(rig: Rig) -> None:
     """After the fuzzing, valid messages still arrive and apply (no subscription died)."""
-    rig.outsider.put(status_key("robot1"), STATUS.to_json())
-    rig.outsider.put(task_key("robot1"), TASK.to_json())
-    rig.outsider.put(grant_key("robot1"), GRANT.to_json())
-    rig.outsider.put(CLOCK_KEY, CLOCK.to_json())
+    rig.put(status_key("robot1"), STATUS.to_json())
+    rig.put(task_key("robot1"), TASK.to_json())
+    rig.put(grant_key("robot1"), GRANT.to_json())
+    rig.put(CLOCK_KEY, CLOCK.to_json())
     wait_until(lambda: bool(rig.statuses and rig.tasks and rig.grants), "valid messages")
     wait_until(lambda: rig.clock.now() == 12.5, "the valid clock")
     assert rig.statuses[-1] == STATUS and rig.tasks[-1] == TASK and rig.grants[-1] == GRANT

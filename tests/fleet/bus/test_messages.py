@@ -170,11 +170,13 @@ def test_todays_navigation_bytes_round_trip_byte_for_byte() -> None:
     state = NavState.build(
         "robot1", 42.3, ROBOT_STATE, {EXECUTING.goal_id: EXECUTING, ABORTED.goal_id: ABORTED}
     )
-    assert state.to_json() == OLD_STATE
+    # the one addition: the simulator's session id (docs/protocol.md), last; old bytes still decode
+    assert state.to_json() == OLD_STATE[:-1] + b',"src":""}'
     back = NAV_STATE_CODEC.decode(OLD_STATE)
     assert back.goal_state(EXECUTING.goal_id) == EXECUTING
     assert back.goal_state(ABORTED.goal_id) == ABORTED
-    assert ClockMsg(42.3, 846, 0.05, 5.0).to_json() == OLD_CLOCK
+    assert ClockMsg(42.3, 846, 0.05, 5.0).to_json() == OLD_CLOCK[:-1] + b',"src":""}'
+    assert CLOCK_CODEC.decode(OLD_CLOCK) == ClockMsg(42.3, 846, 0.05, 5.0)
     assert CLOCK_CODEC.decode(b'{"v":1,"t":2.5}') == ClockMsg(2.5)
     assert CancelRequest("/robot1@3fa29c01#7").to_json() == OLD_CANCEL
     assert CANCEL_REQUEST_CODEC.decode(OLD_CANCEL).goal_id == "/robot1@3fa29c01#7"

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import zenoh
 from ports import free_endpoint
 
 from fleet.bus.session import open_session
@@ -61,11 +62,14 @@ class Outsider:
         base = runner.malformed()
         session = open_session(runner.endpoint, "client", connect_timeout_s=30.0)
         try:
-            session.put("fleet/*/task", TaskMessage(task_id="i-9999", kind="idle").to_json())
+            block = zenoh.CongestionControl.BLOCK  # an outsider's put, not dropped when congested
+            session.put(
+                "fleet/*/task", TaskMessage(task_id="i-9999", kind="idle").to_json(), congestion_control=block
+            )
             for key in KEYS:
                 for r in self.robots:
                     for g in GARBAGE:
-                        session.put(key.format(r=r), g)
+                        session.put(key.format(r=r), g, congestion_control=block)
             statuses = len(self.robots) * len(GARBAGE)  # the keys this process subscribes to
             for g in GARBAGE:
                 replies = list(session.get("fleet/service/submit", payload=g, timeout=30.0))

@@ -16,12 +16,15 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import zenoh
 from msgspec.structs import replace
 from ports import free_endpoint
 
 from fleet.bus.clock import BusClock
-from fleet.bus.keys import CLOCK_KEY, grant_key
-from fleet.bus.lease import Lease, LeaseWatch, acquire_coordinator_lease, claim_robots
+from fleet.bus.keys import CLOCK_KEY, grant_key, nav_key
+from fleet.bus.lease import Lease, LeaseWatch, SimLeaseWatch, acquire_coordinator_lease, claim_robots
+from fleet.bus.nav_client import ZenohNavBackend
+from fleet.bus.nav_server import SimNavServer
 from fleet.bus.session import open_session
 from fleet.bus.status_bus import StatusBus
 from fleet.clock import SimClock
@@ -30,10 +33,11 @@ from fleet.config.model import FleetConfig
 from fleet.coordination.coordinator import Coordinator
 from fleet.errors import LeaseError
 from fleet.messages import Grant, TaskMessage
-from fleet.messages.nav import ClockMsg
+from fleet.messages.nav import ClockMsg, NavState
 from fleet.runtime.agent import RobotAgent
 from fleet.runtime.order_gate import MAX_SEQ_GAP, OrderGate
-from fleet.types import Pose2D
+from fleet.runtime.serve import simulator_from_config
+from fleet.types import Pose2D, RobotState
 from sim.simulator import Simulator
 
 PATROL = Path(__file__).resolve().parents[3] / "configs" / "warehouse_patrol.yaml"
@@ -104,6 +108,13 @@ class Net:
         self.coord = StatusBus(self.router)
         self.agent_bus = StatusBus(self.agent_s, robot="robot1")
 
+    def put(self, key: str, payload: bytes | str) -> None:
+        """An outsider's put, blocking rather than dropped when the link is congested."""
+        self.outsider.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+
+    def router_put(self, key: str, payload: bytes | str) -> None:
+        self.router.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+
     def close(self) -> None:
         self.coord.close()
         self.agent_bus.close()
@@ -139,24 +150,32 @@ def test_outsider_probes_change_nothing(config: FleetConfig, net: Net) -> None:
     try:
         wait_until(lambda: watch.current() == lease.lease, "the agent to see the coordinator lease")
         real = replace(order("p-0001", 1000, 1), charger=Pose2D(0.5, 0.5, 0.0))
-        net.coord.publish_task(real)
-        wait_until(lambda: agent.bb.task_id == "p-0001", "the real order", act=agent.tick)
+
+        def send_real() -> None:  # until the agent's subscription is up (a copy is a duplicate)
+            net.coord.publish_task(real)
+            agent.tick()
+
+        wait_until(lambda: agent.bb.task_id == "p-0001", "the real order", act=send_real)
         grant = Grant("robot1", 1, 0, "n1", ("n2",), (Pose2D(2.0, 1.0, 0.0),), task_id="p-0001",
                       purpose="patrol", laps=1, seq=1, epoch=1000)  # fmt: skip
-        net.coord.publish_grant(grant)
-        wait_until(lambda: agent.bb.grant == grant, "the real grant", act=agent.tick)
+
+        def send_grant() -> None:
+            net.coord.publish_grant(grant)
+            agent.tick()
+
+        wait_until(lambda: agent.bb.grant == grant, "the real grant", act=send_grant)
         before = (agent.bb.task_id, agent.bb.route, agent.bb.grant)
         malformed0 = net.agent_bus.malformed
         # the probes, as an outsider would put them
         forged_idle = TaskMessage(task_id="i-9999", kind="idle").to_json()
-        net.outsider.put("fleet/*/task", forged_idle)  # every robot, no epoch
-        net.outsider.put("fleet/robot1/task", replace(order("p-6666", 1001, 1, "idle"), robot=None).to_json())
+        net.put("fleet/*/task", forged_idle)  # every robot, no epoch
+        net.put("fleet/robot1/task", replace(order("p-6666", 1001, 1, "idle"), robot=None).to_json())
         huge = {**grant.to_dict(), "seq": 2**62}
-        net.outsider.put(grant_key("robot1"), json.dumps(huge))  # larger than the wire allows
-        net.outsider.put(grant_key("robot1"), replace(grant, seq=2**53).to_json())  # a jump
+        net.put(grant_key("robot1"), json.dumps(huge))  # larger than the wire allows
+        net.put(grant_key("robot1"), replace(grant, seq=2**53).to_json())  # a jump
         nan = json.dumps({**grant.to_dict(), "seq": 2}).replace("2.0, 1.0, 0.0", "NaN, 1.0, 0.0")
-        net.outsider.put(grant_key("robot1"), nan.encode())
-        net.outsider.put(grant_key("robot1"), replace(grant, laps=100000, epoch=999, seq=2).to_json())
+        net.put(grant_key("robot1"), nan.encode())
+        net.put(grant_key("robot1"), replace(grant, laps=100000, epoch=999, seq=2).to_json())
         # the fence: a real order sent after the probes; once it is applied, every probe was seen
         net.coord.publish_task(order("p-0002", 1000, 2))
         wait_until(lambda: agent.bb.task_id == "p-0002", "the next real order", act=agent.tick)
@@ -190,6 +209,9 @@ def test_a_second_coordinator_and_a_second_agent_are_refused(net: Net) -> None:
     lease = acquire_coordinator_lease(net.router, 5, net.endpoint)
     token = net.agent_s.liveliness().declare_token("fleet/robot3/alive")
     try:
+        wait_until(
+            lambda: _refused(lambda: claim_robots(net.outsider, ["robot3"], net.endpoint)), "the token"
+        )
         with pytest.raises(LeaseError, match=rf"another coordinator is live on {net.endpoint} \(epoch 5"):
             acquire_coordinator_lease(net.outsider, 6, net.endpoint)
         with pytest.raises(LeaseError, match=rf"robot robot3 already has a live agent on {net.endpoint}"):
@@ -199,9 +221,19 @@ def test_a_second_coordinator_and_a_second_agent_are_refused(net: Net) -> None:
         token.undeclare()
         # once the holders are gone, a new coordinator (a new epoch) and agent may start
         wait_until(lambda: _takes_over(net), "the freed coordinator lease")
-        claim_robots(net.outsider, ["robot3"], net.endpoint)
+        wait_until(
+            lambda: not _refused(lambda: claim_robots(net.outsider, ["robot3"], net.endpoint)), "robot3"
+        )
     finally:
         lease.release()
+
+
+def _refused(claim: Callable[[], None]) -> bool:
+    try:
+        claim()
+    except LeaseError:
+        return True
+    return False
 
 
 def _takes_over(net: Net) -> bool:
@@ -259,9 +291,9 @@ def test_a_lone_clock_jump_is_dropped_and_a_confirmed_one_followed(net: Net) -> 
     now dropped (counted), a jump the simulator confirms with its next message is followed."""
     clock = BusClock(net.agent_s)
     try:
-        put = net.router.put
+        put = net.router_put
         wait_until(lambda: put(CLOCK_KEY, ClockMsg(10.0).to_json()) or clock.now() == 10.0, "the clock")
-        net.outsider.put(CLOCK_KEY, ClockMsg(1e9).to_json())
+        net.put(CLOCK_KEY, ClockMsg(1e9).to_json())
         wait_until(
             lambda: put(CLOCK_KEY, ClockMsg(10.5).to_json()) or clock.rejected == 1, "the jump dropped"
         )
@@ -274,3 +306,29 @@ def test_a_lone_clock_jump_is_dropped_and_a_confirmed_one_followed(net: Net) -> 
         assert clock.rejected == 1 and clock.malformed == 0
     finally:
         clock.close()
+
+
+def test_forged_simulator_states_and_clock_are_ignored(config: FleetConfig, net: Net) -> None:
+    """A fake ``nav/state`` with battery 0.05 sent a robot at 58 % to charge: states and clock
+    messages are used only from a live simulator (its lease token names its session id)."""
+    server = SimNavServer(net.router, simulator_from_config(load_config(PATROL, robots=1)))
+    sims = SimLeaseWatch(net.agent_s)
+    client = ZenohNavBackend(net.agent_s, "/robot1", sources=sims.admits)
+    clock = BusClock(net.agent_s, sources=sims.admits)
+    try:
+        wait_until(lambda: server.publish() or client.states_received > 0, "the simulator's states")
+        wait_until(lambda: server.publish() or clock.updates > 0, "the simulator's clock")
+        real = client.robot_state()
+        t = clock.now()
+        fake = RobotState(Pose2D(1.0, 1.0, 0.0), 0.05)
+        for src in ("", "0123456789abcdef", str(net.outsider.zid())):
+            net.put(nav_key("/robot1", "state"), NavState.build("robot1", t, fake, {}, src).to_json())
+            net.put(CLOCK_KEY, ClockMsg(1e9, src=src).to_json())
+        wait_until(lambda: client.rejected >= 3 and clock.rejected >= 3, "the forged states and clock")
+        assert client.robot_state() == real and client.robot_state().battery > 0.5 and clock.now() == t
+        assert (client.rejected, clock.rejected, client.malformed, clock.malformed) == (3, 3, 0, 0)
+    finally:
+        clock.close()
+        client.close()
+        sims.close()
+        server.close()
