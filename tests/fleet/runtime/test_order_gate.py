@@ -22,7 +22,15 @@ from ports import free_endpoint
 
 from fleet.bus.clock import BusClock
 from fleet.bus.keys import CLOCK_KEY, grant_key, nav_key
-from fleet.bus.lease import Lease, LeaseWatch, SimLeaseWatch, acquire_coordinator_lease, claim_robots
+from fleet.bus.lease import (
+    Lease,
+    LeaseWatch,
+    SimLeaseWatch,
+    acquire_coordinator_lease,
+    claim_robots,
+    live_leases,
+    next_epoch,
+)
 from fleet.bus.nav_client import ZenohNavBackend
 from fleet.bus.nav_server import SimNavServer
 from fleet.bus.session import open_session
@@ -332,3 +340,26 @@ def test_forged_simulator_states_and_clock_are_ignored(config: FleetConfig, net:
         client.close()
         sims.close()
         server.close()
+
+
+def test_each_coordinator_taking_over_starts_a_higher_epoch_kept_in_its_book(
+    tmp_path: Path, net: Net
+) -> None:
+    from fleet.runtime.runner import _take_lease
+    from fleet.runtime.service_host import ServiceHost
+
+    assert next_epoch(5, now_s=0.0) == 6 and next_epoch(0, now_s=1000.0) == 1_000_000
+    config = load_config(PATROL, robots=1)
+    epochs = []
+    for _ in range(3):  # a coordinator, restarted twice on the same durable task book
+        host = ServiceHost(config, SimClock(), tmp_path / "book", None)
+        try:
+            lease = _take_lease(net.router, host, net.endpoint)
+            epochs.append(lease.epoch)
+            lease.release()
+            store = host.service.store
+            assert store is not None and store.counter("epoch") == lease.epoch
+        finally:
+            host.close()
+        wait_until(lambda: not live_leases(net.outsider), "the lease to go")
+    assert epochs == sorted(epochs) and len(set(epochs)) == 3
