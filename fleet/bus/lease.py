@@ -136,9 +136,10 @@ def claim_robots(session: zenoh.Session, robots: Iterable[str], endpoint: str) -
             live.add(wanted[str(ok.key_expr)])
     if live:
         names = ", ".join(sorted(live))
+        tokens = ", ".join(alive_key(r) for r in sorted(live))
         raise LeaseError(
-            f"robot {names} already has a live agent on {endpoint} (its token fleet/<robot>/alive "
-            "is held): only one agent may drive a robot; stop the other one first"
+            f"robot {names} already has a live agent on {endpoint} (token {tokens} is held): "
+            "only one agent may drive a robot; stop the other one first"
         )
 
 
