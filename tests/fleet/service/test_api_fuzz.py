@@ -1,5 +1,5 @@
-"""The HTTP API's mutating endpoints refuse hostile and malformed bodies (property-based, on a
-live fleet's real API): garbage bytes, truncated and deeply nested JSON, wrong types, NaN /
+"""The HTTP API's mutating endpoints and the task service's bus face refuse hostile and
+malformed bodies (property-based, on a live fleet's real API and Zenoh queryables): garbage bytes, truncated and deeply nested JSON, wrong types, NaN /
 infinity, huge numbers and bodies over the size limit are answered 400 / 413 / 422, counted
 (``TaskService.bad_requests``, in the run report's ``malformed_messages``) and change nothing:
 no task is stored, the fleet is neither paused nor stopped (docs/protocol.md)."""
@@ -14,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fleet.api.app import MAX_BODY
+from fleet.bus.session import open_session
 
 #: Valid bodies the garbage is made from: a task submission and a fleet command.
 TASK = {"kind": "go_to", "target": "a2_n", "priority": 1}
@@ -76,3 +77,34 @@ def test_garbage_bodies_are_refused_counted_and_change_nothing(live: Callable[..
     assert (now["state"], now["seq"]) == (control["state"], control["seq"]) and now["state"] == "running"
     report = fleet.stop()
     assert report.malformed_messages >= 40
+
+
+def test_garbage_queries_to_the_bus_face_are_refused_counted_and_change_nothing(
+    live: Callable[..., LiveFleet],
+) -> None:
+    fleet = live(traffic=False, robots=2)
+    assert fleet.runner.host is not None and fleet.runner.host.face is not None
+    face = fleet.runner.host.face
+    tasks = [t["id"] for t in fleet.http.get("/api/tasks").json()]
+    session = open_session(fleet.runner.endpoint, "client", connect_timeout_s=30.0)
+    try:
+
+        @settings(max_examples=30, deadline=None, derandomize=True)
+        @given(data=st.data())
+        def one(data: st.DataObject) -> None:
+            key = data.draw(
+                st.sampled_from(["fleet/service/submit", "fleet/service/command/pause"]), label="key"
+            )
+            body = data.draw(garbage(TASK if key.endswith("submit") else COMMAND), label="body")
+            before = face.malformed
+            replies = list(session.get(key, payload=body, timeout=30.0))
+            assert len(replies) == 1 and replies[0].err is not None
+            err = json.loads(replies[0].err.payload.to_bytes())
+            assert err["status"] in (400, 422), err
+            assert face.malformed == before + 1
+
+        one()
+    finally:
+        session.close()  # type: ignore[no-untyped-call]
+    assert [t["id"] for t in fleet.http.get("/api/tasks").json()] == tasks
+    assert fleet.http.get("/api/fleet").json()["control"]["state"] == "running"
