@@ -17,7 +17,19 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 
-from fleet.cli import agent, config_schema, coordinator, loadtest, run, sim, sim_ros, status, task, validate
+from fleet.cli import (
+    agent,
+    config_schema,
+    coordinator,
+    keys,
+    loadtest,
+    run,
+    sim,
+    sim_ros,
+    status,
+    task,
+    validate,
+)
 from fleet.cli.common import EXIT_ERROR, SubParsers, guard
 from fleet.cli.logs import add_log_level, configure_logging, resolve_level
 
@@ -57,6 +69,7 @@ COMMANDS: tuple[Callable[[SubParsers], argparse.ArgumentParser], ...] = (
     config_schema.add_parser,
     loadtest.add_parser,
     task.add_parser,
+    keys.add_parser,
 )
 
 #: Commands whose arguments go, unparsed, to their own parser.

@@ -49,6 +49,7 @@ from fleet.viz.table import robot_sort_key
 if TYPE_CHECKING:
     import zenoh
 
+    from fleet.bus.session import Secure
     from fleet.bus.status_bus import StatusBus
     from fleet.coordination.coordinator import Coordinator
     from fleet.runtime.agent import RobotAgent
@@ -112,6 +113,10 @@ class FleetRunner:
             holds one is resumed. ``None``: an in-memory book (the CLI defaults to a new directory
             under ``out/state/``).
         api: ``HOST:PORT`` to serve the task service's HTTP API on (with the coordinator).
+        secure: open the session on a secured bus (``docs/security.md``): as the router (with
+            its credentials and access control) when this process listens, else as
+            ``secure.identity``; the API then takes the key directory's token for mutating
+            calls. ``None``: an open bus, as before.
 
     ``tree_kind`` chooses the config's initial tasks (``patrol``: its routes, ``picking``:
     its picks, ``tasks``: both); every robot runs the tree that takes any task kind.
@@ -138,6 +143,7 @@ class FleetRunner:
         tree_file: str | None = None,
         state_dir: Path | None = None,
         api: str | None = None,
+        secure: Secure | None = None,
     ) -> None:
         if tree_file is not None:
             from nodes.xml_tree import check_tree_file
@@ -174,7 +180,7 @@ class FleetRunner:
             self.traffic = False
         self.display = display
         self.state_dir = state_dir
-        self.api = api
+        self.api, self.secure = api, secure
         #: The task service and its faces (with the coordinator; set up by :meth:`run`).
         self.host: ServiceHost | None = None
         #: The e-stop latch below the trees (``fleet.runtime.latch``).
@@ -212,7 +218,7 @@ class FleetRunner:
         remote = bool(getattr(factory, "bus_elsewhere", False))
         listen = (not remote) if self.listen is None else self.listen
         self._wall0 = self._wall.now()
-        session = open_session(self.endpoint, "router" if listen else "client")
+        session = open_session(self.endpoint, "router" if listen else "client", secure=self.secure)
         interrupted = False
         try:
             world = self._setup(factory, session)
@@ -284,7 +290,8 @@ class FleetRunner:
             from fleet.traffic.policy import traffic_from_config
 
             self.traffic_policy = traffic_from_config(self.config)
-        self.host = host = ServiceHost(self.config, world.clock, self.state_dir, self.api)
+        token = self.secure.keyring().api_token() if self.secure is not None and self.api else None
+        self.host = host = ServiceHost(self.config, world.clock, self.state_dir, self.api, api_token=token)
         coordinator = Coordinator(
             self.config,
             bus,
