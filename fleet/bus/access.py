@@ -115,9 +115,13 @@ def identity_rules(
     ]
 
 
-def access_control(identities: dict[str, tuple[Role, str | None]]) -> dict[str, Any]:
+def access_control(
+    identities: dict[str, tuple[Role, str | None]], *, certificates: bool = False
+) -> dict[str, Any]:
     """The ``access_control`` section of the router's config for ``identities`` (user name ->
-    (role, robot name or ``None``)): default deny, each user allowed exactly its role's uses."""
+    (role, robot name or ``None``)): default deny, each user allowed exactly its role's uses.
+    ``certificates``: a session must also present the TLS client certificate whose common
+    name is the identity (mutual TLS)."""
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
@@ -129,7 +133,10 @@ def access_control(identities: dict[str, tuple[Role, str | None]]) -> dict[str, 
     for user in identities:
         mine = identity_rules(user, uses[user], declared)
         rules += mine
-        subjects.append({"id": user, "usernames": [user]})
+        subject: dict[str, Any] = {"id": user, "usernames": [user]}
+        if certificates:
+            subject["cert_common_names"] = [user]
+        subjects.append(subject)
         policies.append({"rules": [r["id"] for r in mine], "subjects": [user]})
     return {
         "enabled": True,

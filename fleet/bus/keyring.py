@@ -12,9 +12,11 @@ A key directory holds, each file mode 0600:
 * ``router.passwords``: the router's ``user:password`` dictionary;
 * ``api.token``: the bearer token of the task service's HTTP API for mutating calls.
 
-Passwords and the token come from :mod:`secrets` (192 random bits each). TLS is not part of
-this directory: credentials travel in the clear over TCP, so keep the bus on loopback or a
-trusted network (``docs/security.md``).
+Passwords and the token come from :mod:`secrets` (192 random bits each). With ``tls`` the
+directory also holds ``tls/`` (:mod:`fleet.bus.certificates`: a CA, the router's certificate and
+one client certificate per identity); the endpoint becomes ``tls/<host>:<port>`` and the router
+requires mutual TLS. Without it credentials travel in the clear over TCP: keep the bus on
+loopback or a trusted network (``docs/security.md``).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from typing import Any
 import zenoh
 
 from fleet.bus.access import access_control
+from fleet.bus.certificates import CA_FILE, TLS_DIR, endpoint_host, make_certificates, tls_endpoint, tls_paths
 from fleet.bus.keys import RESERVED_CHUNKS, Role
 from fleet.errors import BusError
 from fleet.messages import check_robot_name
@@ -70,17 +73,40 @@ def _json5(comment: str, body: dict[str, Any]) -> str:
     return f"// {comment}\n{json.dumps(body, indent=2)}\n"
 
 
-def client_config_dict(user: str, password: str, endpoint: str) -> dict[str, Any]:
-    """The Zenoh client config of ``user`` connecting to the router at ``endpoint``."""
+def _client_tls(directory: Path, identity: str) -> dict[str, Any]:
+    ca, cert, key = tls_paths(directory, identity)
+    return {
+        "root_ca_certificate": str(ca),
+        "connect_certificate": str(cert),
+        "connect_private_key": str(key),
+        "enable_mtls": True,
+    }
+
+
+def _router_tls(directory: Path) -> dict[str, Any]:
+    ca, cert, key = tls_paths(directory, ROUTER_USER)
+    return {
+        "root_ca_certificate": str(ca),
+        "listen_certificate": str(cert),
+        "listen_private_key": str(key),
+        "enable_mtls": True,
+    }
+
+
+def client_config_dict(
+    user: str, password: str, endpoint: str, tls_dir: Path | None = None
+) -> dict[str, Any]:
+    """The Zenoh client config of ``user`` connecting to the router at ``endpoint`` (with
+    ``tls_dir``, the key directory: its TLS client certificate, mutual TLS)."""
+    link: dict[str, Any] = {"tx": {"lease": LEASE_MS}}
+    if tls_dir is not None:
+        link["tls"] = _client_tls(tls_dir, user)
     return {
         "mode": "client",
         "connect": {"endpoints": [endpoint], "timeout_ms": 2000, "exit_on_failure": True},
         "listen": {"endpoints": []},
         "scouting": _SCOUTING_OFF,
-        "transport": {
-            "auth": {"usrpwd": {"user": user, "password": password}},
-            "link": {"tx": {"lease": LEASE_MS}},
-        },
+        "transport": {"auth": {"usrpwd": {"user": user, "password": password}}, "link": link},
     }
 
 
@@ -96,6 +122,20 @@ class Keyring:
     @property
     def router_file(self) -> Path:
         return self.dir / ROUTER_FILE
+
+    @property
+    def tls(self) -> bool:
+        """Whether the directory holds TLS material (``fleet keys init --tls``)."""
+        return (self.dir / TLS_DIR / CA_FILE).is_file()
+
+    def endpoint(self, endpoint: str) -> str:
+        """``endpoint`` as this directory's sessions use it: ``tls/`` when it has TLS."""
+        if not self.tls:
+            return endpoint
+        try:
+            return tls_endpoint(endpoint)
+        except ValueError as e:
+            raise BusError(f"{self.dir}: {e}") from None
 
     @property
     def api_token_file(self) -> Path:
@@ -130,7 +170,9 @@ class Keyring:
         endpoint written in it)."""
         c = self._config(self.identity_file(identity), f"identity file for {identity!r}")
         if endpoint is not None:
-            c.insert_json5("connect/endpoints", json.dumps([endpoint]))
+            c.insert_json5("connect/endpoints", json.dumps([self.endpoint(endpoint)]))
+        if self.tls:  # the files next to this one, wherever the directory moved
+            c.insert_json5("transport/link/tls", json.dumps(_client_tls(self.dir, identity)))
         return c
 
     def router_config(self, endpoint: str | None = None) -> zenoh.Config:
@@ -140,7 +182,9 @@ class Keyring:
         self._read(self.dir / PASSWORDS_FILE, "password dictionary")
         c.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(self.dir / PASSWORDS_FILE)))
         if endpoint is not None:
-            c.insert_json5("listen/endpoints", json.dumps([endpoint]))
+            c.insert_json5("listen/endpoints", json.dumps([self.endpoint(endpoint)]))
+        if self.tls:
+            c.insert_json5("transport/link/tls", json.dumps(_router_tls(self.dir)))
         return c
 
 
@@ -158,21 +202,43 @@ def check_identity_names(robots: list[str]) -> None:
         seen.add(r)
 
 
-def keyring_files(robots: list[str]) -> list[str]:
-    """The file names :func:`init_keyring` writes for ``robots``."""
+def keyring_files(robots: list[str], tls: bool = False) -> list[str]:
+    """The file names (relative to the directory) :func:`init_keyring` writes for ``robots``."""
     names = [*robots, *SERVICE_IDENTITIES]
-    return [*(f"{n}.json5" for n in names), ROUTER_FILE, PASSWORDS_FILE, API_TOKEN_FILE]
+    files = [*(f"{n}.json5" for n in names), ROUTER_FILE, PASSWORDS_FILE, API_TOKEN_FILE]
+    if tls:
+        files += [
+            f"{TLS_DIR}/{CA_FILE}",
+            *(f"{TLS_DIR}/{n}.{ext}" for n in [ROUTER_USER, *names] for ext in ("pem", "key")),
+        ]
+    return files
 
 
-def init_keyring(directory: Path, robots: list[str], endpoint: str, *, force: bool = False) -> Keyring:
+def _write_tls(ring: Keyring, endpoint: str, identities: list[str]) -> None:
+    ca, certs = make_certificates(endpoint_host(endpoint), identities)
+    (ring.dir / TLS_DIR).mkdir(mode=0o700, exist_ok=True)
+    _write_secret(ring.dir / TLS_DIR / CA_FILE, ca.decode())
+    for name, pem in certs.items():
+        _, cert, key = tls_paths(ring.dir, name)
+        _write_secret(cert, pem.cert.decode())
+        _write_secret(key, pem.key.decode())
+
+
+# long: one file after the other, each a few lines, so what the directory holds reads in one place
+def init_keyring(
+    directory: Path, robots: list[str], endpoint: str, *, force: bool = False, tls: bool = False
+) -> Keyring:
     """Make the key directory ``directory`` for ``robots`` on ``endpoint`` (created mode 0700
-    if missing). Refuses (:class:`BusError` naming the file) to overwrite an existing file
-    unless ``force``; ValueError for a robot name that cannot be an identity."""
+    if missing; ``tls``: with TLS material, the endpoint becoming ``tls/``). Refuses
+    (:class:`BusError` naming the file) to overwrite an existing file unless ``force``;
+    ValueError for a robot name that cannot be an identity or an endpoint TLS cannot use."""
     check_identity_names(robots)
+    if tls:
+        endpoint = tls_endpoint(endpoint)
     if directory.exists() and not directory.is_dir():
         raise BusError(f"{directory} exists and is not a directory")
     if not force:
-        for name in keyring_files(robots):
+        for name in keyring_files(robots, tls):
             if (directory / name).exists():
                 raise BusError(f"{directory / name} exists; pass --force to replace every key in {directory}")
     try:
@@ -183,8 +249,14 @@ def init_keyring(directory: Path, robots: list[str], endpoint: str, *, force: bo
     roles: dict[str, tuple[Role, str | None]] = {r: ("robot", r) for r in robots}
     roles.update({name: (role, None) for name, role in SERVICE_IDENTITIES.items()})
     passwords = {name: _secret() for name in [ROUTER_USER, *roles]}
+    if tls:
+        _write_tls(ring, endpoint, list(roles))
+    elif (ring.dir / TLS_DIR).exists():  # --force without --tls: no stale certificates
+        for f in (ring.dir / TLS_DIR).iterdir():
+            f.unlink()
+        (ring.dir / TLS_DIR).rmdir()
     for name, (role, _) in roles.items():
-        body = client_config_dict(name, passwords[name], endpoint)
+        body = client_config_dict(name, passwords[name], endpoint, ring.dir if tls else None)
         _write_secret(
             ring.identity_file(name), _json5(f"fleet bus identity {name!r} ({role}); keep it secret", body)
         )
@@ -201,9 +273,9 @@ def init_keyring(directory: Path, robots: list[str], endpoint: str, *, force: bo
                     "dictionary_file": str(ring.dir / PASSWORDS_FILE),
                 }
             },
-            "link": {"tx": {"lease": LEASE_MS}},
+            "link": {"tx": {"lease": LEASE_MS}, **({"tls": _router_tls(ring.dir)} if tls else {})},
         },
-        "access_control": access_control(roles),
+        "access_control": access_control(roles, certificates=tls),
     }
     _write_secret(
         ring.router_file, _json5("the fleet's Zenoh router: credentials and access control", router)

@@ -99,7 +99,8 @@ def bus_note(secure: Secure | None) -> str:
     """How a command describes its bus in its first line: open, or secured as whom."""
     if secure is None:
         return "open bus: unauthenticated, anyone reaching the endpoint may command robots (--secure DIR locks it)"
-    return f"secured bus: identity {secure.identity!r} from {secure.keys}"
+    over = "over TLS (tls/ endpoint), " if secure.keyring().tls else ""
+    return f"secured bus: {over}identity {secure.identity!r} from {secure.keys}"
 
 
 def _secure_config(
@@ -148,7 +149,7 @@ def open_session(
         unreachable = "timeout" in text.lower() or "unable to connect" in text.lower()
         if secure is not None and not do_listen and unreachable:
             raise BusError(
-                f"cannot connect to the secured router at {endpoint} as identity {secure.identity!r} "
+                f"cannot connect to the secured router at {secure.keyring().endpoint(endpoint)} as identity {secure.identity!r} "
                 f"({secure.keyring().identity_file(secure.identity)}): the router refused these "
                 f"credentials or is not running there (keys from another `fleet keys init`?)"
             ) from None

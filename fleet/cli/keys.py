@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from fleet.cli.common import EXIT_OK, SubParsers, add_command, add_config, add_endpoint, load
-from fleet.errors import ConfigError
+from fleet.errors import BusError, ConfigError
 
 EPILOG = """\
 example:
@@ -45,23 +45,37 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
     init.add_argument("dir", type=Path, metavar="DIR", help="key directory (created mode 0700)")
     add_endpoint(init)
     init.add_argument("--force", action="store_true", help="replace the keys already in DIR")
+    init.add_argument(
+        "--tls",
+        action="store_true",
+        help="also a CA and a certificate per identity in DIR/tls: the bus runs over TLS with client "
+        "certificates (mutual TLS) on tls/<host>:<port> (needs the cryptography package)",
+    )
     init.set_defaults(keys_handler=handle_init)
     return p
 
 
 def handle_init(args: argparse.Namespace) -> int:
     """Write the key directory; list what was written."""
+    from fleet.bus.certificates import tls_endpoint
     from fleet.bus.keyring import init_keyring, keyring_files
 
     config = load(args)
     robots = [r.name for r in config.robots]
     endpoint = args.endpoint or config.endpoint
+    if args.tls:
+        try:
+            endpoint = tls_endpoint(endpoint)
+        except ValueError as e:
+            raise BusError(f"--endpoint: {e}") from None
     try:
-        ring = init_keyring(args.dir, robots, endpoint, force=args.force)
+        ring = init_keyring(args.dir, robots, endpoint, force=args.force, tls=args.tls)
     except ValueError as e:
         raise ConfigError(str(config.path), "robots", str(e)) from None
-    files = keyring_files(robots)
+    files = keyring_files(robots, args.tls)
     print(f"keys: {len(files)} files in {ring.dir} (mode 0600) for {endpoint}")
+    if args.tls:
+        print("  TLS: tls/ca.pem and a certificate per identity (mutual TLS); the CA's key is not kept")
     print(f"  identities: {', '.join(robots)}, coordinator, simulator, observer")
     print("  router: router.json5 + router.passwords; HTTP API token: api.token")
     print(f"  use: fleet run {config.path} --secure {args.dir}   (see docs/security.md)")

@@ -261,3 +261,57 @@ def test_router_config_follows_the_directory(keys: Path, tmp_path: Path, zenoh_e
     assert json.loads(c.get_json("transport/auth/usrpwd/dictionary_file")) == str(moved / "router.passwords")
     with pytest.raises(BusError, match=r"no API token .*api\.token"):
         Keyring(tmp_path / "nowhere").api_token()
+
+
+def test_tls_keys_need_the_identity_s_own_certificate(tmp_path: Path, zenoh_endpoint: str) -> None:
+    """``--tls``: the bus runs on ``tls/`` with mutual TLS; the files open with plain Zenoh; a
+    session without a client certificate is refused, and one with robot1's password but
+    robot2's certificate connects but may do nothing."""
+    keys = tmp_path / "keys"
+    ring = init_keyring(keys, ROBOTS, zenoh_endpoint, tls=True)
+    tls_ep = zenoh_endpoint.replace("tcp/", "tls/")
+    assert ring.tls and ring.endpoint(zenoh_endpoint) == tls_ep
+    assert stat.S_IMODE((keys / "tls").stat().st_mode) == 0o700
+    assert all(stat.S_IMODE(p.stat().st_mode) == 0o600 for p in (keys / "tls").iterdir())
+    assert sorted(p.name for p in (keys / "tls").iterdir()) == sorted(
+        ["ca.pem"] + [f"{n}.{x}" for n in ("router", *ROBOTS, "coordinator", "simulator", "observer")
+                      for x in ("pem", "key")]
+    )  # fmt: skip
+    assert json.loads(ring.client_config("robot1").get_json("connect/endpoints")) == [tls_ep]
+    router = zenoh.open(zenoh.Config.from_file(keys / "router.json5"))
+    sessions: list[zenoh.Session] = []
+    try:
+        inbox = Inbox()
+        router.declare_subscriber("fleet/*/status", inbox)
+        good = zenoh.open(zenoh.Config.from_file(keys / "robot1.json5"))
+        sessions.append(good)
+        settle(good, status_key("robot1"), inbox)
+        no_cert = ring.client_config("robot1")
+        no_cert.insert_json5(
+            "transport/link/tls", json.dumps({"root_ca_certificate": str(keys / "tls/ca.pem")})
+        )
+        no_cert.insert_json5("connect/timeout_ms", "1000")
+        with pytest.raises(zenoh.ZError):
+            sessions.append(zenoh.open(no_cert))
+        swapped = ring.client_config("robot1")  # robot1's password, robot2's certificate
+        swapped.insert_json5(
+            "transport/link/tls/connect_certificate", json.dumps(str(keys / "tls/robot2.pem"))
+        )
+        swapped.insert_json5(
+            "transport/link/tls/connect_private_key", json.dumps(str(keys / "tls/robot2.key"))
+        )
+        thief = zenoh.open(swapped)
+        sessions.append(thief)
+        thief.put(status_key("robot1"), b"forged")
+        thief.put(status_key("robot2"), b"forged")
+        good.put(status_key("robot1"), b"end")
+        inbox.wait(status_key("robot1"), b"end")
+        assert all(p != b"forged" for _, p in inbox.got)
+        # the fleet's own path: open_session on the key directory, with a tcp/ endpoint given
+        s = open_session(zenoh_endpoint, "client", secure=Secure(keys, "robot2"), connect_timeout_s=10.0)
+        sessions.append(s)
+        settle(s, status_key("robot2"), inbox)
+    finally:
+        for s in sessions:
+            s.close()  # type: ignore[no-untyped-call]
+        router.close()  # type: ignore[no-untyped-call]
