@@ -125,6 +125,12 @@ class ServiceHost:
             from fleet.api.server import ApiServer
 
             host, port = self.api_address
+            if self.api_token is not None and host not in ("127.0.0.1", "localhost", "::1"):
+                logger.warning(
+                    "the API on %s:%d takes the token for changes but its reads are open to the network",
+                    host,
+                    port,
+                )
             self.api = ApiServer(create_app(self.service, token=self.api_token), host, port).start()
 
     def tick(self, now: float) -> None:

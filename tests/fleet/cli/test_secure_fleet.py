@@ -89,3 +89,6 @@ def test_bad_secure_values_are_clear_errors(tmp_path: Path) -> None:
     assert r.returncode == 2 and "--robots" in r.stderr
     r = fleet("status", "--once", "--endpoint", ep, "--secure", str(missing))
     assert r.returncode == 2 and "no such key directory" in r.stderr
+    r = fleet("keys", "init", str(PATROL), str(tmp_path / "k3"), "--tls", "--endpoint", "udp/127.0.0.1:7447")
+    assert r.returncode == 2 and "--endpoint: TLS needs a tcp/ or tls/ endpoint" in r.stderr, r.stderr
+    assert not (tmp_path / "k3").exists()
