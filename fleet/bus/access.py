@@ -145,3 +145,34 @@ def access_control(
         "subjects": subjects,
         "policies": policies,
     }
+
+
+#: How :func:`describe` names what a rule allows: (flow, message) -> verb.
+VERBS: dict[tuple[str, str], str] = {
+    ("ingress", "put"): "publishes",
+    ("egress", "put"): "receives",
+    ("ingress", "liveliness_token"): "holds",
+    ("ingress", "declare_liveliness_subscriber"): "watches",
+    ("ingress", "declare_queryable"): "serves",
+    ("ingress", "query"): "asks",
+}
+
+
+def describe(acl: dict[str, Any]) -> dict[str, dict[str, list[str]]]:
+    """What each subject of a router's ``access_control`` section may do, read back from its
+    rules: ``{subject: {verb: [key expressions]}}`` with the verbs of :data:`VERBS`."""
+    rules = {r["id"]: r for r in acl.get("rules", [])}
+    out: dict[str, dict[str, list[str]]] = {}
+    for policy in acl.get("policies", []):
+        for subject in policy.get("subjects", []):
+            mine = out.setdefault(subject, {})
+            for rid in policy.get("rules", []):
+                r = rules.get(rid, {})
+                if r.get("permission") != "allow":
+                    continue
+                for flow in r.get("flows", []):
+                    for msg in r.get("messages", []):
+                        verb = VERBS.get((flow, msg))
+                        if verb is not None:
+                            mine.setdefault(verb, []).extend(r.get("key_exprs", []))
+    return out

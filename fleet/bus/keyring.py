@@ -22,6 +22,7 @@ loopback or a trusted network (``docs/security.md``).
 from __future__ import annotations
 
 import json
+import logging
 import os
 import secrets
 from dataclasses import dataclass
@@ -35,6 +36,8 @@ from fleet.bus.certificates import CA_FILE, TLS_DIR, endpoint_host, make_certifi
 from fleet.bus.keys import RESERVED_CHUNKS, Role
 from fleet.errors import BusError
 from fleet.messages import check_robot_name
+
+logger = logging.getLogger(__name__)
 
 #: The identities made besides the robots, and their roles.
 SERVICE_IDENTITIES: dict[str, Role] = {
@@ -143,6 +146,8 @@ class Keyring:
 
     def _read(self, path: Path, what: str) -> str:
         try:
+            if path.stat().st_mode & 0o077:
+                logger.warning("%s is readable by others than its owner: chmod 600 %s", path, path)
             return path.read_text()
         except FileNotFoundError:
             raise BusError(
@@ -174,6 +179,11 @@ class Keyring:
         if self.tls:  # the files next to this one, wherever the directory moved
             c.insert_json5("transport/link/tls", json.dumps(_client_tls(self.dir, identity)))
         return c
+
+    def access(self) -> dict[str, Any]:
+        """The router config's ``access_control`` section (what the router enforces)."""
+        acl: dict[str, Any] = json.loads(self.router_config().get_json("access_control"))
+        return acl
 
     def router_config(self, endpoint: str | None = None) -> zenoh.Config:
         """The router session's config (``endpoint`` replaces the listen endpoint; the

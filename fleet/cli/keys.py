@@ -52,7 +52,38 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
         "certificates (mutual TLS) on tls/<host>:<port> (needs the cryptography package)",
     )
     init.set_defaults(keys_handler=handle_init)
+    show = ksub.add_parser(
+        "show",
+        help="what each identity of DIR may do, read back from the router's access control",
+        description="List the identities of a key directory, its endpoint, whether it uses TLS, and what "
+        "the router lets each identity publish, receive, hold, watch, serve and ask.",
+    )
+    show.add_argument("dir", type=Path, metavar="DIR", help="key directory (fleet keys init)")
+    show.set_defaults(keys_handler=handle_show)
     return p
+
+
+def handle_show(args: argparse.Namespace) -> int:
+    """Print the identities of ``args.dir`` and their rights."""
+    import json
+
+    from fleet.bus.access import VERBS, describe
+    from fleet.bus.keyring import Keyring
+
+    ring = Keyring(args.dir)
+    endpoints: list[str] = json.loads(ring.router_config().get_json("listen/endpoints"))
+    rights = describe(ring.access())
+    tls = "mutual TLS" if ring.tls else "no TLS (credentials in the clear: loopback or a trusted network)"
+    print(f"keys: {ring.dir}, router on {', '.join(endpoints)}, {tls}, {len(rights)} identities")
+    verbs = list(dict.fromkeys(VERBS.values()))
+    for identity, allowed in rights.items():
+        print(f"{identity}:")
+        for verb in verbs:
+            if allowed.get(verb):
+                print(f"  {verb:<9} {', '.join(allowed[verb])}")
+        if not any(allowed.get(v) for v in ("publishes", "holds", "serves")):
+            print("  (read only)")
+    return EXIT_OK
 
 
 def handle_init(args: argparse.Namespace) -> int:

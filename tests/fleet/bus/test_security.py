@@ -16,8 +16,18 @@ import pytest
 import zenoh
 from bus_peer import record
 
+from fleet.bus.access import describe
 from fleet.bus.keyring import Keyring, init_keyring
-from fleet.bus.keys import CLOCK_KEY, CONTROL_KEY, alive_key, grant_key, nav_key, status_key, task_key
+from fleet.bus.keys import (
+    CLOCK_KEY,
+    CONTROL_KEY,
+    access_of,
+    alive_key,
+    grant_key,
+    nav_key,
+    status_key,
+    task_key,
+)
 from fleet.bus.session import Secure, open_session
 from fleet.bus.status_bus import StatusBus
 from fleet.errors import BusError
@@ -114,6 +124,27 @@ def test_keys_init_writes_secret_files_that_plain_zenoh_opens(keys: Path, zenoh_
         client.close()  # type: ignore[no-untyped-call]
     finally:
         router.close()  # type: ignore[no-untyped-call]
+
+
+def test_the_router_enforces_exactly_the_key_table(keys: Path) -> None:
+    """Read back from the written router config, each identity may do what ``ACCESS`` says
+    for its role and nothing else."""
+    rights = describe(Keyring(keys).access())
+    assert set(rights) == {*ROBOTS, "coordinator", "simulator", "observer"}
+    verbs = {"put": "publishes", "subscribe": "receives", "token": "holds", "watch": "watches", "serve": "serves",
+             "query": "asks"}  # fmt: skip
+    for identity, role, robot in [
+        *(("r", "robot", r) for r in ROBOTS),
+        ("coordinator", "coordinator", None),
+        ("simulator", "simulator", None),
+        ("observer", "observer", None),
+    ]:
+        name = robot or identity
+        want: dict[str, set[str]] = {}
+        for u in access_of(role, robot):  # type: ignore[arg-type]
+            want.setdefault(verbs[u.use], set()).add(u.key)
+        assert {v: set(k) for v, k in rights[name].items()} == want, name
+    assert set(rights["observer"]) == {"receives", "watches", "asks"}  # reads only
 
 
 def test_keys_init_refuses_to_overwrite_and_bad_names(keys: Path, zenoh_endpoint: str) -> None:

@@ -78,6 +78,12 @@ def test_bad_secure_values_are_clear_errors(tmp_path: Path) -> None:
     assert r.returncode == 2 and f"--secure {missing}: no such key directory" in r.stderr, r.stderr
     keys = tmp_path / "keys"
     assert fleet("keys", "init", str(PATROL), str(keys), "--endpoint", ep).returncode == 0
+    shown = fleet("keys", "show", str(keys))
+    assert shown.returncode == 0, shown.stderr
+    assert f"router on {ep}, no TLS" in shown.stdout and "9 identities" in shown.stdout
+    observer = shown.stdout.split("observer:")[1]
+    assert "(read only)" in observer and "publishes" not in observer
+    assert "publishes fleet/robot1/status, fleet/robot1/nav/goal, fleet/robot1/nav/cancel" in shown.stdout
     r = fleet("agent", str(PATROL), "--robot", "robot1,robot2", "--endpoint", ep, "--secure", str(keys))
     assert r.returncode == 2 and "no single identity" in r.stderr and "--identity" in r.stderr, r.stderr
     r = fleet("coordinator", str(PATROL), "--agents", "robot1", "--endpoint", ep, "--secure", str(keys))
