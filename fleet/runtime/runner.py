@@ -326,6 +326,10 @@ class FleetRunner:
             svc.views["traffic"] = traffic_view(self.traffic_policy)
         host.start(session, bus)
         api = f", API {host.api.url} (docs: {host.api.url}/docs)" if host.api is not None else ""
+        if host.api is not None and host.api_token is not None and self.secure is not None:
+            api += (
+                f"; commands need the token: {host.api.url}/#token=<{self.secure.keyring().api_token_file}>"
+            )
         book = host.state_dir if host.state_dir is not None else "in memory (no --state)"
         print(f"tasks: {book}{api}", file=self.out, flush=True)
 
