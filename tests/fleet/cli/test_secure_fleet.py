@@ -10,7 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from fleet_procs import PATROL, ROOT, BusWatch, output, processes, spawn
+from fleet_procs import PATROL, ROOT, BusWatch, output, processes, spawn, temp_config
 from ports import free_endpoint
 
 from fleet.bus.session import Secure, open_session
@@ -40,8 +40,12 @@ def test_secured_split_fleet_completes_laps(tmp_path: Path) -> None:
     with processes() as procs:
         sim = spawn(procs, ["sim", *cfg, *secure, "--speed", "10"], tmp_path / "sim.log")
         assert "secured bus" in output(sim).wait_line("fleet sim:", DEADLINE_S)
-        for robot in ("robot1", "robot2"):
-            spawn(procs, ["agent", *cfg, "--robot", robot, *secure], tmp_path / f"{robot}.log")
+        spawn(procs, ["agent", *cfg, "--robot", "robot1", *secure], tmp_path / "robot1.log")
+        # robot2's agent finds its keys in its config (bus.secure, relative to the config file)
+        cfg2 = temp_config(tmp_path, lambda doc: doc["bus"].update(secure="keys"), "secured.yaml")
+        agent2 = spawn(procs, ["agent", str(cfg2), "--robots", "2", "--robot", "robot2", "--endpoint", ep],
+                       tmp_path / "robot2.log")  # fmt: skip
+        assert "identity 'robot2'" in output(agent2).wait_line("fleet: ", DEADLINE_S)
         session = open_session(ep, "client", secure=Secure(keys, "observer"), connect_timeout_s=30.0)
         watch = BusWatch(StatusBus(session))
         try:
