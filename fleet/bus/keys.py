@@ -136,7 +136,6 @@ ACCESS: dict[Role, tuple[KeyUse, ...]] = {
         KeyUse("put", TASK.format(robot="*")),
         KeyUse("put", GRANT.format(robot="*")),
         KeyUse("put", CONTROL_KEY),
-        KeyUse("subscribe", CONTROL_KEY),
         KeyUse("subscribe", CLOCK_KEY),
         KeyUse("serve", f"{SERVICE_PREFIX}/**"),
         KeyUse("put", SERVICE_EVENTS),
