@@ -49,6 +49,10 @@ examples:
   fleet coordinator configs/warehouse_patrol.yaml
   fleet agent configs/warehouse_patrol.yaml --robot robot1     (one per robot)
 
+  a secured bus: identities made once, then --secure on every process (docs/security.md):
+  fleet keys init configs/warehouse_patrol.yaml out/keys
+  fleet run configs/warehouse_patrol.yaml --secure out/keys
+
   tasks at runtime (docs/service.md):
   fleet run configs/warehouse_patrol.yaml --api 127.0.0.1:8080 --state out/state/demo
   fleet task submit go_to --target a3_n --wait
