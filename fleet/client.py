@@ -79,24 +79,27 @@ class TaskHandle:
 
 class FleetClient:
     """The task service at ``url`` (e.g. ``http://127.0.0.1:8080``); ``user`` is sent as
-    ``X-Fleet-User`` (who submitted, who paused)."""
+    ``X-Fleet-User`` (who submitted, who paused). ``token``: the API token of a secured fleet
+    (the contents of ``DIR/api.token``), sent as ``Authorization: Bearer``; without it a
+    secured fleet answers mutating calls with :class:`ApiError` status 401."""
 
-    def __init__(self, url: str, *, user: str = "python", timeout: float = 30.0) -> None:
+    def __init__(
+        self, url: str, *, user: str = "python", timeout: float = 30.0, token: str | None = None
+    ) -> None:
         if "://" not in url:
             url = f"http://{url}"
         self.url = url.rstrip("/")
         self.user = user
         self.timeout = timeout
+        self.token = token
 
     def request(self, method: str, path: str, body: Any = None) -> Any:
         """One request; the decoded JSON answer. :class:`ApiError` on an error status."""
         data = None if body is None else json.dumps(body).encode()
-        req = urllib.request.Request(
-            self.url + path,
-            data=data,
-            method=method,
-            headers={"Content-Type": "application/json", "X-Fleet-User": self.user},
-        )
+        headers = {"Content-Type": "application/json", "X-Fleet-User": self.user}
+        if self.token:
+            headers["Authorization"] = f"Bearer {self.token}"
+        req = urllib.request.Request(self.url + path, data=data, method=method, headers=headers)
         try:
             with urllib.request.urlopen(req, timeout=self.timeout) as resp:
                 return json.loads(resp.read() or b"null")

@@ -21,7 +21,8 @@ Endpoints (JSON; the OpenAPI schema is served at ``/openapi.json``, interactive 
 
 Bad input gets a 4xx answer ``{"error", "field", "status"}`` and changes nothing: invalid
 JSON 400, a body over ``max_body`` bytes 413, an invalid task 422, an unknown task 404, a
-cancel of a finished task or ``resume`` while the e-stop is latched 409.
+cancel of a finished task or ``resume`` while the e-stop is latched 409. A secured fleet
+(``token``) answers a mutating call without the right bearer token 401 (:mod:`fleet.api.auth`).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from fastapi.responses import HTMLResponse, JSONResponse, Response
 from pydantic import ValidationError
 
 from fleet.api import schemas
+from fleet.api.auth import TokenGuard
 from fleet.errors import CommandRefused, InvalidTask, ServiceError, TaskFinished, UnknownTask
 from fleet.messages import FleetControl
 from fleet.service import site
@@ -139,9 +141,11 @@ def create_app(
     extensions: Sequence[Callable[[FastAPI], None]] | None = None,
     max_body: int = MAX_BODY,
     ws_hz: float = WS_HZ,
+    token: str | None = None,
 ) -> FastAPI:
     """The API of ``service`` (see the module docstring). ``extensions`` are called with the
-    app once every API route is added (default: :func:`default_extensions`)."""
+    app once every API route is added (default: :func:`default_extensions`). With ``token``
+    every mutating call needs ``Authorization: Bearer <token>`` (:mod:`fleet.api.auth`)."""
     config = service.config
     app = FastAPI(
         title=f"fleet task service: {config.name}",
@@ -338,9 +342,10 @@ def create_app(
     inner = app.build_middleware_stack
 
     def build() -> ASGIApp:
-        return BodyLimit(
+        limited: ASGIApp = BodyLimit(
             inner(), max_body, lambda: setattr(service, "bad_requests", service.bad_requests + 1)
         )
+        return limited if token is None else TokenGuard(limited, token)
 
     app.build_middleware_stack = build  # type: ignore[method-assign]
     return app

@@ -1,33 +1,45 @@
 """Zenoh key expressions of the fleet: ``fleet/<robot>/status``, ``task``, ``grant``,
-``alive`` and the navigation protocol's ``fleet/<robot>/nav/...`` keys."""
+``alive`` and the navigation protocol's ``fleet/<robot>/nav/...`` keys, and :data:`ACCESS`,
+the one table of which role uses which key (the router's access control under ``--secure``
+is generated from it alone: a new key goes into this table, see ``docs/security.md``)."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
 
 from fleet.errors import BackendError
 from fleet.messages import (
     check_robot_name,
 )
 
-STATUS_KEYS = "fleet/*/status"
+#: Templates of the per-robot keys (``{robot}`` is the robot's name, one key chunk).
+STATUS = "fleet/{robot}/status"
+TASK = "fleet/{robot}/task"
+GRANT = "fleet/{robot}/grant"
+ALIVE = "fleet/{robot}/alive"
+NAV = "fleet/{robot}/nav/{what}"
+
+STATUS_KEYS = STATUS.format(robot="*")
 
 
-ALIVE_KEYS = "fleet/*/alive"
+ALIVE_KEYS = ALIVE.format(robot="*")
 
 
 def status_key(robot: str) -> str:
-    return f"fleet/{check_robot_name(robot)}/status"
+    return STATUS.format(robot=check_robot_name(robot))
 
 
 def task_key(robot: str) -> str:
-    return f"fleet/{check_robot_name(robot)}/task"
+    return TASK.format(robot=check_robot_name(robot))
 
 
 def grant_key(robot: str) -> str:
-    return f"fleet/{check_robot_name(robot)}/grant"
+    return GRANT.format(robot=check_robot_name(robot))
 
 
 def alive_key(robot: str) -> str:
-    return f"fleet/{check_robot_name(robot)}/alive"
+    return ALIVE.format(robot=check_robot_name(robot))
 
 
 def robot_of_key(key: str) -> str:
@@ -40,12 +52,31 @@ def robot_of_key(key: str) -> str:
 
 CLOCK_KEY = "fleet/sim/clock"
 
+#: Every coordinator lease token (``fleet/coordinator/lease/<epoch>/<owner>``, docs/protocol.md).
+LEASE_KEYS = "fleet/coordinator/lease/**"
+#: Every simulator lease token (``fleet sim``): ``fleet/sim/lease/<owner>``.
+SIM_LEASE_KEYS = "fleet/sim/lease/*"
+
 #: The fleet's control state (:class:`fleet.messages.FleetControl`): coordinator -> everyone.
 CONTROL_KEY = "fleet/control/state"
 
 #: The task service's key space (``docs/service.md``): queryables under it, task events on
 #: ``fleet/service/events/<task id>``.
 SERVICE_PREFIX = "fleet/service"
+
+#: Task events of the task service (``fleet/service/events/<task id>``).
+SERVICE_EVENTS = f"{SERVICE_PREFIX}/events/*"
+
+#: The task service's read-only queryables (what an observer may ask).
+SERVICE_READS = (
+    f"{SERVICE_PREFIX}/tasks",
+    f"{SERVICE_PREFIX}/tasks/*",
+    f"{SERVICE_PREFIX}/robots",
+    f"{SERVICE_PREFIX}/fleet",
+)
+
+#: Key chunks the fleet uses itself: no robot may be named like one (``fleet/sim/clock``...).
+RESERVED_CHUNKS = frozenset({"sim", "control", "service"})
 
 
 def robot_key_name(namespace: str) -> str:
@@ -58,4 +89,94 @@ def robot_key_name(namespace: str) -> str:
 
 def nav_key(namespace: str, what: str) -> str:
     """``fleet/<robot>/nav/<what>`` with ``what`` in ``goal``, ``cancel``, ``state``."""
-    return f"fleet/{robot_key_name(namespace)}/nav/{what}"
+    return NAV.format(robot=robot_key_name(namespace), what=what)
+
+
+# -- who uses which key (the access-control table) -----------------------------------------
+
+#: How a process uses a key expression: ``put`` publishes on it, ``subscribe`` receives its
+#: puts, ``token`` holds a liveliness token on it, ``watch`` watches liveliness tokens on it
+#: (with history), ``serve`` answers queries on it (a queryable), ``query`` asks it.
+Use = Literal["put", "subscribe", "token", "watch", "serve", "query"]
+
+#: The roles of processes on the bus (``fleet keys init`` makes one identity per robot and
+#: one of each other role).
+Role = Literal["robot", "coordinator", "simulator", "observer"]
+
+
+@dataclass(frozen=True)
+class KeyUse:
+    """``use`` of the key expression ``key``; in the ``robot`` role ``{robot}`` in ``key``
+    stands for the identity's own robot name."""
+
+    use: Use
+    key: str
+
+
+_ME = "{robot}"
+
+
+def _nav(what: str, robot: str = _ME) -> str:
+    return NAV.format(robot=robot, what=what)
+
+
+#: What each role does on the bus, and nothing more (``--secure`` denies everything else).
+#: The agent's process also subscribes to ``fleet/*/status`` for its report; under
+#: ``--secure`` it sees only its own robot there (its session delivers its own puts).
+ACCESS: dict[Role, tuple[KeyUse, ...]] = {
+    "robot": (
+        KeyUse("put", STATUS),
+        KeyUse("token", ALIVE),
+        KeyUse("put", _nav("goal")),
+        KeyUse("put", _nav("cancel")),
+        KeyUse("subscribe", _nav("state")),
+        KeyUse("subscribe", TASK),
+        KeyUse("subscribe", GRANT),
+        KeyUse("subscribe", CLOCK_KEY),
+        KeyUse("subscribe", CONTROL_KEY),
+        KeyUse("watch", ALIVE),
+        KeyUse("watch", LEASE_KEYS),
+        KeyUse("watch", SIM_LEASE_KEYS),
+    ),
+    "coordinator": (
+        KeyUse("subscribe", STATUS_KEYS),
+        KeyUse("watch", ALIVE_KEYS),
+        KeyUse("put", TASK.format(robot="*")),
+        KeyUse("put", GRANT.format(robot="*")),
+        KeyUse("put", CONTROL_KEY),
+        KeyUse("subscribe", CLOCK_KEY),
+        KeyUse("serve", f"{SERVICE_PREFIX}/**"),
+        KeyUse("put", SERVICE_EVENTS),
+        KeyUse("token", LEASE_KEYS),
+        KeyUse("watch", LEASE_KEYS),
+        KeyUse("watch", SIM_LEASE_KEYS),
+    ),
+    "simulator": (
+        KeyUse("subscribe", _nav("goal", "*")),
+        KeyUse("subscribe", _nav("cancel", "*")),
+        KeyUse("put", _nav("state", "*")),
+        KeyUse("put", CLOCK_KEY),
+        KeyUse("subscribe", CONTROL_KEY),
+        KeyUse("token", SIM_LEASE_KEYS),
+    ),
+    "observer": (
+        KeyUse("subscribe", STATUS_KEYS),
+        KeyUse("watch", ALIVE_KEYS),
+        KeyUse("watch", LEASE_KEYS),
+        KeyUse("watch", SIM_LEASE_KEYS),
+        KeyUse("subscribe", CONTROL_KEY),
+        KeyUse("subscribe", SERVICE_EVENTS),
+        *(KeyUse("query", k) for k in SERVICE_READS),
+    ),
+}
+
+
+def access_of(role: Role, robot: str | None = None) -> list[KeyUse]:
+    """The key uses of ``role`` (for a robot, with ``{robot}`` filled in: ``robot`` required)."""
+    uses = ACCESS[role]
+    if role != "robot":
+        return list(uses)
+    if robot is None:
+        raise ValueError("the robot role needs the robot's name")
+    name = check_robot_name(robot)
+    return [KeyUse(u.use, u.key.replace(_ME, name)) for u in uses]

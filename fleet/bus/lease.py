@@ -24,15 +24,11 @@ from typing import NamedTuple
 
 import zenoh
 
-from fleet.bus.keys import alive_key
+from fleet.bus.keys import LEASE_KEYS, SIM_LEASE_KEYS, alive_key
 from fleet.bus.session import Declaration, undeclare_all
 from fleet.errors import LeaseError
 
-#: Every coordinator lease token.
-LEASE_KEYS = "fleet/coordinator/lease/**"
 _PREFIX = "fleet/coordinator/lease/"
-#: Every simulator lease token (``fleet sim``): ``fleet/sim/lease/<owner>``.
-SIM_LEASE_KEYS = "fleet/sim/lease/*"
 #: How long a liveliness query for existing holders may take (wall seconds).
 QUERY_TIMEOUT_S = 2.0
 

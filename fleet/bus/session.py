@@ -10,11 +10,16 @@ import json
 import logging
 import re
 from collections.abc import Iterable
-from typing import Literal, Protocol
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal, Protocol
 
 import zenoh
 
 from fleet.errors import BusError
+
+if TYPE_CHECKING:
+    from fleet.bus.keyring import Keyring
 
 logger = logging.getLogger(__name__)
 
@@ -71,6 +76,48 @@ def zenoh_config(
     return c
 
 
+@dataclass(frozen=True)
+class Secure:
+    """Open sessions on a secured bus (``--secure DIR``): ``keys`` is the key directory made
+    by ``fleet keys init``; ``identity`` the identity a client session uses (a robot's name,
+    ``coordinator``, ``simulator`` or ``observer``). A router session uses the directory's
+    router config whatever ``identity`` says."""
+
+    keys: Path
+    identity: str
+
+    def keyring(self) -> Keyring:
+        from fleet.bus.keyring import Keyring
+
+        return Keyring(self.keys)
+
+    def with_identity(self, identity: str) -> Secure:
+        return Secure(self.keys, identity)
+
+
+def bus_note(secure: Secure | None) -> str:
+    """How a command describes its bus in its first line: open, or secured as whom."""
+    if secure is None:
+        return "open bus: unauthenticated, anyone reaching the endpoint may command robots (--secure DIR locks it)"
+    over = "over TLS (tls/ endpoint), " if secure.keyring().tls else ""
+    return f"secured bus: {over}identity {secure.identity!r} from {secure.keys}"
+
+
+def _secure_config(
+    secure: Secure, endpoint: str, role: Role, do_listen: bool, connect_timeout_s: float
+) -> zenoh.Config:
+    if not isinstance(endpoint, str) or not _ENDPOINT_RE.match(endpoint):
+        raise BusError(f"bad Zenoh endpoint {endpoint!r}: expected e.g. tcp/127.0.0.1:7447")
+    ring = secure.keyring()
+    if role == "router":
+        return ring.router_config(endpoint)
+    if do_listen:
+        raise BusError("on a secured bus only the router listens; connect as a client")
+    c = ring.client_config(secure.identity, endpoint)
+    c.insert_json5("connect/timeout_ms", str(max(1, int(connect_timeout_s * 1000))))
+    return c
+
+
 def open_session(
     endpoint: str,
     role: Role,
@@ -78,28 +125,41 @@ def open_session(
     listen: bool | None = None,
     connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
     lease_s: float | None = DEFAULT_LEASE_S,
+    secure: Secure | None = None,
 ) -> zenoh.Session:
     """Open a Zenoh session; the caller must ``close()`` it (``with open_session(...) as s``).
 
-    ``listen`` defaults to ``role == "router"``. Raises :class:`BusError` with a message saying
-    what to do: the port is in use, or no router answers at the endpoint within
-    ``connect_timeout_s``.
+    ``listen`` defaults to ``role == "router"``. With ``secure`` a router session enforces the
+    key directory's credentials and access control, and a client session authenticates as
+    ``secure.identity`` (its ``lease_s`` is the identity file's). Raises :class:`BusError` with
+    a message saying what to do: the port is in use, no router answers at the endpoint within
+    ``connect_timeout_s`` (or it refused the identity), a key file is missing.
     """
     do_listen = role == "router" if listen is None else listen
-    config = zenoh_config(
-        endpoint, role, listen=do_listen, connect_timeout_s=connect_timeout_s, lease_s=lease_s
-    )
+    if secure is not None:
+        config = _secure_config(secure, endpoint, role, do_listen, connect_timeout_s)
+    else:
+        config = zenoh_config(
+            endpoint, role, listen=do_listen, connect_timeout_s=connect_timeout_s, lease_s=lease_s
+        )
     try:
         return zenoh.open(config)
     except Exception as e:  # zenoh.ZError
         text = str(e)
+        unreachable = "timeout" in text.lower() or "unable to connect" in text.lower()
+        if secure is not None and not do_listen and unreachable:
+            raise BusError(
+                f"cannot connect to the secured router at {secure.keyring().endpoint(endpoint)} as identity {secure.identity!r} "
+                f"({secure.keyring().identity_file(secure.identity)}): the router refused these "
+                f"credentials or is not running there (keys from another `fleet keys init`?)"
+            ) from None
         if "in use" in text.lower():
             raise BusError(
                 f"cannot listen on {endpoint}: the address is in use (is another `fleet run` or "
                 f"`fleet sim` running there?) — pass --endpoint with a free port, or attach to it "
                 f"with `fleet status --endpoint {endpoint}`"
             ) from None
-        if not do_listen and ("timeout" in text.lower() or "unable to connect" in text.lower()):
+        if not do_listen and unreachable:
             raise BusError(
                 f"no Zenoh router at {endpoint} — start `fleet run` (or `fleet sim`) first or pass --endpoint"
             ) from None

@@ -12,6 +12,7 @@ from fleet.cli.common import (
     add_command,
     add_config,
     add_endpoint,
+    add_secure,
     add_traffic,
     announce,
     remote_runner,
@@ -36,6 +37,7 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
         "--duration", "-d", type=positive_float, metavar="S", help="simulated seconds (default: forever)"
     )
     add_endpoint(p)
+    add_secure(p, "the robot's name")
     add_traffic(p)
     return p
 

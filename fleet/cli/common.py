@@ -20,6 +20,7 @@ from fleet.cli.logs import add_log_level
 from fleet.errors import BackendError, BusError, ConfigError, ServiceError, TreeError
 
 if TYPE_CHECKING:
+    from fleet.bus.session import Secure
     from fleet.config.model import FleetConfig
     from fleet.runtime.report import RunReport
     from fleet.runtime.runner import FleetRunner
@@ -78,6 +79,49 @@ def add_endpoint(p: argparse.ArgumentParser) -> None:
         metavar="EP",
         help="Zenoh endpoint, e.g. tcp/127.0.0.1:7447 (default: the config's bus.endpoint)",
     )
+
+
+def add_secure(p: argparse.ArgumentParser, identity: str | None) -> None:
+    """``--secure DIR`` (and ``--identity NAME`` when ``identity`` says what it defaults to):
+    open the session on a secured bus (docs/security.md)."""
+    p.add_argument(
+        "--secure",
+        type=Path,
+        metavar="DIR",
+        help="secured bus: authenticate with the keys of DIR (`fleet keys init`; default: the "
+        "config's bus.secure, else an open bus)",
+    )
+    if identity is not None:
+        p.add_argument(
+            "--identity",
+            metavar="NAME",
+            help=f"the identity of DIR to connect as (DIR/NAME.json5; default: {identity})",
+        )
+
+
+def secure_of(
+    args: argparse.Namespace, config: FleetConfig | None, default_identity: str | None, hosts: str = ""
+) -> Secure | None:
+    """The :class:`~fleet.bus.session.Secure` of ``--secure`` (else the config's
+    ``bus.secure``) with ``--identity`` or ``default_identity``; ``None`` for an open bus.
+    :class:`BusError` if the directory is missing, or if no identity fits (``hosts`` says
+    what this process runs, for the message)."""
+    from fleet.bus.session import Secure
+
+    keys: Path | None = getattr(args, "secure", None) or (config.secure if config is not None else None)
+    if keys is None:
+        return None
+    if not keys.is_dir():
+        raise BusError(
+            f"--secure {keys}: no such key directory (make it with `fleet keys init CONFIG {keys}`)"
+        )
+    identity = getattr(args, "identity", None) or default_identity
+    if identity is None:
+        raise BusError(
+            f"this process runs {hosts}, which no single identity of a secured bus may do: run them as "
+            "separate processes (`fleet coordinator`, `fleet agent --robot NAME`) or pass --identity NAME"
+        )
+    return Secure(keys, identity)
 
 
 def add_traffic(p: argparse.ArgumentParser) -> None:
@@ -210,9 +254,15 @@ def finish(runner: FleetRunner, report: RunReport, args: argparse.Namespace) -> 
 
 
 def announce(runner: FleetRunner, what: str) -> None:
-    """The first line of a run: the fleet, what runs here, the backend and the bus."""
+    """The first line of a run: the fleet, what runs here, the backend and the bus (open, or
+    secured as whom)."""
+    from fleet.bus.session import bus_note
+
     out = Console(file=runner.out, highlight=False, emoji=False, markup=False)
-    text = f"fleet: {runner.config.name}, {what}, backend {runner.backend_name}, bus {runner.endpoint}"
+    text = (
+        f"fleet: {runner.config.name}, {what}, backend {runner.backend_name}, bus {runner.endpoint} "
+        f"({bus_note(runner.secure)})"
+    )
     out.print(text, soft_wrap=not out.is_terminal)
     runner.out.flush()
 
@@ -225,6 +275,13 @@ def remote_runner(
     from fleet.runtime.runner import FleetRunner
 
     config = load(args)
+    if coordinator:
+        identity = "coordinator" if not agents else None
+        hosts = f"the coordinator and the agents of {', '.join(agents)}"
+    else:
+        identity = agents[0] if len(agents) == 1 else None
+        hosts = f"the agents of {', '.join(agents)}"
+    secure = secure_of(args, config, identity, hosts)
     return FleetRunner(
         config,
         duration=args.duration,
@@ -237,4 +294,5 @@ def remote_runner(
         traffic=args.traffic,
         state_dir=state_dir(args, config) if coordinator else None,
         api=getattr(args, "api", None),
+        secure=secure,
     )

@@ -11,6 +11,7 @@ from fleet.cli.common import (
     add_config,
     add_endpoint,
     add_outputs,
+    add_secure,
     add_service,
     add_traffic,
     announce,
@@ -40,6 +41,7 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
         "--agents", default="", metavar="LIST", help="robots whose agents also run here (robot1,robot2)"
     )
     add_endpoint(p)
+    add_secure(p, "coordinator")
     add_outputs(p)
     add_traffic(p)
     add_service(p)

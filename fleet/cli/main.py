@@ -17,7 +17,19 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 
-from fleet.cli import agent, config_schema, coordinator, loadtest, run, sim, sim_ros, status, task, validate
+from fleet.cli import (
+    agent,
+    config_schema,
+    coordinator,
+    keys,
+    loadtest,
+    run,
+    sim,
+    sim_ros,
+    status,
+    task,
+    validate,
+)
 from fleet.cli.common import EXIT_ERROR, SubParsers, guard
 from fleet.cli.logs import add_log_level, configure_logging, resolve_level
 
@@ -36,6 +48,10 @@ examples:
   fleet sim configs/warehouse_patrol.yaml --speed 5
   fleet coordinator configs/warehouse_patrol.yaml
   fleet agent configs/warehouse_patrol.yaml --robot robot1     (one per robot)
+
+  a secured bus: identities made once, then --secure on every process (docs/security.md):
+  fleet keys init configs/warehouse_patrol.yaml out/keys
+  fleet run configs/warehouse_patrol.yaml --secure out/keys
 
   tasks at runtime (docs/service.md):
   fleet run configs/warehouse_patrol.yaml --api 127.0.0.1:8080 --state out/state/demo
@@ -57,6 +73,7 @@ COMMANDS: tuple[Callable[[SubParsers], argparse.ArgumentParser], ...] = (
     config_schema.add_parser,
     loadtest.add_parser,
     task.add_parser,
+    keys.add_parser,
 )
 
 #: Commands whose arguments go, unparsed, to their own parser.

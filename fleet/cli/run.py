@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from fleet.cli.argtypes import non_negative_float, positive_float
 from fleet.cli.common import (
@@ -11,15 +12,21 @@ from fleet.cli.common import (
     add_config,
     add_endpoint,
     add_outputs,
+    add_secure,
     add_service,
     add_traffic,
     announce,
     finish,
     load,
     robot_list,
+    secure_of,
     state_dir,
 )
 from fleet.types import TreeKind
+
+if TYPE_CHECKING:
+    from fleet.bus.session import Secure
+    from fleet.config.model import FleetConfig
 
 EPILOG = """\
 examples:
@@ -68,6 +75,10 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
         help="multiple of real time; 0 = as fast as possible (default 1)",
     )
     add_endpoint(p)
+    add_secure(
+        p,
+        "the router's config when this process hosts the router; with --backend remote: coordinator, or the one agent's robot",
+    )
     add_outputs(p)
     add_traffic(p)
     add_service(p)
@@ -94,6 +105,25 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
     return p
 
 
+def _secure(args: argparse.Namespace, config: FleetConfig, agents: str | list[str]) -> Secure | None:
+    """The secured bus of ``fleet run``: the router's keys when it hosts the router (its own
+    session is not bound by the access control), else the identity of what it runs."""
+    from fleet.runtime.backends import world_factory
+
+    if args.secure is None and config.secure is None:
+        return None
+    if not getattr(world_factory(args.backend), "bus_elsewhere", False):
+        return secure_of(args, config, "router")
+    names = [r.name for r in config.robots] if agents == "all" else list(agents)
+    if args.no_coordinator:
+        identity = names[0] if len(names) == 1 else None
+        hosts = f"the agents of {', '.join(names)}"
+    else:
+        identity = "coordinator" if not names else None
+        hosts = f"the coordinator and the agents of {', '.join(names)}"
+    return secure_of(args, config, identity, hosts)
+
+
 def tree_choice(text: str) -> str:
     """``--tree``: a :class:`TreeKind` name or a path ending in ``.xml``."""
     if text in tuple(TreeKind) or text.lower().endswith(".xml"):
@@ -111,6 +141,7 @@ def handle(args: argparse.Namespace) -> int:
     agents: str | list[str] = "all" if args.agents == "all" else robot_list(args.agents)
     runner = FleetRunner(
         config,
+        secure=_secure(args, config, agents),
         duration=args.duration,
         speed=args.speed,
         endpoint=args.endpoint,

@@ -14,7 +14,9 @@ from fleet.cli.common import (
     add_command,
     add_config,
     add_endpoint,
+    add_secure,
     load,
+    secure_of,
 )
 
 #: Plain progress lines of ``fleet sim`` (not a terminal) come this often (wall seconds).
@@ -45,18 +47,24 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
         "--duration", "-d", type=positive_float, metavar="S", help="simulated seconds (default: forever)"
     )
     add_endpoint(p)
+    add_secure(p, None)
     p.add_argument("--plot", type=Path, metavar="PATH", help="write a PNG of the trajectories at the end")
     return p
 
 
 def handle(args: argparse.Namespace) -> int:
     """Serve until the duration, Ctrl-C or SIGTERM; progress on stdout; the plot at the end."""
+    from fleet.bus.session import bus_note
     from fleet.runtime.serve import ServeProgress, serve_simulator
     from fleet.viz.display import FleetSnapshot, ProgressDisplay
 
     config = load(args)
     endpoint = args.endpoint or config.endpoint
-    print(f"fleet sim: {len(config.robots)} robots of {config.name} on {endpoint}", flush=True)
+    secure = secure_of(args, config, "router")
+    print(
+        f"fleet sim: {len(config.robots)} robots of {config.name} on {endpoint} ({bus_note(secure)})",
+        flush=True,
+    )
     display = ProgressDisplay(sys.stdout, line_every_s=PROGRESS_EVERY_S)
 
     def show(p: ServeProgress) -> None:
@@ -75,6 +83,7 @@ def handle(args: argparse.Namespace) -> int:
         result = serve_simulator(
             config,
             endpoint=endpoint,
+            secure=secure,
             speed=args.speed,
             duration=args.duration,
             progress=show,

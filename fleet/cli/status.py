@@ -27,9 +27,9 @@ import time
 from collections.abc import Sequence
 from typing import Any, TextIO
 
-from fleet.bus.session import open_session
+from fleet.bus.session import bus_note, open_session
 from fleet.bus.status_bus import StatusBus
-from fleet.cli.common import SubParsers, add_command, standalone_parser
+from fleet.cli.common import SubParsers, add_command, add_secure, secure_of, standalone_parser
 from fleet.cli.logs import configure_logging, resolve_level
 from fleet.errors import BusError
 from fleet.messages import DEFAULT_ENDPOINT
@@ -78,6 +78,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--connect-timeout", type=float, default=2.0, metavar="S", help="wait S s for the router (2)"
     )
+    add_secure(p, "observer (read only)")
 
 
 def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
@@ -159,7 +160,10 @@ def handle(args: argparse.Namespace, out: TextIO | None = None) -> int:
         old = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         try:
-            session = open_session(args.endpoint, "client", connect_timeout_s=args.connect_timeout)
+            secure = secure_of(args, None, "observer")
+            session = open_session(
+                args.endpoint, "client", connect_timeout_s=args.connect_timeout, secure=secure
+            )
         except BusError as e:
             print(f"error: {e}", file=sys.stderr)
             return 2
@@ -199,7 +203,8 @@ def _live(bus: StatusBus, args: argparse.Namespace, out: TextIO, stop: threading
     end = None if args.duration is None else time.monotonic() + args.duration
     table = None if args.json else LiveTable(out, interval_s=args.interval)
     if table is not None and not table.tty:
-        print(f"fleet status: watching {args.endpoint} (Ctrl-C to stop)", file=out, flush=True)
+        note = bus_note(secure_of(args, None, "observer"))
+        print(f"fleet status: watching {args.endpoint} ({note}; Ctrl-C to stop)", file=out, flush=True)
     t0 = time.monotonic()
     next_line = t0
     try:

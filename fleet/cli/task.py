@@ -13,6 +13,7 @@ import argparse
 import json
 import os
 import sys
+from pathlib import Path
 from typing import Any
 
 from fleet.cli.common import EXIT_ERROR, EXIT_OK, SubParsers, add_command
@@ -44,6 +45,22 @@ def add_api(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--json", action="store_true", help="print the API's JSON answer")
     p.add_argument("--user", default=os.environ.get("USER", "cli"), help="who asks (X-Fleet-User)")
+    p.add_argument(
+        "--secure",
+        type=Path,
+        metavar="DIR",
+        default=os.environ.get("FLEET_SECURE") or None,
+        help="key directory of a secured fleet (fleet keys init): send its API token "
+        "(DIR/api.token) with mutating calls (default $FLEET_SECURE)",
+    )
+
+
+def client_of(args: argparse.Namespace) -> FleetClient:
+    """The API client of a task command (with the token of ``--secure DIR``)."""
+    from fleet.bus.keyring import Keyring
+
+    token = Keyring(Path(args.secure)).api_token() if args.secure else None
+    return FleetClient(args.api, user=args.user, token=token)
 
 
 def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
@@ -143,7 +160,7 @@ def _out(args: argparse.Namespace, data: Any, text: str) -> None:
 
 
 def handle_task(args: argparse.Namespace) -> int:
-    client = FleetClient(args.api, user=args.user)
+    client = client_of(args)
     try:
         if args.task_command == "submit":
             h = client.submit(build_spec(args))
@@ -173,7 +190,7 @@ def handle_task(args: argparse.Namespace) -> int:
 
 
 def handle_command(args: argparse.Namespace) -> int:
-    client = FleetClient(args.api, user=args.user)
+    client = client_of(args)
     try:
         ctl = client.command(args.action, args.reason)
     except ApiError as e:

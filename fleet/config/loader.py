@@ -117,6 +117,7 @@ def _build(p: Path, file: str, spec: ConfigFile, n_robots: int | None) -> FleetC
         coordinator=spec.coordinator.to_params(),
         endpoint=spec.bus.endpoint,
         status_hz=spec.bus.status_hz,
+        secure=(p.parent / spec.bus.secure).resolve() if spec.bus.secure else None,
         parking=parking,
         traffic=spec.traffic.to_settings(),
     )

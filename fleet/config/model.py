@@ -102,6 +102,8 @@ class FleetConfig:
     coordinator: CoordinatorParams = field(default_factory=CoordinatorParams)
     endpoint: str = DEFAULT_ENDPOINT
     status_hz: float | None = None
+    #: The key directory of a secured bus (``bus.secure``, ``docs/security.md``); ``None``: open.
+    secure: Path | None = None
     parking: list[Pose2D] = field(default_factory=list)
     traffic: TrafficSettings = field(default_factory=TrafficSettings)
 

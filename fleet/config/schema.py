@@ -226,6 +226,12 @@ class BusSection(Section):
     status_hz: Positive | None = Field(
         default=None, description="status messages per second (Hz); unset: every tick"
     )
+    secure: str | None = Field(
+        default=None,
+        min_length=1,
+        description="key directory of a secured bus (`fleet keys init`), relative to this file; "
+        "unset: an open bus (or --secure DIR)",
+    )
 
 
 def _nodes(v: object) -> object:

@@ -57,6 +57,7 @@ if TYPE_CHECKING:
     import zenoh
 
     from fleet.bus.lease import CoordinatorLease, LeaseWatch
+    from fleet.bus.session import Secure
     from fleet.bus.status_bus import StatusBus
     from fleet.coordination.coordinator import Coordinator
     from fleet.runtime.agent import RobotAgent
@@ -120,6 +121,10 @@ class FleetRunner:
             holds one is resumed. ``None``: an in-memory book (the CLI defaults to a new directory
             under ``out/state/``).
         api: ``HOST:PORT`` to serve the task service's HTTP API on (with the coordinator).
+        secure: open the session on a secured bus (``docs/security.md``): as the router (with
+            its credentials and access control) when this process listens, else as
+            ``secure.identity``; the API then takes the key directory's token for mutating
+            calls. ``None``: an open bus, as before.
 
     ``tree_kind`` chooses the config's initial tasks (``patrol``: its routes, ``picking``:
     its picks, ``tasks``: both); every robot runs the tree that takes any task kind.
@@ -147,6 +152,7 @@ class FleetRunner:
         tree_file: str | None = None,
         state_dir: Path | None = None,
         api: str | None = None,
+        secure: Secure | None = None,
     ) -> None:
         if tree_file is not None:
             from nodes.xml_tree import check_tree_file
@@ -183,7 +189,7 @@ class FleetRunner:
             self.traffic = False
         self.display = display
         self.state_dir = state_dir
-        self.api = api
+        self.api, self.secure = api, secure
         #: The task service and its faces (with the coordinator; set up by :meth:`run`).
         self.host: ServiceHost | None = None
         #: The e-stop latch below the trees (``fleet.runtime.latch``).
@@ -223,7 +229,7 @@ class FleetRunner:
         remote = bool(getattr(factory, "bus_elsewhere", False))
         listen = (not remote) if self.listen is None else self.listen
         self._wall0 = self._wall.now()
-        session = open_session(self.endpoint, "router" if listen else "client")
+        session = open_session(self.endpoint, "router" if listen else "client", secure=self.secure)
         interrupted = False
         try:
             world = self._setup(factory, session)
@@ -302,7 +308,8 @@ class FleetRunner:
             from fleet.traffic.policy import traffic_from_config
 
             self.traffic_policy = traffic_from_config(self.config)
-        self.host = host = ServiceHost(self.config, world.clock, self.state_dir, self.api)
+        token = self.secure.keyring().api_token() if self.secure is not None and self.api else None
+        self.host = host = ServiceHost(self.config, world.clock, self.state_dir, self.api, api_token=token)
         self.lease = _take_lease(bus.session, host, self.endpoint)
         coordinator = Coordinator(
             self.config,
@@ -339,6 +346,10 @@ class FleetRunner:
             svc.views["traffic"] = traffic_view(self.traffic_policy)
         host.start(session, bus)
         api = f", API {host.api.url} (docs: {host.api.url}/docs)" if host.api is not None else ""
+        if host.api is not None and host.api_token is not None and self.secure is not None:
+            api += (
+                f"; commands need the token: {host.api.url}/#token=<{self.secure.keyring().api_token_file}>"
+            )
         book = host.state_dir if host.state_dir is not None else "in memory (no --state)"
         print(f"tasks: {book}{api}", file=self.out, flush=True)
 

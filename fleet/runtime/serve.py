@@ -31,6 +31,7 @@ from fleet.errors import BackendError
 from fleet.runtime.latch import Latch, WorldLatch
 
 if TYPE_CHECKING:
+    from fleet.bus.session import Secure
     from sim.simulator import Simulator
 
 logger = logging.getLogger(__name__)
@@ -92,6 +93,7 @@ def serve_simulator(
     session: zenoh.Session | None = None,
     *,
     endpoint: str | None = None,
+    secure: Secure | None = None,
     speed: float = 1.0,
     duration: float | None = None,
     stop_event: threading.Event | None = None,
@@ -106,7 +108,8 @@ def serve_simulator(
 
     ``simulator`` may also be a fleet config (the simulator is built with its robots).
     Without ``session`` a router session listening on ``endpoint`` is opened and closed here
-    (:class:`~fleet.errors.BusError` if it cannot be). Requests are applied before every step;
+    (:class:`~fleet.errors.BusError` if it cannot be); with ``secure`` it enforces the key
+    directory's credentials and access control (``docs/security.md``). Requests are applied before every step;
     states and the clock are published ``publish_hz`` times per wall second. Unless ``quiet``,
     ``progress`` is called every ``progress_every_s`` wall seconds. Raises
     :class:`~fleet.errors.BackendError` for a negative or infinite ``speed``.
@@ -118,7 +121,7 @@ def serve_simulator(
         raise BackendError(f"speed must be >= 0, got {speed}")
     sim = simulator_from_config(simulator) if isinstance(simulator, FleetConfig) else simulator
     stop = stop_event or threading.Event()
-    sess = open_session(endpoint or DEFAULT_ENDPOINT, "router") if session is None else session
+    sess = open_session(endpoint or DEFAULT_ENDPOINT, "router", secure=secure) if session is None else session
     server: SimNavServer | None = None
     loop = _ServeLoop(sim, speed, duration, stop, 1.0 / publish_hz)
     bus = StatusBus(sess)

@@ -78,9 +78,19 @@ class ServiceHost:
         state_dir: the durable task book's directory (``None``: an in-memory book, nothing
             survives the process; the CLI passes :func:`default_state_dir` unless ``--state``).
         api: ``HOST:PORT`` to serve the HTTP API on (``None``: no HTTP).
+        api_token: the bearer token the API requires for mutating calls (``None``: none;
+            see :func:`fleet.api.app.create_app`).
     """
 
-    def __init__(self, config: FleetConfig, clock: Clock, state_dir: Path | None, api: str | None) -> None:
+    def __init__(
+        self,
+        config: FleetConfig,
+        clock: Clock,
+        state_dir: Path | None,
+        api: str | None,
+        *,
+        api_token: str | None = None,
+    ) -> None:
         from fleet.api.server import parse_address
 
         self.config = config
@@ -90,6 +100,7 @@ class ServiceHost:
                 self.api_address = parse_address(api)
             except ValueError as e:
                 raise ConfigError(str(config.path), "api", str(e)) from None
+        self.api_token = api_token
         self.state_dir = state_dir
         self.store = TaskStore(state_dir) if state_dir is not None else None
         self.service = TaskService(config, clock, self.store)
@@ -114,7 +125,13 @@ class ServiceHost:
             from fleet.api.server import ApiServer
 
             host, port = self.api_address
-            self.api = ApiServer(create_app(self.service), host, port).start()
+            if self.api_token is not None and host not in ("127.0.0.1", "localhost", "::1"):
+                logger.warning(
+                    "the API on %s:%d takes the token for changes but its reads are open to the network",
+                    host,
+                    port,
+                )
+            self.api = ApiServer(create_app(self.service, token=self.api_token), host, port).start()
 
     def tick(self, now: float) -> None:
         """Re-publish the control state every :data:`CONTROL_REPUBLISH_S` fleet seconds."""

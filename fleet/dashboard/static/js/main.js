@@ -125,17 +125,34 @@ function setControl(ctl) {
 }
 
 // --- commands ------------------------------------------------------------------------------
+// A secured fleet (fleet run --secure DIR) takes its API token for every command: open the
+// page as /#token=<contents of DIR/api.token>. The token is kept for this tab only
+// (sessionStorage) and taken out of the address bar at once; the fragment never reaches a server.
+const TOKEN_KEY = "fleet-api-token";
+function takeToken() {
+  const fromUrl = new URLSearchParams(location.hash.slice(1)).get("token");
+  if (fromUrl) {
+    sessionStorage.setItem(TOKEN_KEY, fromUrl.trim());
+    history.replaceState(null, "", location.pathname + location.search);
+  }
+}
+takeToken();
+window.addEventListener("hashchange", takeToken);
+
 async function post(path, body) {
-  const r = await fetch(path, {
-    method: "POST",
-    headers: { "Content-Type": "application/json", "X-Fleet-User": USER },
-    body: JSON.stringify(body ?? {}),
-  });
+  const headers = { "Content-Type": "application/json", "X-Fleet-User": USER };
+  const token = sessionStorage.getItem(TOKEN_KEY);
+  if (token) headers.Authorization = `Bearer ${token}`;
+  const r = await fetch(path, { method: "POST", headers, body: JSON.stringify(body ?? {}) });
   let data = null;
   try {
     data = await r.json();
   } catch {
     data = null;
+  }
+  if (r.status === 401) {
+    const why = data ? data.error : "HTTP 401";
+    data = { error: `${why} — open this page as ${location.origin}/#token=<DIR/api.token>` };
   }
   return { ok: r.ok, status: r.status, data };
 }
