@@ -54,7 +54,9 @@ from fleet.diagnostics import (
     worst,
 )
 from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
+from fleet.runtime.watched import WatchedBackend, wake_aware
 from fleet.types import Mode, Pose2D, RobotState, TaskKind, TreeKind
+from fleet.wake import Wake
 
 if TYPE_CHECKING:
     from py_trees.behaviour import Behaviour
@@ -162,7 +164,10 @@ class RobotAgent:
         self.traffic = traffic
         battery = battery_model or BatteryModel()
         self.tree_file = tree_file
-        self.root = _build_root(tree_kind, tree_file, self.namespace, backend, clock, battery, traffic)
+        #: The tree's view of the backend: it records what the tree polls (``fleet.wake``).
+        self.watched = WatchedBackend(backend)
+        self.root = _build_root(tree_kind, tree_file, self.namespace, self.watched, clock, battery, traffic)
+        self._init_ticking()
         self.health = health or HealthParams(battery_low=battery.low)
         #: The fleet-side safety stop (see the module docstring); ``watchdog.trips`` counts stops.
         self.watchdog = SafetyWatchdog(self.health)
@@ -199,6 +204,20 @@ class RobotAgent:
                 self._control_sub = bus.subscribe_control(self.set_control)
             self._token = bus.declare_alive(self.name)
 
+    def _init_ticking(self) -> None:
+        """The state of event-driven ticking (:mod:`fleet.runtime.scheduler`)."""
+        #: Every node keeps the ``fleet.wake`` contract: the tree may be ticked on change.
+        self.event_driven = wake_aware(self.root)
+        #: What the tree waits for since its last tick (``fleet.wake``).
+        self.wake: Wake | None = self.watched.wake if self.event_driven else None
+        #: Whether the last :meth:`tick` ticked the tree; ``tree_ticks`` counts those ticks.
+        self.tree_ticked = False
+        self.tree_ticks = 0
+        #: The last tree tick changed something: the tree must be ticked again next period.
+        self.settling = True
+        self._nodes = list(self.root.iterate())
+        self._signature: tuple[object, ...] = ()
+
     # -- orders ------------------------------------------------------------------------
 
     def deliver(self, msg: TaskMessage) -> None:
@@ -234,7 +253,8 @@ class RobotAgent:
             if self._control is None or ctl.seq > self._control.seq:
                 self._control = ctl
 
-    def _apply_orders(self) -> None:
+    def _apply_orders(self) -> bool:
+        """Apply the queued orders and the newest grant; whether there was any."""
         with self._lock:
             inbox, self._inbox = self._inbox, []
             grant = self._grant
@@ -244,6 +264,8 @@ class RobotAgent:
             self._grant_seq = grant.seq
             self.bb.grant = grant
             self.grants_applied += 1
+            return True
+        return bool(inbox)
 
     def apply(self, msg: TaskMessage) -> bool:
         """Apply one order to the blackboard now; returns False if it was ignored (an id
@@ -284,12 +306,18 @@ class RobotAgent:
                 self.chargers, key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y)
             )
 
-    def tick(self) -> StatusRecord:
+    def tick(self, tree: bool = True) -> StatusRecord:
         """Apply queued orders, check the safety watchdog, tick the tree once (unless the
-        watchdog holds the robot), publish (see ``status_hz``) and return the status record."""
+        watchdog holds the robot), publish (see ``status_hz``) and return the status record.
+
+        ``tree=False`` (the event-driven scheduler, :mod:`fleet.runtime.scheduler`, found nothing
+        the tree waits for) does all of that but the tree's tick, unless orders were applied or
+        the robot leaves a safety stop or a pause; ``tree_ticked`` says whether it ticked."""
         from py_trees.common import Status
 
-        self._apply_orders()
+        self.tree_ticked = False
+        if self._apply_orders():
+            tree = True
         st = self.backend.robot_state()
         if self.bb.charger is None and self.chargers:
             self._default_charger(st.pose)
@@ -318,7 +346,9 @@ class RobotAgent:
             if was or self.halted is not None:
                 self.halted = None
                 self.bb.mode = Mode.IDLE
-            self.root.tick_once()
+                tree = True
+            if tree:
+                self._tick_tree()
         self.ticks += 1
         mode = str(self.bb.mode)
         if mode == Mode.CHARGING and self._last_mode != Mode.CHARGING:
@@ -332,6 +362,21 @@ class RobotAgent:
         if self.on_status is not None:
             self.on_status(rec)
         return rec
+
+    def _tick_tree(self) -> None:
+        """Tick the tree once; note whether it has settled (``settling``: the tick changed a
+        node's status or the goals it watches, so the next period ticks it again, e.g. a
+        ``Repeat`` restarts its child only at the next tick)."""
+        wake = self.watched.wake
+        before = dict(wake.goals)
+        wake.reset()
+        self.root.tick_once()
+        self.tree_ticked = True
+        self.tree_ticks += 1
+        if self.wake is not None:
+            sig = tuple(n.status for n in self._nodes)
+            self.settling = sig != self._signature or wake.goals != before
+            self._signature = sig
 
     def _publish(self, rec: StatusRecord) -> None:
         if self.bus is None:
