@@ -42,7 +42,7 @@ import logging
 import math
 import threading
 from collections.abc import Callable, Iterable, Sequence
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, NamedTuple, Protocol, runtime_checkable
 
 from fleet.diagnostics import (
     Diagnostic,
@@ -217,6 +217,10 @@ class RobotAgent:
         self.settling = True
         self._nodes = list(self.root.iterate())
         self._signature: tuple[object, ...] = ()
+        #: The status record's view of the tree, kept while neither the tree nor the blackboard
+        #: changed (a period without a tree tick, orders or a stop reads nothing new).
+        self._view: _TreeView | None = None
+        self._has_charger = False
 
     # -- orders ------------------------------------------------------------------------
 
@@ -318,9 +322,12 @@ class RobotAgent:
         self.tree_ticked = False
         if self._apply_orders():
             tree = True
+            self._view = None
         st = self.backend.robot_state()
-        if self.bb.charger is None and self.chargers:
-            self._default_charger(st.pose)
+        if not self._has_charger:
+            if self.bb.charger is None and self.chargers:
+                self._default_charger(st.pose)
+            self._has_charger = self.bb.charger is not None
         was = self.watchdog.reason
         reason = self.watchdog.check(st)
         with self._lock:
@@ -328,6 +335,8 @@ class RobotAgent:
         halt = (
             None if ctl is None or not (ctl.estop or ctl.paused) else Mode.ESTOP if ctl.estop else Mode.PAUSED
         )
+        if halt is not None or reason or was:
+            self._view = None  # the blackboard changes below
         if halt is not None:  # the fleet's pause or e-stop comes before everything
             if self.halted is None:
                 self._stop_tree()
@@ -349,13 +358,17 @@ class RobotAgent:
                 tree = True
             if tree:
                 self._tick_tree()
+                self._view = None
+        view = self._view
+        if view is None:  # the tree or the blackboard may have changed: read them again
+            view = self._view = self._tree_view()
         self.ticks += 1
-        mode = str(self.bb.mode)
+        mode = view.mode
         if mode == Mode.CHARGING and self._last_mode != Mode.CHARGING:
             self.charges += 1
         self._last_mode = mode
         self.mode_ticks[mode] = self.mode_ticks.get(mode, 0) + 1
-        rec = self.status(st)
+        rec = self.status(st, view)
         self.min_battery = min(self.min_battery, float(rec.battery))
         self.last_status = rec
         self._publish(rec)
@@ -388,15 +401,32 @@ class RobotAgent:
         self.published += 1
         self.bus.publish_status(rec)
 
-    def status(self, state: RobotState | None = None) -> StatusRecord:
+    def _tree_view(self) -> _TreeView:
+        """What the status record reports of the tree and its blackboard (read now)."""
+        bb = self.bb
+        task_id = bb.task_id
+        return _TreeView(
+            bt=self.root.status.name,
+            leaf=str(bb.active_leaf or ""),
+            mode=str(bb.mode),
+            task_id=task_id,
+            laps=int(bb.laps) if bb.lap_task_id is not None and bb.lap_task_id == task_id else 0,
+            progress=float(bb.route_progress or 0.0),
+            picks_done=int(bb.picks_done or 0),
+            result_id=bb.result_id,
+            result=str(bb.result or ""),
+            steps_done=int(bb.step_index)
+            if bb.steps_task_id is not None and bb.steps_task_id == task_id
+            else 0,
+        )
+
+    def status(self, state: RobotState | None = None, view: _TreeView | None = None) -> StatusRecord:
         """The current status record of this robot (each call takes the next ``seq``), from
-        ``state`` (default: the backend's now)."""
+        ``state`` (default: the backend's now) and ``view`` (default: the tree now)."""
         self.seq += 1
         st = state if state is not None else self.backend.robot_state()
         health, diag = self._diagnostics(st)
-        bb = self.bb
-        task_id = bb.task_id
-        laps = int(bb.laps) if bb.lap_task_id is not None and bb.lap_task_id == task_id else 0
+        v = view if view is not None else self._tree_view()
         pose = st.pose.as_tuple() if st.pose is not None else None
         return StatusRecord(
             robot=self.name,
@@ -406,23 +436,21 @@ class RobotAgent:
             battery=float(st.battery),
             charging=bool(st.charging),
             stuck=bool(st.stuck),
-            bt=self.root.status.name,
-            leaf=str(bb.active_leaf or ""),
-            mode=str(bb.mode),
-            task_id=task_id,
-            laps=laps,
-            progress=float(bb.route_progress or 0.0),
+            bt=v.bt,
+            leaf=v.leaf,
+            mode=v.mode,
+            task_id=v.task_id,
+            laps=v.laps,
+            progress=v.progress,
             distance_m=float(st.distance_m),
             collisions=int(st.collisions),
             seq=self.seq,
-            picks_done=int(bb.picks_done or 0),
+            picks_done=v.picks_done,
             health=health,
             diag=diag,
-            result_id=bb.result_id,
-            result=str(bb.result or ""),
-            steps_done=int(bb.step_index)
-            if bb.steps_task_id is not None and bb.steps_task_id == task_id
-            else 0,
+            result_id=v.result_id,
+            result=v.result,
+            steps_done=v.steps_done,
         )
 
     def _diagnostics(self, st: RobotState) -> tuple[int, tuple[tuple[str, int, str], ...]]:
@@ -483,6 +511,21 @@ def _build_root(
     from nodes.task_tree import build_robot_tree
 
     return build_robot_tree(tree_kind, namespace, backend, clock, battery, traffic=traffic)
+
+
+class _TreeView(NamedTuple):
+    """The status record's fields that come from the tree and its blackboard."""
+
+    bt: str
+    leaf: str
+    mode: str
+    task_id: str | None
+    laps: int
+    progress: float
+    picks_done: int
+    result_id: str | None
+    result: str
+    steps_done: int
 
 
 def _stopped(reason: str) -> Diagnostic:
