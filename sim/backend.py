@@ -35,6 +35,7 @@ class NamespacedBackend:
     def __init__(self, server: GoalServer, namespace: str) -> None:
         self._server = server
         self._namespace = namespace
+        self._batch: BatchNavigation | None = None
 
     @property
     def namespace(self) -> str:
@@ -66,10 +67,10 @@ class NamespacedBackend:
     def batch_server(self) -> BatchNavigation:
         """The world's batch query (:func:`fleet.navigation.query_batch`): the server itself
         when it answers batches (the simulator), else a loop over its per-robot reads (SUMO)."""
-        server = self._server
-        if isinstance(server, BatchNavigation):
-            return server
-        return LoopBatch.of(server)
+        if self._batch is None:
+            server = self._server
+            self._batch = server if isinstance(server, BatchNavigation) else LoopBatch.of(server)
+        return self._batch
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self._namespace!r})"

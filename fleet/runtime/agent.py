@@ -188,6 +188,8 @@ class RobotAgent:
         self._grant_seq = 0
         self.grants_applied = 0
         self._lock = threading.Lock()
+        #: Orders, a grant or a control state were delivered since the last tick took them.
+        self.touched = False
         self._last_mode: str = Mode.IDLE
         self._control: FleetControl | None = None
         #: The tree is stopped: the fleet is paused or its e-stop latched (see the module docstring).
@@ -228,6 +230,7 @@ class RobotAgent:
         """Queue an order; thread-safe. It is applied at the start of the next :meth:`tick`."""
         with self._lock:
             self._inbox.append(msg)
+            self.touched = True
 
     def deliver_grant(self, grant: Grant) -> None:
         """Keep a traffic :class:`~fleet.messages.Grant` for the next :meth:`tick`; thread-safe.
@@ -238,6 +241,7 @@ class RobotAgent:
         with self._lock:
             if self._grant is None or grant.seq > self._grant.seq:
                 self._grant = grant
+                self.touched = True
 
     def pending(self) -> bool:
         """Orders, a grant or a control change wait to be applied (thread-safe)."""
@@ -256,10 +260,14 @@ class RobotAgent:
         with self._lock:
             if self._control is None or ctl.seq > self._control.seq:
                 self._control = ctl
+                self.touched = True
 
     def _apply_orders(self) -> bool:
         """Apply the queued orders and the newest grant; whether there was any."""
+        if not self.touched:  # nothing delivered since the last time (no lock needed to read)
+            return False
         with self._lock:
+            self.touched = False
             inbox, self._inbox = self._inbox, []
             grant = self._grant
         for msg in inbox:
@@ -330,8 +338,7 @@ class RobotAgent:
             self._has_charger = self.bb.charger is not None
         was = self.watchdog.reason
         reason = self.watchdog.check(st)
-        with self._lock:
-            ctl = self._control
+        ctl = self._control  # replaced whole under the lock; reading it needs none
         halt = (
             None if ctl is None or not (ctl.estop or ctl.paused) else Mode.ESTOP if ctl.estop else Mode.PAUSED
         )

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from fleet.navigation import GOAL_CODES, NO_GOAL, NavigationBackend, query_batch
+from fleet.navigation import GOAL_CODES, NO_GOAL, BatchNavigation, NavBatch, NavigationBackend, query_batch
 from fleet.types import GoalStatus
 from fleet.wake import SENT
 
@@ -75,6 +75,11 @@ class TickScheduler:
             raise ValueError(f"{len(agents)} agents but {len(backends)} backends")
         self.agents = list(agents)
         self.backends = list(backends)
+        self._namespaces = [b.namespace for b in self.backends]
+        servers = {id(s): s for s in (getattr(b, "batch_server", None) for b in self.backends)}
+        server = next(iter(servers.values())) if len(servers) == 1 else None
+        #: The world's batch query, when every backend has the same one (else query_batch loops).
+        self._server = server if isinstance(server, BatchNavigation) else None
         self.mode = mode
         self.heartbeat_s = float(heartbeat_s)
         n = len(self.agents)
@@ -105,7 +110,7 @@ class TickScheduler:
             return np.ones(n, dtype=np.bool_)
         ids = list(self._goal)
         rem_rows = [i for i in range(n) if self._rem_goal[i] is not None and self._rem_goal[i] != ids[i]]
-        b = query_batch(
+        b = self._query(
             self.backends + [self.backends[i] for i in rem_rows], ids + [self._rem_goal[i] for i in rem_rows]
         )
         status = b.goal_status[:n].astype(np.int16)
@@ -134,9 +139,17 @@ class TickScheduler:
             if not due[i] and any(_code(self.backends[i], g) != c for g, c in extra.items()):
                 due[i] = True
         for i, agent in enumerate(self.agents):
-            if not due[i] and agent.pending():
+            if agent.touched and not due[i] and agent.pending():
                 due[i] = True
         return due
+
+    def _query(self, backends: list[NavigationBackend], goal_ids: list[str | None]) -> NavBatch:
+        """One batch query (the world's own when it has one: no per-backend look-up)."""
+        if self._server is None:
+            return query_batch(backends, goal_ids)
+        n = len(self._namespaces)
+        extra = [b.namespace for b in backends[n:]]
+        return self._server.query_batch(self._namespaces + extra, goal_ids)
 
     def ticked(self, agent: RobotAgent, now: float) -> None:
         """``agent``'s tree was just ticked at ``now``: keep what it will wait for."""
