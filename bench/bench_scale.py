@@ -6,7 +6,9 @@ ticked on change (``--ticking event``, the default) against trees ticked every p
 Each row is one load test in a subprocess (a fresh interpreter, its own loopback port) at
 ``--speed 0``: agents decide at ``--tick-hz`` (10 Hz, the shipped agent rate) and publish
 their status at ``--status-hz``. Printed per row: real-time factor of the loop (simulated /
-wall seconds, setup excluded) and with setup, setup wall seconds, laps, collisions,
+wall seconds, setup excluded), the loop's CPU seconds (all threads of the process) and simulated
+seconds per CPU second (what the loop would reach with a core to itself: on a loaded machine
+the wall-clock factor mostly measures the load), setup wall seconds, laps, collisions,
 deadlocks, the share of agent periods spent working (not idle), and the tree ticks per agent
 period (1.0 when every tree ticks every period).
 
@@ -28,8 +30,8 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 HEAD = (
-    "| robots | ticking | traffic | sim s | loop wall s | x real time | setup s | laps | collisions | "
-    "deadlocks | working | tree ticks / period |"
+    "| robots | ticking | traffic | sim s | loop wall s | x real time | loop CPU s | x real time per core | "
+    "setup s | laps | collisions | deadlocks | working | tree ticks / period |"
 )
 
 
@@ -76,6 +78,7 @@ def row(n: int, mode: str, traffic: bool, d: dict[str, Any]) -> str:
     return (
         f"| {n} | {mode} | {'on' if traffic else 'off'} | {d['sim_time_s']:.0f} | "
         f"{d['wall_time_s'] - lt.get('setup_wall_s', 0.0):.1f} | {lt['real_time_factor']:.2f} | "
+        f"{lt.get('loop_cpu_s', 0.0):.1f} | {lt.get('sim_s_per_cpu_s') or 0.0:.2f} | "
         f"{lt.get('setup_wall_s', 0.0):.1f} | {d['laps_completed']} | {d['collisions']} | {d['deadlocks']} | "
         f"{working:.0%} | {int(lt.get('tree_ticks', 0)) / periods:.3f} |"
     )
@@ -100,15 +103,18 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="bench-scale-") as tmp:
         for n in args.sizes:
             factors: dict[str, float] = {}
+            per_cpu: dict[str, float] = {}
             for mode in args.modes:
                 d = run_one(n, mode, args, Path(tmp) / f"{n}-{mode}")
                 if d:
                     print(row(n, mode, args.traffic, d), flush=True)
                     factors[mode] = float(d["loadtest"]["real_time_factor"])
+                    per_cpu[mode] = float(d["loadtest"].get("sim_s_per_cpu_s") or 0.0)
             if "clock" in factors and "event" in factors and factors["clock"] > 0:
+                cpu_ratio = per_cpu["event"] / per_cpu["clock"] if per_cpu.get("clock") else 0.0
                 print(
                     f"<!-- {n} robots: event / clock real-time factor = "
-                    f"{factors['event'] / factors['clock']:.2f}x -->",
+                    f"{factors['event'] / factors['clock']:.2f}x, per CPU second {cpu_ratio:.2f}x -->",
                     flush=True,
                 )
     return 0
