@@ -188,8 +188,6 @@ class RobotAgent:
         self._grant_seq = 0
         self.grants_applied = 0
         self._lock = threading.Lock()
-        #: Orders, a grant or a control state were delivered since the last tick took them.
-        self.touched = False
         self._last_mode: str = Mode.IDLE
         self._control: FleetControl | None = None
         #: The tree is stopped: the fleet is paused or its e-stop latched (see the module docstring).
@@ -208,6 +206,8 @@ class RobotAgent:
 
     def _init_ticking(self) -> None:
         """The state of event-driven ticking (:mod:`fleet.runtime.scheduler`)."""
+        #: Orders, a grant or a control state were delivered since the last tick took them.
+        self.touched = False
         #: Every node keeps the ``fleet.wake`` contract: the tree may be ticked on change.
         self.event_driven = wake_aware(self.root)
         #: What the tree waits for since its last tick (``fleet.wake``).
