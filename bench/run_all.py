@@ -41,6 +41,7 @@ SMALL_ARGS: dict[str, list[str]] = {
     "bench_ros_scale.py": ["--robots", "20"],
     "bench_demo.py": ["--duration", "300"],
     "bench_fleet_table.py": ["--sizes", "6", "--duration", "120", "--no-sumo"],
+    "bench_scale.py": ["--sizes", "30", "--duration", "20"],
 }
 #: Never run as benchmarks.
 SKIP = {"run_all.py", "__init__.py"}

@@ -53,6 +53,15 @@ class BatteryModel:
         need = self.drain_per_m * d + self.drain_per_s * (d / self.cruise_mps + self.wait_s)
         return max(self.low, self.reserve + (1.0 + self.margin) * need)
 
+    def charge_line(self) -> tuple[float, float]:
+        """``(a, b)`` with ``charge_threshold(d) == max(low, a + b * d)`` for ``d >= 0`` (up to
+        rounding): the threshold as a line, for checking many robots at once."""
+        k = 1.0 + self.margin
+        return (
+            self.reserve + k * self.drain_per_s * self.wait_s,
+            k * self.detour * (self.drain_per_m + self.drain_per_s / self.cruise_mps),
+        )
+
     def integrate(
         self, level: npt.ArrayLike, distance_m: npt.ArrayLike, dt: float, charging: npt.ArrayLike
     ) -> npt.NDArray[np.float64]:

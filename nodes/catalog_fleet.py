@@ -6,7 +6,7 @@ patrol and picking trees are built from (:mod:`nodes.leaves`, :mod:`nodes.condit
 * ``Charge`` (``resume``, ``grace_s``): stand on the charger until the battery is at ``resume``
   (default: the robot's battery model).
 * ``NextWaypoint`` (``waypoint`` out, ``tolerance``): the next pose of the blackboard
-  ``route`` to visit (:class:`nodes.leaves.NextWaypoint`), for trees acting at each waypoint.
+  ``route`` to visit (:class:`nodes.waypoints.NextWaypoint`), for trees acting at each waypoint.
 * ``Idle``, ``CompletePick``.
 * ``BatteryLow`` (``low``, ``resume``; default: the battery model, with the energy-based
   trigger of :func:`nodes.trees.charge_threshold` when no ``low`` is given): the latched
@@ -24,12 +24,13 @@ from py_trees.blackboard import Blackboard
 
 from fleet.types import Mode
 from nodes.conditions import BatteryLow, HasAssignment, IsLocalized, NearPose
-from nodes.leaves import Charge, CompletePick, Idle, NextWaypoint
+from nodes.leaves import Charge, CompletePick, Idle
 from nodes.nav2_leaves import PortedAction, make_follow_waypoints
 from nodes.ports import Literal, PortType, in_port, out_port
 from nodes.recovery import RestartOnChange
 from nodes.registry import Category, NodeArgs, NodeSpec, decorator, leaf
 from nodes.trees import FollowRoute, charge_threshold
+from nodes.waypoints import NextWaypoint
 
 _F, _S = PortType.FLOAT, PortType.STRING
 

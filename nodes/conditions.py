@@ -10,6 +10,7 @@ from py_trees.common import Status
 
 from fleet.navigation import NavigationBackend
 from fleet.types import Pose2D
+from fleet.wake import wake_of
 from nodes.blackboard import robot_blackboard
 from nodes.leaves import Source, resolve
 
@@ -43,6 +44,8 @@ class BatteryLow(py_trees.behaviour.Behaviour):
         #: True between falling below ``low`` and reaching ``resume``.
         self.latched = False
 
+    wake_aware = True
+
     def update(self) -> Status:
         battery = self.backend.robot_state().battery
         low = self.low if self.threshold is None else min(self.resume, self.threshold())
@@ -51,7 +54,24 @@ class BatteryLow(py_trees.behaviour.Behaviour):
         elif battery >= self.resume:
             self.latched = False
         self.feedback_message = f"battery {battery:.2f} ({'low' if self.latched else 'ok'})"
+        self._declare()
         return Status.SUCCESS if self.latched else Status.FAILURE
+
+    def _declare(self) -> None:
+        """What changes this condition's answer (:mod:`fleet.wake`)."""
+        wake = wake_of(self.backend)
+        if wake is None:
+            return
+        if self.latched:
+            wake.battery_at_least(self.resume)
+            return
+        declare = getattr(self.threshold, "declare", None)
+        if self.threshold is None:
+            wake.battery_below(self.low)
+        elif callable(declare):
+            declare(wake, self.resume)
+        else:
+            wake.every_tick()  # a threshold that cannot say when it changes
 
 
 class IsStuck(py_trees.behaviour.Behaviour):
@@ -63,6 +83,8 @@ class IsStuck(py_trees.behaviour.Behaviour):
 
     def update(self) -> Status:
         return Status.SUCCESS if self.backend.robot_state().stuck else Status.FAILURE
+
+    wake_aware = True  # reads a flag the scheduler watches
 
 
 class IsLocalized(py_trees.behaviour.Behaviour):
@@ -123,6 +145,8 @@ class HasAssignment(py_trees.behaviour.Behaviour):
         self.key = key
         self.blackboard = robot_blackboard(namespace, name=self.name, keys=(key,))
         self.blackboards.append(self.blackboard)
+
+    wake_aware = True  # reads the blackboard only
 
     def update(self) -> Status:
         value = self.blackboard.get(self.key)

@@ -50,6 +50,7 @@ from fleet.types import (
     Spin,
     Wait,
 )
+from fleet.wake import wake_of
 from nodes.blackboard import robot_blackboard
 
 T = TypeVar("T")
@@ -95,7 +96,14 @@ class GoalAction(py_trees.behaviour.Behaviour):
 
     Cancel: ``terminate(INVALID)`` while RUNNING calls ``backend.cancel_goal(goal_id)``; the
     goal ends CANCELED and the robot stops.
+
+    Event-driven ticking (:mod:`fleet.wake`): the leaf reads only its goal's state, which the
+    scheduler watches; each subclass that keeps it so says ``wake_aware = True`` itself (the
+    scheduler does not inherit the mark).
     """
+
+    #: Reads only its goal's state (:mod:`fleet.wake`).
+    wake_aware = True
 
     def __init__(
         self,
@@ -222,6 +230,9 @@ class NavigateToPoseAction(GoalAction):
     no goal and the leaf fails. Statuses and cancel as :class:`GoalAction`.
     """
 
+    #: Reads only its goal's state (:mod:`fleet.wake`).
+    wake_aware = True
+
     def __init__(
         self,
         backend: NavigationBackend,
@@ -245,6 +256,9 @@ class NavigateThroughPosesAction(GoalAction):
     starts; ``None`` or an empty sequence means no goal and the leaf fails. Statuses and
     cancel as :class:`GoalAction`.
     """
+
+    #: Reads only its goal's state (:mod:`fleet.wake`).
+    wake_aware = True
 
     def __init__(
         self,
@@ -276,6 +290,9 @@ class FollowWaypointsAction(GoalAction):
     ``last_state.missed_waypoints`` and in ``feedback_message``. Statuses and cancel as
     :class:`GoalAction`.
     """
+
+    #: Reads only its goal's state (:mod:`fleet.wake`).
+    wake_aware = True
 
     def __init__(
         self,
@@ -310,6 +327,9 @@ class SpinAction(GoalAction):
     allowance. Statuses and cancel as :class:`GoalAction`.
     """
 
+    #: Reads only its goal's state (:mod:`fleet.wake`).
+    wake_aware = True
+
     def __init__(
         self,
         backend: NavigationBackend,
@@ -335,6 +355,9 @@ class BackUpAction(GoalAction):
     ``BACKUP_COLLISION_AHEAD`` when something is behind the robot, ``BACKUP_TIMEOUT`` or
     ``BACKUP_INVALID_INPUT``. Statuses and cancel as :class:`GoalAction`.
     """
+
+    #: Reads only its goal's state (:mod:`fleet.wake`).
+    wake_aware = True
 
     def __init__(
         self,
@@ -363,6 +386,9 @@ class DriveOnHeadingAction(GoalAction):
     ``DRIVE_COLLISION_AHEAD``, ``DRIVE_TIMEOUT`` or ``DRIVE_INVALID_INPUT``. Statuses and
     cancel as :class:`GoalAction`.
     """
+
+    #: Reads only its goal's state (:mod:`fleet.wake`).
+    wake_aware = True
 
     def __init__(
         self,
@@ -393,6 +419,9 @@ class ClearCostmapsAction(GoalAction):
     the goal). Statuses and cancel as :class:`GoalAction`.
     """
 
+    #: Reads only its goal's state (:mod:`fleet.wake`).
+    wake_aware = True
+
     def __init__(
         self,
         backend: NavigationBackend,
@@ -415,6 +444,9 @@ class WaitAction(GoalAction):
     backend times the wait on its own clock, never the wall clock. Statuses and cancel as
     :class:`GoalAction`.
     """
+
+    #: Reads only its goal's state (:mod:`fleet.wake`).
+    wake_aware = True
 
     def __init__(
         self,
@@ -469,18 +501,25 @@ class Charge(py_trees.behaviour.Behaviour):
         self.blackboard.active_leaf = self.name
         self.blackboard.mode = Mode.CHARGING
 
+    wake_aware = True
+
     def update(self) -> Status:
         state = self.backend.robot_state()
         if state.battery >= self.resume:
             self.feedback_message = f"charged to {state.battery:.2f}"
             return Status.SUCCESS
         now = self.clock.now()
+        wake = wake_of(self.backend)
+        if wake is not None:  # the charging flag is watched for every robot
+            wake.battery_at_least(self.resume)
         if state.charging:
             self._not_charging_since = None
             self.feedback_message = f"charging {state.battery:.2f} -> {self.resume:.2f}"
             return Status.RUNNING
         if self._not_charging_since is None:
             self._not_charging_since = now
+        if wake is not None:
+            wake.at(self._not_charging_since + self.grace_s)
         waited = now - self._not_charging_since
         if waited > self.grace_s:
             self.feedback_message = f"not charging for {waited:.1f} s (not on a charger?)"
@@ -509,6 +548,8 @@ class Idle(py_trees.behaviour.Behaviour):
         self.blackboard.mode = Mode.IDLE
         self.blackboard.route_progress = 0.0
 
+    wake_aware = True
+
     def update(self) -> Status:
         self.feedback_message = "idle"
         return Status.RUNNING
@@ -531,62 +572,4 @@ class CompletePick(py_trees.behaviour.Behaviour):
         bb.pick = None
         bb.active_leaf = self.name
         self.feedback_message = f"picks done: {bb.picks_done}"
-        return Status.SUCCESS
-
-
-class NextWaypoint(py_trees.behaviour.Behaviour):
-    """Choose the robot's next waypoint on its patrol ``route``, for trees that visit a route
-    one waypoint at a time and act at each (inspection: drive there, look around, dwell).
-
-    On each tick: with a new ``task_id`` (or no waypoint yet) the waypoint is the route pose
-    nearest the robot; once the robot stands within ``tolerance_m`` of the current waypoint,
-    the next one (so an interrupted visit, e.g. by charging, resumes at the same waypoint).
-    Coming back to the lap's first waypoint counts a lap (``laps += 1``, as
-    :class:`nodes.trees.FollowRoute`). Writes ``route_progress`` and ``mode = patrol`` and
-    hands the waypoint to ``put``. SUCCESS, or FAILURE without a route (or robot pose).
-    Sends no goal; nothing to cancel.
-    """
-
-    def __init__(
-        self,
-        backend: NavigationBackend,
-        put: Callable[[Pose2D], None],
-        *,
-        tolerance_m: float = 0.5,
-        name: str = "NextWaypoint",
-    ) -> None:
-        super().__init__(name=name)
-        self.backend = backend
-        self.put = put
-        self.tolerance_m = tolerance_m
-        keys = ("route", "task_id", "laps", "lap_task_id", "route_progress", "mode", "active_leaf")
-        self.blackboard = robot_blackboard(backend.namespace, name=name, keys=keys)
-        self.blackboards.append(self.blackboard)
-        self._task: object = None
-        self._index = -1
-        self._start = 0
-
-    def update(self) -> Status:
-        bb = self.blackboard
-        route = tuple(bb.route or ())
-        here = self.backend.robot_state().pose
-        if len(route) < 1 or here is None:
-            self.feedback_message = "no route" if not route else "no robot pose"
-            return Status.FAILURE
-        if bb.task_id != self._task or not 0 <= self._index < len(route):
-            self._task = bb.task_id
-            if bb.lap_task_id != bb.task_id:
-                bb.laps, bb.lap_task_id = 0, bb.task_id
-            self._index = min(range(len(route)), key=lambda i: route[i].distance_to(here))
-            self._start = self._index
-        elif route[self._index].distance_to(here) <= self.tolerance_m:
-            self._index = (self._index + 1) % len(route)
-            if self._index == self._start:
-                bb.laps = int(bb.laps) + 1
-        done = (self._index - self._start) % len(route)
-        bb.route_progress = done / len(route)
-        bb.mode = Mode.PATROL
-        bb.active_leaf = self.name
-        self.put(route[self._index])
-        self.feedback_message = f"waypoint {self._index} of {len(route)}"
         return Status.SUCCESS

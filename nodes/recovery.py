@@ -35,6 +35,8 @@ class RecoveryNode(py_trees.composites.Composite):
     canceled. The retry count restarts whenever the node starts afresh.
     """
 
+    wake_aware = True  # reads only its children's statuses
+
     def __init__(
         self, child: Behaviour, recovery: Behaviour, retries: int = 6, *, name: str = "Recovery"
     ) -> None:
@@ -109,6 +111,8 @@ class RoundRobin(py_trees.composites.Composite):
     Interrupting it interrupts the running child.
     """
 
+    wake_aware = True  # reads only its children's statuses
+
     def __init__(self, name: str, children: Sequence[Behaviour]) -> None:
         super().__init__(name, list(children))
         self._next = 0
@@ -153,6 +157,8 @@ class RestartOnChange(py_trees.decorators.Decorator):
     any goal it has outstanding) and ticked again from the start in the same tick. The
     decorator's status is the child's. ``restarts`` counts the restarts.
     """
+
+    wake_aware = True  # watches blackboard values, which change only with orders
 
     def __init__(self, name: str, child: Behaviour, value: Callable[[], object]) -> None:
         super().__init__(name=name, child=child)

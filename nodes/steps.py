@@ -114,6 +114,9 @@ class FollowSteps(GoalAction):
     goal is canceled; ``step_index`` stays, so the task resumes at the same step).
     """
 
+    #: Reads only its goal's state (:mod:`fleet.wake`).
+    wake_aware = True
+
     def __init__(self, backend: NavigationBackend, *, name: str = "FollowSteps") -> None:
         super().__init__(name, backend)
         self.progress = _StepProgress(backend.namespace, f"{name}-steps")
@@ -200,6 +203,9 @@ class FollowGrantSteps(Behaviour):
     done; FAILURE when a wait or spin goal fails, or there are no steps. ``terminate`` while
     RUNNING cancels the executing goal.
     """
+
+    #: Its goals are watched; the follower declares the rest (:mod:`fleet.wake`).
+    wake_aware = True
 
     def __init__(self, backend: NavigationBackend, clock: Clock, *, name: str = "FollowGrantSteps") -> None:
         super().__init__(name=name)
@@ -302,6 +308,8 @@ class ReportFailure(py_trees.decorators.Decorator):
     """Pass the child's status through; when it FAILS, give the task up: ``result_id =
     task_id``, ``result = "failed: <last_error>"``, ``steps`` and ``charge_now`` cleared (so
     the branch does not start again), and the agent reports the failure."""
+
+    wake_aware = True  # reads its child's status and the blackboard
 
     def __init__(self, child: Behaviour, namespace: str, *, name: str = "ReportFailure") -> None:
         super().__init__(name=name, child=child)

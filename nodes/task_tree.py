@@ -48,6 +48,8 @@ from nodes.trees import battery_guard, build_tree, navigate_with_recovery, patro
 class Flag(py_trees.behaviour.Behaviour):
     """SUCCESS when the robot's boolean blackboard ``key`` is true, else FAILURE."""
 
+    wake_aware = True  # reads the blackboard only
+
     def __init__(self, namespace: str, key: str, *, name: str | None = None) -> None:
         super().__init__(name=name or f"Is{key.title().replace('_', '')}")
         self.key = key
@@ -61,6 +63,8 @@ class Flag(py_trees.behaviour.Behaviour):
 class FinishCharge(py_trees.behaviour.Behaviour):
     """The charge task is done: ``result_id = task_id``, ``result = "succeeded"``,
     ``charge_now`` cleared. SUCCESS at once; nothing to cancel."""
+
+    wake_aware = True  # writes the blackboard only
 
     def __init__(self, namespace: str, *, name: str = "FinishCharge") -> None:
         super().__init__(name=name)

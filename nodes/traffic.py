@@ -42,6 +42,9 @@ class FollowGrant(py_trees.behaviour.Behaviour):
     ``terminate`` cancels the executing goal only when the leaf was RUNNING.
     """
 
+    #: The grant is blackboard; the follower declares what else it waits for (:mod:`fleet.wake`).
+    wake_aware = True
+
     def __init__(
         self,
         backend: NavigationBackend,

@@ -25,6 +25,7 @@ from fleet.navigation import Clock, NavigationBackend
 from fleet.robots import BatteryModel
 from fleet.traffic.purpose import Purpose
 from fleet.types import Goal, GoalState, Mode, NavigateThroughPoses, NavigateToPose, Pose2D, TreeKind
+from fleet.wake import Wake
 from nodes.blackboard import normalize_namespace, read_key, robot_blackboard
 from nodes.conditions import BatteryLow, HasAssignment
 from nodes.leaves import (
@@ -83,6 +84,9 @@ class FollowRoute(NavigateThroughPosesAction):
     ``terminate(INVALID)`` while RUNNING cancels the executing goal. Loop it with a
     ``Repeat`` decorator.
     """
+
+    #: Reads only its goal's state (:mod:`fleet.wake`).
+    wake_aware = True
 
     def __init__(
         self, backend: NavigationBackend, *, name: str = "FollowRoute", tolerance_m: float = 0.3
@@ -210,21 +214,35 @@ def battery_guard(
     )
 
 
-def charge_threshold(
-    namespace: str, backend: NavigationBackend, battery: BatteryModel
-) -> Callable[[], float]:
+class ChargeThreshold:
     """The battery guard's energy-based trigger (also the XML ``BatteryLow`` without a ``low``
     port). ``() -> float``: :meth:`BatteryModel.charge_threshold` of the Manhattan distance from the
     robot to its charger (blackboard ``charger``); ``battery.low`` when either is unknown."""
-    charger = read_key(namespace, "charger")
 
-    def threshold() -> float:
-        c, p = charger(), backend.robot_state().pose
+    def __init__(self, namespace: str, backend: NavigationBackend, battery: BatteryModel) -> None:
+        self._charger = read_key(namespace, "charger")
+        self.backend = backend
+        self.battery = battery
+
+    def __call__(self) -> float:
+        c, p = self._charger(), self.backend.robot_state().pose
         if not isinstance(c, Pose2D) or p is None:
-            return battery.low
-        return battery.charge_threshold(abs(c.x - p.x) + abs(c.y - p.y))
+            return self.battery.low
+        return self.battery.charge_threshold(abs(c.x - p.x) + abs(c.y - p.y))
 
-    return threshold
+    def declare(self, wake: Wake, cap: float) -> None:
+        """Tick when the battery falls below ``min(cap, this threshold)`` (:mod:`fleet.wake`)."""
+        c = self._charger()
+        if not isinstance(c, Pose2D):
+            wake.battery_below(min(cap, self.battery.low))
+            return
+        a, b = self.battery.charge_line()
+        wake.battery_below_line(self.battery.low, cap, a, b, (c.x, c.y))
+
+
+def charge_threshold(namespace: str, backend: NavigationBackend, battery: BatteryModel) -> ChargeThreshold:
+    """The battery guard's trigger of robot ``namespace`` (:class:`ChargeThreshold`)."""
+    return ChargeThreshold(namespace, backend, battery)
 
 
 def _task_watch(namespace: str, key: str) -> Callable[[], object]:

@@ -39,17 +39,19 @@ reused). See ``docs/simulator.md`` for the action semantics and error codes.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from fleet.clock import SimClock, step_until
 from fleet.errors import BackendError
 from fleet.maps import OccupancyGrid
+from fleet.navigation import NavBatch
 from fleet.robots import RobotSpec, SimParams
 from fleet.types import ErrorCode, GoalState, Pose2D, RobotState, normalize_angle
 from sim.avoidance import AVOID_CLEAR_M, AVOID_LOOKAHEAD_M, CORRIDOR_MARGIN_M, Avoidance
 from sim.backend import NamespacedBackend
+from sim.batch import SimBatch
 from sim.costmap import CostmapRaster, Costmaps, Layer, Mark
 from sim.dispatch import GoalDispatch
 from sim.follower import PathFollower
@@ -432,6 +434,12 @@ class Simulator:
     def goal_state(self, goal_id: str) -> GoalState:
         """Snapshot of goal ``goal_id`` (pure read). Raises ``KeyError`` for an id never issued."""
         return self._dispatch.goal_state(goal_id)
+
+    def query_batch(self, namespaces: Sequence[str], goal_ids: Sequence[str | None]) -> NavBatch:
+        """Robot and goal states of many robots as arrays (:mod:`sim.batch`; pure read)."""
+        return SimBatch(self.state, self.localization, self._dispatch, self.robot_state).query_batch(
+            namespaces, goal_ids
+        )
 
     def cancel_goal(self, goal_id: str) -> None:
         """Cancel ``goal_id``: it ends CANCELED at once and the robot decelerates to a stop.

@@ -113,6 +113,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="up to K robots patrol each generated route (default: enough for half the fleet, "
         f"at most one robot per {PATROL_SPACING_M:g} m of the shortest loop)",
     )
+    p.add_argument(
+        "--ticking",
+        choices=("event", "clock"),
+        default="event",
+        help="event (default): a robot's tree ticks only when something it reads changed, with the "
+        "same decisions as ticking it every period; clock: every tree every period",
+    )
     p.add_argument("--seed", type=int, default=1, help="warehouse and simulator seed (default 1)")
     p.add_argument("--endpoint", metavar="EP", help="Zenoh endpoint to listen on (default: a free port)")
     p.add_argument("--dpi", type=positive_int, default=100, help="PNG resolution (default 100)")
@@ -170,6 +177,7 @@ def handle(args: argparse.Namespace) -> int:
             endpoint=args.endpoint,
             dpi=args.dpi,
             traffic=args.traffic,
+            ticking=args.ticking,
             on_config=announce,
             on_progress=display.show,
         )

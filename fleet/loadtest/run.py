@@ -190,6 +190,7 @@ def run_loadtest(
     endpoint: str | None = None,
     dpi: int = 100,
     traffic: bool = True,
+    ticking: str = "event",
     on_config: Callable[[FleetConfig], None] | None = None,
     on_progress: Callable[[FleetSnapshot], None] | None = None,
 ) -> LoadTestResult:
@@ -215,12 +216,26 @@ def run_loadtest(
     if on_config is not None:
         on_config(cfg)
     sampler = FleetSampler(len(cfg.robots), cfg.grid.extent, sample_s=sample_s, on_progress=on_progress)
-    report = _run(cfg, sampler, duration, backend=backend, speed=speed, endpoint=endpoint, traffic=traffic)
+    ticks: dict[str, int] = {}
+    report = _run(
+        cfg,
+        sampler,
+        duration,
+        backend=backend,
+        speed=speed,
+        endpoint=endpoint,
+        traffic=traffic,
+        ticking=ticking,
+        ticks=ticks,
+    )
     data = report.to_dict()
     data["loadtest"] = loadtest_block(
         report, sampler, backend=backend, tick_hz=tick_hz, status_hz=status_hz, step_s=cfg.sim.step_s
     )
     base = [r for r in cfg.routes if not re.search(r"_c\d+$", r.name)]
+    data["loadtest"]["ticking"] = ticking
+    data["loadtest"]["tree_ticks"] = ticks.get("tree_ticks", 0)
+    data["loadtest"]["agent_periods"] = ticks.get("agent_periods", 0)
     data["loadtest"]["patrol_routes"] = len(cfg.routes)
     data["loadtest"]["route_copies"] = len(cfg.routes) // max(1, len(base))
     plots = _plot(cfg, sampler, data, report, paths.plot_dir, backend=backend, dpi=dpi)
@@ -239,8 +254,12 @@ def _run(
     speed: float,
     endpoint: str | None,
     traffic: bool,
+    ticking: str = "event",
+    ticks: dict[str, int] | None = None,
 ) -> RunReport:
-    """The fleet run of a load test, sampled by ``sampler`` (its final state included)."""
+    """The fleet run of a load test, sampled by ``sampler`` (its final state included);
+    ``ticks`` gets the trees ticked (``tree_ticks``) and the agent periods (``agent_periods``:
+    periods x agents)."""
     from fleet.runtime.runner import FleetRunner
 
     runner = FleetRunner(
@@ -252,10 +271,14 @@ def _run(
         live=False,
         display=NullDisplay(),  # the sampler reports the progress
         traffic=traffic,
+        ticking=ticking,
     )
     runner.observers.append(sampler)
     sampler.start()
     report = runner.run()
+    if ticks is not None and runner.scheduler is not None:
+        ticks["tree_ticks"] = runner.scheduler.tree_ticks
+        ticks["agent_periods"] = runner.scheduler.periods * len(runner.agents)
     if runner.world is not None and report.sim_time_s > (sampler.t[-1] if sampler.t else -1) + 1e-6:
         sampler.sample(report.sim_time_s, runner, time.monotonic())  # the final state
     return report

@@ -97,6 +97,8 @@ class FleetSampler:
     states: dict[str, list[int]] = field(default_factory=lambda: {s: [] for s in STATES})
     wait_robot_s: float = 0.0
     setup_wall_s: float | None = None
+    #: CPU seconds of this process (all threads) from the loop's first period to its last.
+    loop_cpu_s: float = 0.0
 
     def __post_init__(self) -> None:
         xmin, xmax, ymin, ymax = self.extent
@@ -109,6 +111,7 @@ class FleetSampler:
         self._t_last_sample: float | None = None
         self._wall0 = time.monotonic()
         self._loop_wall0: float | None = None
+        self._cpu0 = 0.0
         self._loop_t0 = 0.0
         self._next_progress = 0.0
 
@@ -118,11 +121,14 @@ class FleetSampler:
 
     def __call__(self, now: float, runner: FleetRunner) -> None:
         w = time.monotonic()
+        cpu = time.process_time()
         if self._loop_wall0 is None:
+            self._cpu0 = cpu
             self._loop_wall0 = w
             self._loop_t0 = now
             self.setup_wall_s = w - self._wall0
             self._next_progress = w + PROGRESS_EVERY_S
+        self.loop_cpu_s = cpu - self._cpu0
         if self._next_sample is None or now >= self._next_sample - 1e-9:
             self.sample(now, runner, w)
             self._next_sample = (now if self._next_sample is None else self._next_sample) + self.sample_s
@@ -256,6 +262,9 @@ def loadtest_block(
 
     ``real_time_factor`` is simulated seconds per wall second of the loop (setup excluded:
     warehouse loading, Zenoh, world and agent creation, reported as ``setup_wall_s``);
+    ``sim_s_per_cpu_s`` simulated seconds per CPU second the process spent in the loop
+    (``loop_cpu_s``, all its threads): the real-time factor it would reach with a core of its
+    own, which a loaded machine does not hide;
     ``throughput_laps_per_robot_hour`` = laps / (robots x simulated hours);
     ``throughput_laps_per_patrolling_robot_hour`` = laps / hours spent in ``patrol`` (sampled,
     summed over robots: idle spares left out); ``mean_wait_s`` =
@@ -277,6 +286,10 @@ def loadtest_block(
         "real_time_factor": round(report.sim_time_s / loop_wall, 3),
         "real_time_factor_overall": round(report.sim_time_s / max(report.wall_time_s, 1e-9), 3),
         "setup_wall_s": round(setup, 3),
+        "loop_cpu_s": round(sampler.loop_cpu_s, 3),
+        "sim_s_per_cpu_s": round(report.sim_time_s / sampler.loop_cpu_s, 3)
+        if sampler.loop_cpu_s > 0
+        else None,
         "throughput_laps_per_robot_hour": round(report.laps_completed / hours, 4) if hours > 0 else 0.0,
         "throughput_laps_per_patrolling_robot_hour": round(report.laps_completed / patrol_h, 4)
         if patrol_h > 0

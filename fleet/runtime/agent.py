@@ -50,7 +50,7 @@ import logging
 import math
 import threading
 from collections.abc import Callable, Iterable, Sequence
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, NamedTuple, Protocol, runtime_checkable
 
 from fleet.diagnostics import (
     Diagnostic,
@@ -63,7 +63,9 @@ from fleet.diagnostics import (
 )
 from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
 from fleet.runtime.order_gate import OrderGate
+from fleet.runtime.watched import WatchedBackend, wake_aware
 from fleet.types import Mode, Pose2D, RobotState, TaskKind, TreeKind
+from fleet.wake import Wake
 
 if TYPE_CHECKING:
     from py_trees.behaviour import Behaviour
@@ -178,7 +180,10 @@ class RobotAgent:
         self.traffic = traffic
         battery = battery_model or BatteryModel()
         self.tree_file = tree_file
-        self.root = _build_root(tree_kind, tree_file, self.namespace, backend, clock, battery, traffic)
+        #: The tree's view of the backend: it records what the tree polls (``fleet.wake``).
+        self.watched = WatchedBackend(backend)
+        self.root = _build_root(tree_kind, tree_file, self.namespace, self.watched, clock, battery, traffic)
+        self._init_ticking()
         self.health = health or HealthParams(battery_low=battery.low)
         #: The fleet-side safety stop (see the module docstring); ``watchdog.trips`` counts stops.
         self.watchdog = SafetyWatchdog(self.health)
@@ -219,12 +224,33 @@ class RobotAgent:
                 self._control_sub = bus.subscribe_control(self.set_control)
             self._token = bus.declare_alive(self.name)
 
+    def _init_ticking(self) -> None:
+        """The state of event-driven ticking (:mod:`fleet.runtime.scheduler`)."""
+        #: Orders, a grant or a control state were delivered since the last tick took them.
+        self.touched = False
+        #: Every node keeps the ``fleet.wake`` contract: the tree may be ticked on change.
+        self.event_driven = wake_aware(self.root)
+        #: What the tree waits for since its last tick (``fleet.wake``).
+        self.wake: Wake | None = self.watched.wake if self.event_driven else None
+        #: Whether the last :meth:`tick` ticked the tree; ``tree_ticks`` counts those ticks.
+        self.tree_ticked = False
+        self.tree_ticks = 0
+        #: The last tree tick changed something: the tree must be ticked again next period.
+        self.settling = True
+        self._nodes = list(self.root.iterate())
+        self._signature: tuple[object, ...] = ()
+        #: The status record's view of the tree, kept while neither the tree nor the blackboard
+        #: changed (a period without a tree tick, orders or a stop reads nothing new).
+        self._view: _TreeView | None = None
+        self._has_charger = False
+
     # -- orders ------------------------------------------------------------------------
 
     def deliver(self, msg: TaskMessage) -> None:
         """Queue an order; thread-safe. It is applied at the start of the next :meth:`tick`."""
         with self._lock:
             self._inbox.append(msg)
+            self.touched = True
 
     def deliver_grant(self, grant: Grant) -> None:
         """Keep a traffic :class:`~fleet.messages.Grant` for the next :meth:`tick`; thread-safe.
@@ -236,6 +262,7 @@ class RobotAgent:
             if self._grant is None or grant.seq > self._grant.seq:
                 self._grant = grant
                 self._grant_fresh = True
+                self.touched = True
 
     def _on_bus_task(self, msg: TaskMessage) -> None:
         """An order from the bus: queued if the gate admits it."""
@@ -248,6 +275,7 @@ class RobotAgent:
             with self._lock:
                 self._grant = grant
                 self._grant_fresh = True
+                self.touched = True
 
     def pending(self) -> bool:
         """Orders, a grant or a control change wait to be applied (thread-safe)."""
@@ -262,9 +290,14 @@ class RobotAgent:
         with self._lock:
             if self._control is None or ctl.seq > self._control.seq:
                 self._control = ctl
+                self.touched = True
 
-    def _apply_orders(self) -> None:
+    def _apply_orders(self) -> bool:
+        """Apply the queued orders and the newest grant; whether there was any."""
+        if not self.touched:  # nothing delivered since the last time (no lock needed to read)
+            return False
         with self._lock:
+            self.touched = False
             inbox, self._inbox = self._inbox, []
             grant = self._grant if self._grant_fresh else None
             self._grant_fresh = False
@@ -274,6 +307,8 @@ class RobotAgent:
             self._grant_seq, self._grant_epoch = grant.seq, grant.epoch
             self.bb.grant = grant
             self.grants_applied += 1
+            return True
+        return bool(inbox)
 
     def apply(self, msg: TaskMessage) -> bool:
         """Apply one order to the blackboard now; returns False if it was ignored (an id
@@ -316,22 +351,32 @@ class RobotAgent:
                 self.chargers, key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y)
             )
 
-    def tick(self) -> StatusRecord:
+    def tick(self, tree: bool = True) -> StatusRecord:
         """Apply queued orders, check the safety watchdog, tick the tree once (unless the
-        watchdog holds the robot), publish (see ``status_hz``) and return the status record."""
+        watchdog holds the robot), publish (see ``status_hz``) and return the status record.
+
+        ``tree=False`` (the event-driven scheduler, :mod:`fleet.runtime.scheduler`, found nothing
+        the tree waits for) does all of that but the tree's tick, unless orders were applied or
+        the robot leaves a safety stop or a pause; ``tree_ticked`` says whether it ticked."""
         from py_trees.common import Status
 
-        self._apply_orders()
+        self.tree_ticked = False
+        if self._apply_orders():
+            tree = True
+            self._view = None
         st = self.backend.robot_state()
-        if self.bb.charger is None and self.chargers:
-            self._default_charger(st.pose)
+        if not self._has_charger:
+            if self.bb.charger is None and self.chargers:
+                self._default_charger(st.pose)
+            self._has_charger = self.bb.charger is not None
         was = self.watchdog.reason
         reason = self.watchdog.check(st)
-        with self._lock:
-            ctl = self._control
+        ctl = self._control  # replaced whole under the lock; reading it needs none
         halt = (
             None if ctl is None or not (ctl.estop or ctl.paused) else Mode.ESTOP if ctl.estop else Mode.PAUSED
         )
+        if halt is not None or reason or was:
+            self._view = None  # the blackboard changes below
         if halt is not None:  # the fleet's pause or e-stop comes before everything
             if self.halted is None:
                 self._stop_tree()
@@ -350,20 +395,41 @@ class RobotAgent:
             if was or self.halted is not None:
                 self.halted = None
                 self.bb.mode = Mode.IDLE
-            self.root.tick_once()
+                tree = True
+            if tree:
+                self._tick_tree()
+                self._view = None
+        view = self._view
+        if view is None:  # the tree or the blackboard may have changed: read them again
+            view = self._view = self._tree_view()
         self.ticks += 1
-        mode = str(self.bb.mode)
+        mode = view.mode
         if mode == Mode.CHARGING and self._last_mode != Mode.CHARGING:
             self.charges += 1
         self._last_mode = mode
         self.mode_ticks[mode] = self.mode_ticks.get(mode, 0) + 1
-        rec = self.status(st)
+        rec = self.status(st, view)
         self.min_battery = min(self.min_battery, float(rec.battery))
         self.last_status = rec
         self._publish(rec)
         if self.on_status is not None:
             self.on_status(rec)
         return rec
+
+    def _tick_tree(self) -> None:
+        """Tick the tree once; note whether it has settled (``settling``: the tick changed a
+        node's status or the goals it watches, so the next period ticks it again, e.g. a
+        ``Repeat`` restarts its child only at the next tick)."""
+        wake = self.watched.wake
+        before = dict(wake.goals)
+        wake.reset()
+        self.root.tick_once()
+        self.tree_ticked = True
+        self.tree_ticks += 1
+        if self.wake is not None:
+            sig = tuple(n.status for n in self._nodes)
+            self.settling = sig != self._signature or wake.goals != before
+            self._signature = sig
 
     def _publish(self, rec: StatusRecord) -> None:
         if self.bus is None:
@@ -375,15 +441,32 @@ class RobotAgent:
         self.published += 1
         self.bus.publish_status(rec)
 
-    def status(self, state: RobotState | None = None) -> StatusRecord:
+    def _tree_view(self) -> _TreeView:
+        """What the status record reports of the tree and its blackboard (read now)."""
+        bb = self.bb
+        task_id = bb.task_id
+        return _TreeView(
+            bt=self.root.status.name,
+            leaf=str(bb.active_leaf or ""),
+            mode=str(bb.mode),
+            task_id=task_id,
+            laps=int(bb.laps) if bb.lap_task_id is not None and bb.lap_task_id == task_id else 0,
+            progress=float(bb.route_progress or 0.0),
+            picks_done=int(bb.picks_done or 0),
+            result_id=bb.result_id,
+            result=str(bb.result or ""),
+            steps_done=int(bb.step_index)
+            if bb.steps_task_id is not None and bb.steps_task_id == task_id
+            else 0,
+        )
+
+    def status(self, state: RobotState | None = None, view: _TreeView | None = None) -> StatusRecord:
         """The current status record of this robot (each call takes the next ``seq``), from
-        ``state`` (default: the backend's now)."""
+        ``state`` (default: the backend's now) and ``view`` (default: the tree now)."""
         self.seq += 1
         st = state if state is not None else self.backend.robot_state()
         health, diag = self._diagnostics(st)
-        bb = self.bb
-        task_id = bb.task_id
-        laps = int(bb.laps) if bb.lap_task_id is not None and bb.lap_task_id == task_id else 0
+        v = view if view is not None else self._tree_view()
         pose = st.pose.as_tuple() if st.pose is not None else None
         return StatusRecord(
             robot=self.name,
@@ -393,23 +476,21 @@ class RobotAgent:
             battery=float(st.battery),
             charging=bool(st.charging),
             stuck=bool(st.stuck),
-            bt=self.root.status.name,
-            leaf=str(bb.active_leaf or ""),
-            mode=str(bb.mode),
-            task_id=task_id,
-            laps=laps,
-            progress=float(bb.route_progress or 0.0),
+            bt=v.bt,
+            leaf=v.leaf,
+            mode=v.mode,
+            task_id=v.task_id,
+            laps=v.laps,
+            progress=v.progress,
             distance_m=float(st.distance_m),
             collisions=int(st.collisions),
             seq=self.seq,
-            picks_done=int(bb.picks_done or 0),
+            picks_done=v.picks_done,
             health=health,
             diag=diag,
-            result_id=bb.result_id,
-            result=str(bb.result or ""),
-            steps_done=int(bb.step_index)
-            if bb.steps_task_id is not None and bb.steps_task_id == task_id
-            else 0,
+            result_id=v.result_id,
+            result=v.result,
+            steps_done=v.steps_done,
             epoch=self.ack[0],
             order_seq=self.ack[1],
             grant_seq=self._grant_seq if self._grant_epoch == self.ack[0] else 0,
@@ -475,6 +556,21 @@ def _build_root(
     from nodes.task_tree import build_robot_tree
 
     return build_robot_tree(tree_kind, namespace, backend, clock, battery, traffic=traffic)
+
+
+class _TreeView(NamedTuple):
+    """The status record's fields that come from the tree and its blackboard."""
+
+    bt: str
+    leaf: str
+    mode: str
+    task_id: str | None
+    laps: int
+    progress: float
+    picks_done: int
+    result_id: str | None
+    result: str
+    steps_done: int
 
 
 def _stopped(reason: str) -> Diagnostic:

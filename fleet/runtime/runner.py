@@ -47,6 +47,7 @@ from fleet.messages import StatusRecord
 from fleet.runtime.backends import BACKENDS, backend_names, world_factory
 from fleet.runtime.latch import Latch, LatchedBackend, WorldLatch
 from fleet.runtime.report import ReportBuilder, RunReport
+from fleet.runtime.scheduler import MODES, TickScheduler
 from fleet.runtime.trajectory import BusView
 from fleet.runtime.worlds import World, WorldFactory
 from fleet.types import Mode, TreeKind
@@ -125,6 +126,9 @@ class FleetRunner:
             its credentials and access control) when this process listens, else as
             ``secure.identity``; the API then takes the key directory's token for mutating
             calls. ``None``: an open bus, as before.
+        ticking: ``"event"`` (default): each period a tree is ticked only when something it
+            reads changed (:mod:`fleet.runtime.scheduler`; same decisions, far fewer ticks);
+            ``"clock"``: every tree every period.
 
     ``tree_kind`` chooses the config's initial tasks (``patrol``: its routes, ``picking``:
     its picks, ``tasks``: both); every robot runs the tree that takes any task kind.
@@ -153,13 +157,15 @@ class FleetRunner:
         state_dir: Path | None = None,
         api: str | None = None,
         secure: Secure | None = None,
+        ticking: str = "event",
     ) -> None:
         if tree_file is not None:
             from nodes.xml_tree import check_tree_file
 
             tree_kind = check_tree_file(tree_file, config.sim.battery).task_kind
         self.tree_file = tree_file
-        self.agent_names = _check_args(config, backend, speed, duration, agents)
+        self.agent_names = _check_args(config, backend, speed, duration, agents, ticking)
+        self.scheduler: TickScheduler | None = None  # which trees tick (set up by run)
         self.config = config
         self.duration = duration
         self.speed = float(speed)
@@ -168,8 +174,7 @@ class FleetRunner:
         self.run_coordinator = coordinator
         self.out = out or sys.stdout
         self.live = self.out.isatty() if live is None else live
-        self.tree_kind = tree_kind
-        self.listen = listen
+        self.tree_kind, self.listen, self.ticking = tree_kind, listen, ticking
         self.traffic = config.traffic.enabled if traffic is None else bool(traffic)
         try:
             TreeKind(tree_kind)
@@ -284,6 +289,9 @@ class FleetRunner:
         if self.run_coordinator:
             self.coordinator = self._make_coordinator(world, self.bus)
         self.agents = [self._make_agent(spec.namespace, world, self.bus) for spec in specs]
+        self.scheduler = TickScheduler(
+            self.agents, [world.backend(s.namespace) for s in specs], mode=self.ticking
+        )
         guard.undeclare()
         if self.coordinator is not None:
             self.coordinator.local_deliver = {a.name: a.deliver for a in self.agents}
@@ -427,14 +435,22 @@ class FleetRunner:
         self._wakeup.clear()
         if self.coordinator is not None:
             self.coordinator.cycle()
+        now = self.world.clock.now() if self.world is not None else 0.0
         for a in self.agents:
             if a.pending():
                 a.tick()
+                if self.scheduler is not None:
+                    self.scheduler.ticked(a, now)
 
     def _tick(self, now: float) -> None:
-        """One agent tick: every local agent, then the coordinator cycle, then the observers."""
-        for a in self.agents:
-            a.tick()
+        """One agent tick: every local agent (its tree when the scheduler says so), then the
+        coordinator cycle, then the observers."""
+        sched = self.scheduler
+        due = sched.due(now).tolist() if sched is not None else [True] * len(self.agents)
+        for a, tree in zip(self.agents, due, strict=True):
+            a.tick(tree)
+            if a.tree_ticked and sched is not None:
+                sched.ticked(a, now)
         if self.coordinator is not None:
             self.coordinator.cycle()
         if self.host is not None:
@@ -566,9 +582,16 @@ def _try(close: Callable[[], None], what: str) -> None:
 
 
 def _check_args(
-    config: FleetConfig, backend: str, speed: float, duration: float | None, agents: str | Sequence[str]
+    config: FleetConfig,
+    backend: str,
+    speed: float,
+    duration: float | None,
+    agents: str | Sequence[str],
+    ticking: str = "event",
 ) -> list[str]:
     """Validate the runner's arguments; returns the names of the local agents."""
+    if ticking not in MODES:
+        raise ConfigError(str(config.path), "ticking", f"must be one of {', '.join(MODES)}, got {ticking!r}")
     if backend not in BACKENDS:
         raise ConfigError(
             str(config.path), "backend", f"unknown backend {backend!r}; known: {', '.join(backend_names())}"

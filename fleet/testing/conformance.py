@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 from fleet.errors import FleetError
 from fleet.navigation import NavigationBackend
+from fleet.testing.batch_cases import BATCH_CASES
 from fleet.testing.harness import (
     CAPABILITIES,
     Case,
@@ -402,4 +403,4 @@ def unknown_goal_kind_raises_and_changes_nothing(h: ConformanceHarness) -> None:
 
 
 #: Every conformance case, in the order they run.
-CASES: tuple[Case, ...] = (*_CASES, *PLANNING_CASES)
+CASES: tuple[Case, ...] = (*_CASES, *PLANNING_CASES, *BATCH_CASES)

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from fleet.messages import Grant
 from fleet.types import GoalState, GoalStatus, NavigateThroughPoses, Pose2D
+from fleet.wake import wake_of
 
 if TYPE_CHECKING:
     from fleet.navigation import NavigationBackend
@@ -84,6 +85,9 @@ class TrafficFollower:
                 )
                 return self.status
             if now - self._last_send < self.retry_s:
+                wake = wake_of(b)
+                if wake is not None:
+                    wake.at(self._last_send + self.retry_s)
                 self.status = FollowerStatus.WAITING
                 return self.status
             # aborted or canceled under us: send again
@@ -96,6 +100,10 @@ class TrafficFollower:
                 and pose.distance_to(end) > self.refresh_m
                 and self._ahead_ok(state)
             ):
+                wake = wake_of(b)
+                if wake is not None and self.goal_id is not None:  # when to extend the goal
+                    wake.near(end.x, end.y, self.refresh_m)
+                    wake.remaining_at_most(self.goal_id, self.refresh_m)
                 self.status = FollowerStatus.DRIVING
                 return self.status
         self._send(grant, n, key, now)

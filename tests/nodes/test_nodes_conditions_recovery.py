@@ -52,6 +52,19 @@ def test_charge_threshold_grows_with_the_way_to_the_charger() -> None:
         assert m.charge_threshold(d) - trip >= m.reserve - 1e-12
 
 
+def test_charge_line_is_the_threshold_as_a_line() -> None:
+    """The event-driven scheduler checks the trigger for all robots at once as ``max(low, a + b
+    * d)``: it must be the threshold itself, for default and unusual battery models."""
+    from dataclasses import replace
+
+    from fleet.robots import BatteryModel
+
+    for m in (BatteryModel(), replace(BatteryModel(), reserve=0.02, margin=1.0, detour=1.5, wait_s=0.0)):
+        a, b = m.charge_line()
+        for d in (0.0, 0.5, 7.0, 40.0, 150.0, 900.0):
+            assert max(m.low, a + b * d) == pytest.approx(m.charge_threshold(d), abs=1e-12)
+
+
 def test_battery_low_follows_a_threshold(fast_battery) -> None:  # type: ignore[no-untyped-def]
     sim = make_world({NS: (Pose2D(2.0, 3.0), 0.6)}, battery=fast_battery)
     level = [0.5]
