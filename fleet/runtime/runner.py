@@ -33,7 +33,6 @@ core never imports rclpy or libsumo. Diagnostics go to :mod:`logging` (logger
 from __future__ import annotations
 
 import logging
-import math
 import sys
 import threading
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -44,10 +43,11 @@ from fleet.clock import Pacer, WallClock
 from fleet.config.model import FleetConfig
 from fleet.errors import BackendError, ConfigError
 from fleet.messages import StatusRecord
-from fleet.runtime.backends import BACKENDS, backend_names, world_factory
+from fleet.runtime.arguments import check_args
+from fleet.runtime.backends import world_factory
 from fleet.runtime.latch import Latch, LatchedBackend, WorldLatch
 from fleet.runtime.report import ReportBuilder, RunReport
-from fleet.runtime.scheduler import MODES, TickScheduler
+from fleet.runtime.scheduler import TickScheduler
 from fleet.runtime.trajectory import BusView
 from fleet.runtime.worlds import World, WorldFactory
 from fleet.types import Mode, TreeKind
@@ -164,7 +164,7 @@ class FleetRunner:
 
             tree_kind = check_tree_file(tree_file, config.sim.battery).task_kind
         self.tree_file = tree_file
-        self.agent_names = _check_args(config, backend, speed, duration, agents, ticking)
+        self.agent_names = check_args(config, backend, speed, duration, agents, ticking)
         self.scheduler: TickScheduler | None = None  # which trees tick (set up by run)
         self.config = config
         self.duration = duration
@@ -579,39 +579,6 @@ def _try(close: Callable[[], None], what: str) -> None:
         close()
     except Exception as e:  # noqa: BLE001 - keep closing the rest
         logger.warning("%s: %s", what, e)
-
-
-def _check_args(
-    config: FleetConfig,
-    backend: str,
-    speed: float,
-    duration: float | None,
-    agents: str | Sequence[str],
-    ticking: str = "event",
-) -> list[str]:
-    """Validate the runner's arguments; returns the names of the local agents."""
-    if ticking not in MODES:
-        raise ConfigError(str(config.path), "ticking", f"must be one of {', '.join(MODES)}, got {ticking!r}")
-    if backend not in BACKENDS:
-        raise ConfigError(
-            str(config.path), "backend", f"unknown backend {backend!r}; known: {', '.join(backend_names())}"
-        )
-    if speed < 0 or not math.isfinite(speed):
-        raise ConfigError(str(config.path), "speed", f"must be >= 0 (0 = as fast as possible), got {speed}")
-    if duration is not None and (duration <= 0 or not math.isfinite(duration)):
-        raise ConfigError(
-            str(config.path), "duration", f"must be a positive number of seconds, got {duration}"
-        )
-    names = [r.name for r in config.robots]
-    if agents == "all":
-        return names
-    chosen = [agents] if isinstance(agents, str) else list(agents)
-    for a in chosen:
-        if a not in names:
-            raise ConfigError(
-                str(config.path), "robots", f"no robot named {a!r} (robots: {', '.join(names)})"
-            )
-    return chosen
 
 
 __all__ = ["FleetRunner"]
