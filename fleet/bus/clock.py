@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 
@@ -11,6 +12,8 @@ from fleet.bus.keys import CLOCK_KEY
 from fleet.bus.session import undeclare_all
 from fleet.messages.nav import CLOCK_CODEC
 
+logger = logging.getLogger(__name__)
+
 
 class BusClock:
     """A :class:`~fleet.navigation.Clock` following ``fleet/sim/clock`` (simulated seconds).
@@ -19,6 +22,10 @@ class BusClock:
     and ``step_s`` are the simulator's (``None`` before the first message). A malformed clock
     message is counted in ``malformed`` (``last_malformed`` says why) and dropped. Call
     :meth:`close` when done (the session stays open).
+
+    The clock never goes backwards: a simulator restarted behind the time already read (a
+    ``fleet sim`` started again from its snapshot, or from zero without one) holds
+    :meth:`now` where it was until the simulator's time passes it (``rewinds`` counts these).
     """
 
     def __init__(self, session: zenoh.Session, *, start: float = 0.0) -> None:
@@ -30,6 +37,8 @@ class BusClock:
         self.last_malformed: str | None = None
         self.speed: float | None = None
         self.step_s: float | None = None
+        self.rewinds = 0
+        self._behind = False
         self._sub: zenoh.Subscriber[None] | None = session.declare_subscriber(CLOCK_KEY, self._on_clock)
 
     def _on_clock(self, sample: zenoh.Sample) -> None:
@@ -41,7 +50,20 @@ class BusClock:
                 self.last_malformed = f"{CLOCK_KEY}: {e}"
             return
         with self._cond:
-            self._t = msg.t
+            if msg.t < self._t - 1e-9 and self.updates:
+                if not self._behind:
+                    self.rewinds += 1
+                    logger.warning(
+                        "the simulator's clock went back from %.2f s to %.2f s (a restarted `fleet sim`): "
+                        "fleet time holds at %.2f s until the simulator catches up",
+                        self._t,
+                        msg.t,
+                        self._t,
+                    )
+                self._behind = True
+            else:
+                self._behind = False
+                self._t = msg.t
             self.speed, self.step_s = msg.speed, msg.step_s
             self.updates += 1
             self._cond.notify_all()

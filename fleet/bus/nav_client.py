@@ -6,7 +6,7 @@ from __future__ import annotations
 import secrets
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Container
 from dataclasses import dataclass
 
 import zenoh
@@ -64,6 +64,7 @@ class ZenohNavBackend:
         self._seq = 0
         self._lock = threading.Lock()
         self._goals: dict[str, _ClientGoal] = {}
+        self._open: set[str] = set()  # acknowledged goals that have not ended
         self._robot_state = RobotState(pose=None)
         self._last_state_wall: float | None = None
         self.sim_time: float | None = None
@@ -116,8 +117,30 @@ class ZenohNavBackend:
                     continue
                 if not st.status.terminal and g.state.status is GoalStatus.CANCELING:
                     g.state = GoalState(gid, st.kind, GoalStatus.CANCELING, st.feedback)
+                    self._open.add(gid)
                     continue
                 g.state = st
+                if st.status.terminal:
+                    self._open.discard(gid)
+                else:
+                    self._open.add(gid)
+            self._forgotten(msg.goals)
+
+    def _forgotten(self, listed: Container[str]) -> None:
+        """End the goals the server acknowledged and no longer lists (caller holds the lock): a
+        server lists every goal it runs, so it was restarted and forgot them."""
+        for gid in [gid for gid in self._open if gid not in listed]:
+            self._open.discard(gid)
+            g = self._goals[gid]
+            if not g.state.status.terminal:
+                g.state = GoalState(
+                    gid,
+                    g.state.kind,
+                    GoalStatus.ABORTED,
+                    g.state.feedback,
+                    error_code=int(ErrorCode.SERVER_UNAVAILABLE),
+                    error_msg="the simulator no longer knows the goal (was it restarted?)",
+                )
 
     # -- the protocol --------------------------------------------------------------------
 
@@ -182,6 +205,7 @@ class ZenohNavBackend:
         elif not g.acked and now - g.sent_wall > self.timeout_s:
             reason = f"the simulator did not acknowledge the goal within {self.timeout_s:g} s"
         if reason is not None:
+            self._open.discard(gid)
             g.state = GoalState(
                 gid,
                 g.state.kind,

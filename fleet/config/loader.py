@@ -117,6 +117,8 @@ def _build(p: Path, file: str, spec: ConfigFile, n_robots: int | None) -> FleetC
         coordinator=spec.coordinator.to_params(),
         endpoint=spec.bus.endpoint,
         status_hz=spec.bus.status_hz,
+        link_timeout_s=spec.bus.link_timeout_s,
+        reconnect_s=spec.bus.reconnect_s,
         parking=parking,
         traffic=spec.traffic.to_settings(),
     )

@@ -49,6 +49,7 @@ from fleet.viz.table import robot_sort_key
 if TYPE_CHECKING:
     import zenoh
 
+    from fleet.bus.link import LinkWatch
     from fleet.bus.status_bus import StatusBus
     from fleet.coordination.coordinator import Coordinator
     from fleet.runtime.agent import RobotAgent
@@ -118,6 +119,11 @@ class FleetRunner:
     Raises :class:`~fleet.errors.ConfigError` for an unknown backend or robot, a negative
     speed, a non-positive duration, or a bad ``api`` address.
     """
+
+    #: The bus-loss watchdog of a connecting runner with local agents (``None`` otherwise): it
+    #: stops the local robots while the link is lost (``bus.link_timeout_s``, ``docs/faults.md``).
+    link: LinkWatch | None = None
+    _link_reason = ""
 
     def __init__(
         self,
@@ -216,6 +222,10 @@ class FleetRunner:
         interrupted = False
         try:
             world = self._setup(factory, session)
+            if not listen and self.agents:
+                from fleet.bus.link import LinkWatch
+
+                self.link = LinkWatch(session, self.config.link_timeout_s)
             try:
                 self._loop(world)
             except KeyboardInterrupt:
@@ -355,6 +365,8 @@ class FleetRunner:
         next_show = self._wall.now() + display.interval_s
         try:
             while not self.stop_event.is_set():
+                if self.link is not None:
+                    self._watch_link(self.link)
                 now = clock.now()
                 if ticks.finished(now):
                     break
@@ -373,6 +385,15 @@ class FleetRunner:
         finally:
             self._t_end = clock.now()  # a remote world's clock runs on while the run closes
             display.close(self.snapshot())
+
+    def _watch_link(self, link: LinkWatch) -> None:
+        """The bus-loss watchdog: stop every local robot while the bus link is lost for longer
+        than ``bus.link_timeout_s``, let them resume when it is back."""
+        reason = link.check()
+        if reason != self._link_reason:
+            self._link_reason = reason
+            for a in self.agents:
+                a.set_link_lost(reason)
 
     def _pace(self, pacer: Pacer) -> None:
         """Wait for real time to catch up (``speed``), reacting to commands meanwhile."""
