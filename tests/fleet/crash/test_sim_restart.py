@@ -66,7 +66,9 @@ def test_sim_kill_9_and_restart_the_fleet_reconnects_and_drives_on(tmp_path: Pat
             def after(latest: dict[str, StatusRecord]) -> dict[str, StatusRecord]:
                 return {n: r for n, r in latest.items() if r.t > t_kill + 0.5}
 
-            bus.wait(lambda latest: set(after(latest)) == set(ROBOTS), WAIT_S, "statuses from every robot again")
+            bus.wait(
+                lambda latest: set(after(latest)) == set(ROBOTS), WAIT_S, "statuses from every robot again"
+            )
             # the restarted simulator put every robot back where it stood (its snapshot is at
             # most 0.5 wall s old: 1 s simulated at speed 2, under 1.2 m of driving)
             first = after(bus.latest())
@@ -77,7 +79,9 @@ def test_sim_kill_9_and_restart_the_fleet_reconnects_and_drives_on(tmp_path: Pat
             bus.wait(lambda latest: len(_patrolling(after(latest))) == 2, WAIT_S, "both routes driven again")
             d1 = {n: r.distance_m for n, r in after(bus.latest()).items()}
             bus.wait(
-                lambda latest: all(after(latest)[n].distance_m > d1[n] + 4.0 for n in _patrolling(after(latest))),
+                lambda latest: all(
+                    after(latest)[n].distance_m > d1[n] + 4.0 for n in _patrolling(after(latest))
+                ),
                 WAIT_S,
                 "the robots driving under the restarted simulator",
             )
