@@ -40,6 +40,7 @@ SMALL_ARGS: dict[str, list[str]] = {
     "bench_ros_scale.py": ["--robots", "20"],
     "bench_demo.py": ["--duration", "300"],
     "bench_fleet_table.py": ["--sizes", "6", "--duration", "120", "--no-sumo"],
+    "soak.py": ["--robots", "20", "--duration", "120", "--every", "20"],
 }
 #: Never run as benchmarks.
 SKIP = {"run_all.py", "__init__.py"}
