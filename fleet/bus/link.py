@@ -20,8 +20,9 @@ class LinkWatch:
     """The link of a client ``session`` to its router, checked on demand.
 
     :meth:`check` returns why the link counts as lost (``""`` while it is up or has been down
-    for less than ``timeout_s`` wall seconds). ``outages`` counts the times it was lost,
-    ``down_s`` is the length of the current outage (0 while up). ``wall`` is a monotonic
+    for less than ``timeout_s`` wall seconds). ``losses`` counts the times a check found the
+    router gone after it had been there (at once, whatever ``timeout_s``), ``outages`` the
+    times the link counted as lost, ``down_s`` is the length of the current outage (0 while up). ``wall`` is a monotonic
     clock in seconds.
     """
 
@@ -36,6 +37,7 @@ class LinkWatch:
         self._down_since: float | None = None
         self._lost = False
         self.outages = 0
+        self.losses = 0
 
     @property
     def down_s(self) -> float:
@@ -50,6 +52,7 @@ class LinkWatch:
         now = self._wall()
         if self._down_since is None:
             self._down_since = now
+            self.losses += 1
         down = now - self._down_since
         if down < self.timeout_s:
             return ""

@@ -120,8 +120,9 @@ class FleetRunner:
     speed, a non-positive duration, or a bad ``api`` address.
     """
 
-    #: The bus-loss watchdog of a connecting runner with local agents (``None`` otherwise): it
-    #: stops the local robots while the link is lost (``bus.link_timeout_s``, ``docs/faults.md``).
+    #: The bus-loss watchdog of a connecting runner (``None`` for one that listens): it stops
+    #: the local robots while the link is lost (``bus.link_timeout_s``, ``docs/faults.md``) and
+    #: tells the coordinator which liveliness losses were this process's own.
     link: LinkWatch | None = None
     _link_reason = ""
 
@@ -221,11 +222,11 @@ class FleetRunner:
         session = open_session(self.endpoint, "router" if listen else "client")
         interrupted = False
         try:
-            world = self._setup(factory, session)
-            if not listen and self.agents:
+            if not listen:
                 from fleet.bus.link import LinkWatch
 
                 self.link = LinkWatch(session, self.config.link_timeout_s)
+            world = self._setup(factory, session)
             try:
                 self._loop(world)
             except KeyboardInterrupt:
@@ -304,6 +305,9 @@ class FleetRunner:
             task_kind=self.tree_kind,
             first_id=host.service.first_assignment_id,
         )
+        link = self.link
+        if link is not None:
+            coordinator.link_losses = lambda: link.losses
         host.service.attach(coordinator.state)
         return coordinator
 
