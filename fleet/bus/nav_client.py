@@ -25,6 +25,11 @@ DEFAULT_TIMEOUT_S = 3.0
 DEFAULT_RESEND_S = 0.3
 
 
+#: Goals that ended are remembered (for :meth:`ZenohNavBackend.goal_state`) up to this many;
+#: older ones are forgotten first, so a long run's client stays bounded.
+KEEP_ENDED = 1024
+
+
 @dataclass
 class _ClientGoal:
     state: GoalState
@@ -126,6 +131,12 @@ class ZenohNavBackend:
                     self._open.add(gid)
             self._forgotten(msg.goals)
 
+    def _forget_ended(self) -> None:
+        """Forget the oldest ended goals beyond :data:`KEEP_ENDED` (caller holds the lock)."""
+        ended = [gid for gid, g in self._goals.items() if g.state.status.terminal]
+        for gid in ended[: max(0, len(ended) - KEEP_ENDED)]:
+            del self._goals[gid]
+
     def _forgotten(self, listed: Container[str]) -> None:
         """End the goals the server acknowledged and no longer lists (caller holds the lock): a
         server lists every goal it runs, so it was restarted and forgot them."""
@@ -172,6 +183,8 @@ class ZenohNavBackend:
             return gid
         with self._lock:
             self._goals[gid] = _ClientGoal(GoalState(gid, kind, GoalStatus.PENDING), payload, now, now)
+            if seq % 256 == 0:
+                self._forget_ended()
         self._put(self._goal_pub, payload)
         return gid
 
@@ -182,7 +195,8 @@ class ZenohNavBackend:
             pass
 
     def goal_state(self, goal_id: str) -> GoalState:
-        """Latest state of ``goal_id`` (``KeyError`` if this backend never issued it)."""
+        """Latest state of ``goal_id`` (``KeyError`` if this backend never issued it, or it ended
+        more than :data:`KEEP_ENDED` ended goals ago)."""
         resend: list[tuple[zenoh.Publisher, bytes]] = []
         with self._lock:
             g = self._goals[goal_id]
