@@ -59,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"RSS: {r.samples[0].rss_mb:.0f} MB at start, {r.baseline_mb:.0f} MB after the warm-up "
         f"({a.warmup:.0%}), max {max(s.rss_mb for s in r.after_warmup()):.0f} MB after it: "
-        f"growth {100 * r.growth:.1f} %, slope {r.growth_kb_per_sim_s:.1f} kB per simulated s"
+        f"growth {100 * r.growth:.1f} %, slope {r.growth_kb_per_sim_s:.1f} kB per simulated s; "
+        f"{r.report_mb:.0f} MB once the report is built"
     )
     if a.json:
         print(
@@ -71,6 +72,7 @@ def main(argv: list[str] | None = None) -> int:
                     "baseline_mb": r.baseline_mb,
                     "growth": r.growth,
                     "slope_kb_per_sim_s": r.growth_kb_per_sim_s,
+                    "report_mb": r.report_mb,
                     "samples": [[s.t, s.rss_mb] for s in r.samples],
                 }
             )

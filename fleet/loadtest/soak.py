@@ -4,7 +4,8 @@
 warehouse, every robot's agent and the coordinator in one process, traffic management on by
 default) as fast as it goes for ``duration`` simulated seconds and samples the process's
 resident set size (RSS, from ``/proc/self/status``) every ``every_s`` simulated seconds through
-the runner's ``observers`` hook. :class:`SoakResult` says how much RSS grew after the warm-up
+the runner's ``observers`` hook (while the fleet runs; the RSS once the report is built is
+kept apart, :attr:`SoakResult.report_mb`). :class:`SoakResult` says how much RSS grew after the warm-up
 (the first ``warmup`` fraction of the run, when the trees, the traffic tables and the
 simulator's bounded histories fill up): :attr:`SoakResult.growth` is the highest sample after
 the warm-up over the sample at its end, minus one.
@@ -63,6 +64,8 @@ class SoakResult:
     warmup: float
     samples: list[RssSample] = field(default_factory=list)
     report: RunReport | None = None
+    #: RSS once the run's report is built (MB): the end of the run, not its steady state.
+    report_mb: float = float("nan")
 
     def after_warmup(self) -> list[RssSample]:
         """The samples from the end of the warm-up on (the first is the baseline)."""
@@ -150,8 +153,5 @@ def run_soak(
 
     runner.observers.append(sample)
     result.report = runner.run()
-    end = RssSample(result.report.sim_time_s, time.monotonic() - wall0, rss_mb())
-    result.samples.append(end)
-    if on_sample is not None:
-        on_sample(end)
+    result.report_mb = rss_mb()
     return result
