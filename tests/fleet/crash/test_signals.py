@@ -31,11 +31,14 @@ def test_every_process_exits_130_without_a_traceback(sig: signal.Signals, tmp_pa
     with processes() as procs:
         started: dict[str, subprocess.Popen[str]] = {}
 
-        def start(name: str, args: list[str], ready: str) -> None:
-            p = started[name] = spawn(procs, args, tmp_path / f"{name}.log")
-            output(p).wait_line(ready, WAIT_S)
+        ready: dict[str, str] = {}
+
+        def start(name: str, args: list[str], line: str) -> None:
+            started[name] = spawn(procs, args, tmp_path / f"{name}.log")
+            ready[name] = line
 
         start("sim", ["sim", cfg, "--endpoint", ep, "--robots", "2"], "fleet sim:")
+        output(started["sim"]).wait_line("fleet sim:", WAIT_S)  # the router the others connect to
         start(
             "coordinator",
             ["coordinator", cfg, "--robots", "2", "--endpoint", ep, "--no-live", "--state",
@@ -56,6 +59,8 @@ def test_every_process_exits_130_without_a_traceback(sig: signal.Signals, tmp_pa
              "--out", str(tmp_path / "load")],
             "tasks:",
         )  # fmt: skip
+        for name, line in ready.items():  # they start side by side; each must be up
+            output(started[name]).wait_line(line, WAIT_S)
         session = open_session(ep, "client", connect_timeout_s=30.0)
         try:  # the agent drives its robot: it is in its loop, not starting up
             bus = BusWatch(StatusBus(session))
