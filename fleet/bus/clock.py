@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -11,6 +12,8 @@ import zenoh
 from fleet.bus.keys import CLOCK_KEY
 from fleet.bus.session import undeclare_all
 from fleet.messages.nav import CLOCK_CODEC
+
+logger = logging.getLogger(__name__)
 
 #: A clock message more than this many simulated seconds ahead of the clock is a jump: applied
 #: only once the next message confirms it (docs/protocol.md).
@@ -26,10 +29,14 @@ class BusClock:
     more than :data:`MAX_CLOCK_JUMP_S` ahead of the clock is held back and applied only if the
     next message confirms the jump (is not earlier and not again that far ahead); a lone one
     (a message such as ``t = 1e9`` put by an outsider, which would end every run at once) is
-    counted in ``rejected`` and dropped. Going back (a restarted simulator) is followed. With
+    counted in ``rejected`` and dropped. With
     ``sources`` (:meth:`fleet.bus.lease.SimLeaseWatch.admits`), a message whose ``src`` is not
     a live simulator's is counted in ``rejected`` and dropped. Call
     :meth:`close` when done (the session stays open).
+
+    The clock never goes backwards: a simulator restarted behind the time already read (a
+    ``fleet sim`` started again from its snapshot, or from zero without one) holds
+    :meth:`now` where it was until the simulator's time passes it (``rewinds`` counts these).
     """
 
     def __init__(
@@ -46,6 +53,8 @@ class BusClock:
         self._jump: float | None = None
         self.speed: float | None = None
         self.step_s: float | None = None
+        self.rewinds = 0
+        self._behind = False
         self._sub: zenoh.Subscriber[None] | None = session.declare_subscriber(CLOCK_KEY, self._on_clock)
 
     def _on_clock(self, sample: zenoh.Sample) -> None:
@@ -62,7 +71,20 @@ class BusClock:
                 return
             if not self._admit(msg.t):
                 return
-            self._t = msg.t
+            if msg.t < self._t - 1e-9 and self.updates:
+                if not self._behind:
+                    self.rewinds += 1
+                    logger.warning(
+                        "the simulator's clock went back from %.2f s to %.2f s (a restarted `fleet sim`): "
+                        "fleet time holds at %.2f s until the simulator catches up",
+                        self._t,
+                        msg.t,
+                        self._t,
+                    )
+                self._behind = True
+            else:
+                self._behind = False
+                self._t = msg.t
             self.speed, self.step_s = msg.speed, msg.step_s
             self.updates += 1
             self._cond.notify_all()

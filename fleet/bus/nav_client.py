@@ -6,7 +6,7 @@ from __future__ import annotations
 import secrets
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Container
 from dataclasses import dataclass
 
 import zenoh
@@ -23,6 +23,11 @@ DEFAULT_TIMEOUT_S = 3.0
 
 #: Default wall seconds between re-sends of an unacknowledged goal or cancel.
 DEFAULT_RESEND_S = 0.3
+
+
+#: Goals that ended are remembered (for :meth:`ZenohNavBackend.goal_state`) up to this many;
+#: older ones are forgotten first, so a long run's client stays bounded.
+KEEP_ENDED = 1024
 
 
 @dataclass
@@ -67,6 +72,7 @@ class ZenohNavBackend:
         self._seq = 0
         self._lock = threading.Lock()
         self._goals: dict[str, _ClientGoal] = {}
+        self._open: set[str] = set()  # acknowledged goals that have not ended
         self._robot_state = RobotState(pose=None)
         self._last_state_wall: float | None = None
         self.sim_time: float | None = None
@@ -126,8 +132,36 @@ class ZenohNavBackend:
                     continue
                 if not st.status.terminal and g.state.status is GoalStatus.CANCELING:
                     g.state = GoalState(gid, st.kind, GoalStatus.CANCELING, st.feedback)
+                    self._open.add(gid)
                     continue
                 g.state = st
+                if st.status.terminal:
+                    self._open.discard(gid)
+                else:
+                    self._open.add(gid)
+            self._forgotten(msg.goals)
+
+    def _forget_ended(self) -> None:
+        """Forget the oldest ended goals beyond :data:`KEEP_ENDED` (caller holds the lock)."""
+        ended = [gid for gid, g in self._goals.items() if g.state.status.terminal]
+        for gid in ended[: max(0, len(ended) - KEEP_ENDED)]:
+            del self._goals[gid]
+
+    def _forgotten(self, listed: Container[str]) -> None:
+        """End the goals the server acknowledged and no longer lists (caller holds the lock): a
+        server lists every goal it runs, so it was restarted and forgot them."""
+        for gid in [gid for gid in self._open if gid not in listed]:
+            self._open.discard(gid)
+            g = self._goals[gid]
+            if not g.state.status.terminal:
+                g.state = GoalState(
+                    gid,
+                    g.state.kind,
+                    GoalStatus.ABORTED,
+                    g.state.feedback,
+                    error_code=int(ErrorCode.SERVER_UNAVAILABLE),
+                    error_msg="the simulator no longer knows the goal (was it restarted?)",
+                )
 
     # -- the protocol --------------------------------------------------------------------
 
@@ -159,6 +193,8 @@ class ZenohNavBackend:
             return gid
         with self._lock:
             self._goals[gid] = _ClientGoal(GoalState(gid, kind, GoalStatus.PENDING), payload, now, now)
+            if seq % 256 == 0:
+                self._forget_ended()
         self._put(self._goal_pub, payload)
         return gid
 
@@ -169,7 +205,8 @@ class ZenohNavBackend:
             pass
 
     def goal_state(self, goal_id: str) -> GoalState:
-        """Latest state of ``goal_id`` (``KeyError`` if this backend never issued it)."""
+        """Latest state of ``goal_id`` (``KeyError`` if this backend never issued it, or it ended
+        more than :data:`KEEP_ENDED` ended goals ago)."""
         resend: list[tuple[zenoh.Publisher, bytes]] = []
         with self._lock:
             g = self._goals[goal_id]
@@ -192,6 +229,7 @@ class ZenohNavBackend:
         elif not g.acked and now - g.sent_wall > self.timeout_s:
             reason = f"the simulator did not acknowledge the goal within {self.timeout_s:g} s"
         if reason is not None:
+            self._open.discard(gid)
             g.state = GoalState(
                 gid,
                 g.state.kind,

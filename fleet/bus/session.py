@@ -32,6 +32,15 @@ DEFAULT_LEASE_S = 1.0
 DEFAULT_CONNECT_TIMEOUT_S = 2.0
 
 
+#: A client whose router went away tries to reconnect after this long (ms), backing off to
+#: :data:`RECONNECT_MAX_MS`: measured with eclipse-zenoh 1.10.2 on loopback, a client was
+#: connected again (its subscriptions, publishers and liveliness tokens re-declared by Zenoh)
+#: within about 0.5 s of a restarted router listening, against 3.5 s with Zenoh's defaults.
+RECONNECT_INIT_MS = 250
+#: The longest wait (ms) between two reconnection attempts of a client.
+RECONNECT_MAX_MS = 1000
+
+
 Role = Literal["router", "client", "peer"]
 
 
@@ -49,7 +58,10 @@ def zenoh_config(
     """A Zenoh config for ``role`` on ``endpoint`` (``tcp/127.0.0.1:7447``).
 
     ``listen=True`` listens on the endpoint and connects nowhere; ``listen=False`` connects to
-    it (waiting up to ``connect_timeout_s``) and listens nowhere. Multicast scouting and gossip
+    it (waiting up to ``connect_timeout_s``) and listens nowhere; a connected client whose
+    router goes away keeps retrying (every :data:`RECONNECT_INIT_MS` to
+    :data:`RECONNECT_MAX_MS` ms) and Zenoh re-declares its subscriptions, publishers and
+    liveliness tokens on the router it reaches again. Multicast scouting and gossip
     are off. ``lease_s`` sets ``transport/link/tx/lease`` (``None``: Zenoh's 10 s default).
     Raises :class:`BusError` for a malformed endpoint.
     """
@@ -70,7 +82,13 @@ def zenoh_config(
         c.insert_json5("listen/endpoints", "[]")
         c.insert_json5("connect/endpoints", json.dumps([endpoint]))
         c.insert_json5("connect/timeout_ms", str(max(1, int(connect_timeout_s * 1000))))
-        c.insert_json5("connect/exit_on_failure", "true")
+        c.insert_json5("connect/exit_on_failure", "true")  # at open; afterwards Zenoh retries
+        retry = {
+            "period_init_ms": RECONNECT_INIT_MS,
+            "period_max_ms": RECONNECT_MAX_MS,
+            "period_increase_factor": 2,
+        }
+        c.insert_json5("connect/retry", json.dumps(retry))
     if lease_s is not None:
         c.insert_json5("transport/link/tx/lease", str(max(100, int(lease_s * 1000))))
     return c
@@ -164,6 +182,11 @@ def open_session(
                 f"no Zenoh router at {endpoint} — start `fleet run` (or `fleet sim`) first or pass --endpoint"
             ) from None
         raise BusError(f"cannot open a Zenoh {role} session on {endpoint}: {text}") from None
+
+
+def has_router(session: zenoh.Session) -> bool:
+    """Whether a client ``session`` is connected to a router now (its link to the bus)."""
+    return any(True for _ in session.info.routers_zid())
 
 
 class Declaration(Protocol):

@@ -32,7 +32,8 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
         help="serve the simulator over Zenoh for agents in other processes",
         description="Run the kinematic simulator with the config's robots and serve their navigation "
         "actions and the simulated clock over Zenoh (listening on the endpoint).",
-        epilog="example:\n  fleet sim configs/warehouse_patrol.yaml --speed 5 --duration 600\n",
+        epilog="example:\n  fleet sim configs/warehouse_patrol.yaml --speed 5 --duration 600\n"
+        "  fleet sim configs/warehouse_patrol.yaml --state out/sim-state   # restartable\n",
     )
     add_config(p)
     p.add_argument(
@@ -49,6 +50,14 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
     add_endpoint(p)
     add_secure(p, None)
     p.add_argument("--plot", type=Path, metavar="PATH", help="write a PNG of the trajectories at the end")
+    p.add_argument(
+        "--state",
+        type=Path,
+        metavar="DIR",
+        help="keep the simulator's snapshot (time, robots' poses and batteries) in DIR/sim.json and "
+        "start from the one there: a `fleet sim` killed and started again with the same --state puts "
+        "its robots back where they were (default: start from the config, keep nothing)",
+    )
     return p
 
 
@@ -88,6 +97,7 @@ def handle(args: argparse.Namespace) -> int:
             duration=args.duration,
             progress=show,
             progress_every_s=display.interval_s,
+            state_dir=args.state,
         )
     finally:
         display.close()

@@ -118,6 +118,8 @@ def _build(p: Path, file: str, spec: ConfigFile, n_robots: int | None) -> FleetC
         endpoint=spec.bus.endpoint,
         status_hz=spec.bus.status_hz,
         secure=(p.parent / spec.bus.secure).resolve() if spec.bus.secure else None,
+        link_timeout_s=spec.bus.link_timeout_s,
+        reconnect_s=spec.bus.reconnect_s,
         parking=parking,
         traffic=spec.traffic.to_settings(),
     )

@@ -83,6 +83,14 @@ class TrafficSettings:
     dead_release_s: float = 10.0
 
 
+#: Wall seconds an agent may be without its bus link (its Zenoh router) before its
+#: bus-loss watchdog stops its robots (``bus.link_timeout_s``).
+DEFAULT_LINK_TIMEOUT_S = 2.0
+#: Wall seconds a process of a split fleet waits for a simulator that went silent to come back
+#: before it ends its run (``bus.reconnect_s``).
+DEFAULT_RECONNECT_S = 60.0
+
+
 @dataclass
 class FleetConfig:
     """A validated fleet configuration. See ``docs/config.md`` for the file format."""
@@ -104,6 +112,8 @@ class FleetConfig:
     status_hz: float | None = None
     #: The key directory of a secured bus (``bus.secure``, ``docs/security.md``); ``None``: open.
     secure: Path | None = None
+    link_timeout_s: float = DEFAULT_LINK_TIMEOUT_S
+    reconnect_s: float | None = DEFAULT_RECONNECT_S
     parking: list[Pose2D] = field(default_factory=list)
     traffic: TrafficSettings = field(default_factory=TrafficSettings)
 

@@ -43,7 +43,7 @@ from fleet.config.fields import (
     tname,
     unique_by,
 )
-from fleet.config.model import CoordinatorParams, TrafficSettings
+from fleet.config.model import DEFAULT_LINK_TIMEOUT_S, DEFAULT_RECONNECT_S, CoordinatorParams, TrafficSettings
 from fleet.errors import ConfigError
 from fleet.messages import DEFAULT_ENDPOINT
 from fleet.robots import BatteryModel, RobotModel, SimParams
@@ -231,6 +231,15 @@ class BusSection(Section):
         min_length=1,
         description="key directory of a secured bus (`fleet keys init`), relative to this file; "
         "unset: an open bus (or --secure DIR)",
+    )
+    link_timeout_s: Positive = Field(
+        default=DEFAULT_LINK_TIMEOUT_S,
+        description="an agent whose bus link (its Zenoh router) is gone this long stops its robots (wall s)",
+    )
+    reconnect_s: Positive | None = Field(
+        default=DEFAULT_RECONNECT_S,
+        description="a process of a split fleet waits this long for a lost simulator to come back "
+        "before it ends its run (wall s); unset (null): forever",
     )
 
 

@@ -99,6 +99,7 @@ assignment and release and runs once per cycle.
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Literal, Protocol
@@ -128,6 +129,9 @@ from fleet.types import Pose2D, TreeKind
 if TYPE_CHECKING:
     from fleet.config.model import FleetConfig
     from fleet.navigation import Clock
+
+
+logger = logging.getLogger(__name__)
 
 
 class CoordinatorBus(Protocol):
@@ -177,7 +181,15 @@ class Coordinator:
     (``0`` without one), stamped on every order and grant with a per-robot ``seq``. A
     ``traffic`` policy that sends grants (:class:`~fleet.coordination.policy.GrantSender`,
     ``deliver`` unset) has them delivered by :meth:`_deliver_grant`.
+
+    ``link_losses`` (set by the runner of a coordinator that connects to the bus) counts the
+    times this process lost its router: a liveliness token that disappears and is applied
+    after another loss of the link is not a robot leaving but this process losing its router
+    (Zenoh drops every token it saw then), so it is ignored; a robot that really died meanwhile
+    is still found by its silence (``coordinator.status_timeout_s``).
     """
+
+    link_losses: Callable[[], int] | None = None
 
     def __init__(
         self,
@@ -207,6 +219,7 @@ class Coordinator:
         self._grants: dict[str, tuple[Grant, float]] = {}  # remote robot -> (latest grant, last sent)
         self._adopt_grants(traffic)
         self._inbox: list[Input] = []
+        self._left_at: dict[str, int] = {}  # robot -> link losses when its token vanished
         self._lock = threading.Lock()
         if bus is not None:
             bus.subscribe_statuses(self._on_status)
@@ -227,7 +240,18 @@ class Coordinator:
 
     def _on_leave(self, robot: str) -> None:
         if robot not in self.local_robots:
+            if self.link_losses is not None:
+                self._left_at[robot] = self.link_losses()
             self._put(("leave", robot))
+
+    def _left_with_link(self, robot: str) -> bool:
+        """The token of ``robot`` vanished when this process lost its router (see the class)."""
+        if self.link_losses is None:
+            return False
+        if self._left_at.pop(robot, -1) == self.link_losses():
+            return False
+        logger.info("robot %s's token went with this process's bus link: not a leave", robot)
+        return True
 
     def _put(self, item: Input) -> None:
         with self._lock:
@@ -258,7 +282,7 @@ class Coordinator:
                 self.state.observe(item[1].robot, now, observation_from_record(item[1]))
             elif item[0] == "join":
                 self.state.robot_joined(item[1], now)
-            else:
+            elif not self._left_with_link(item[1]):
                 self.state.robot_left(item[1], now)
         orders = self.state.step(now)
         self._resend_grants(now)

@@ -36,6 +36,11 @@ on the bus at most that often (simulated time, from the records' ``t``): a recor
 when at least ``1 / status_hz`` s passed since the last one published; ``None`` publishes every
 tick. ``on_status`` (an in-process coordinator) still gets every tick's record.
 
+Bus loss: :meth:`RobotAgent.set_link_lost` (called by the runner's bus-loss watchdog, see
+:class:`fleet.bus.link.LinkWatch`) stops the tree like a safety stop (the running goal is
+canceled, the robot stands, ``mode = "safety_stop"``, ``link_stops`` counts it) until the link
+is back; the blackboard keeps the task, so the tree resumes it then.
+
 Pause and emergency stop (``fleet/control/state``, :class:`~fleet.messages.FleetControl`,
 or :meth:`RobotAgent.set_control` in-process): while the fleet is paused or its e-stop is
 latched the agent stops its tree (the running goal is canceled), does not tick it, and
@@ -50,7 +55,7 @@ import logging
 import math
 import threading
 from collections.abc import Callable, Iterable, Sequence
-from typing import TYPE_CHECKING, NamedTuple, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, NamedTuple
 
 from fleet.diagnostics import (
     Diagnostic,
@@ -62,6 +67,7 @@ from fleet.diagnostics import (
     worst,
 )
 from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
+from fleet.runtime.agent_bus import AgentBus, ControlBus, Declared
 from fleet.runtime.order_gate import OrderGate
 from fleet.runtime.watched import WatchedBackend, wake_aware
 from fleet.types import Mode, Pose2D, RobotState, TaskKind, TreeKind
@@ -78,32 +84,6 @@ logger = logging.getLogger(__name__)
 
 #: Remember this many applied order ids (older ones are forgotten first).
 SEEN_IDS = 256
-
-
-class Declared(Protocol):
-    """Something declared on the bus (a subscription, a liveliness token)."""
-
-    def undeclare(self) -> None: ...
-
-
-class AgentBus(Protocol):
-    """What an agent needs of the bus (:class:`fleet.bus.status_bus.StatusBus` has it)."""
-
-    def publish_status(self, rec: StatusRecord) -> None: ...
-
-    def subscribe_tasks(self, robot: str, callback: Callable[[TaskMessage], None]) -> Declared: ...
-
-    def subscribe_grants(self, robot: str, callback: Callable[[Grant], None]) -> Declared: ...
-
-    def declare_alive(self, robot: str) -> Declared: ...
-
-
-@runtime_checkable
-class ControlBus(Protocol):
-    """A bus that also carries the fleet's control state (:class:`StatusBus` does); an
-    :class:`AgentBus` without it leaves pause and e-stop to in-process delivery."""
-
-    def subscribe_control(self, callback: Callable[[FleetControl], None]) -> Declared: ...
 
 
 class RobotAgent:
@@ -211,6 +191,10 @@ class RobotAgent:
         self._control: FleetControl | None = None
         #: The tree is stopped: the fleet is paused or its e-stop latched (see the module docstring).
         self.halted: str | None = None
+        #: Why the bus-loss watchdog holds the robot (``""``: it does not); see :meth:`set_link_lost`.
+        self.link_lost = ""
+        #: Times the bus-loss watchdog stopped the robot.
+        self.link_stops = 0
         self._token: Declared | None = None
         self._sub: Declared | None = None
         self._grant_sub: Declared | None = None
@@ -342,6 +326,21 @@ class RobotAgent:
             bb.charge_now = True
         return True
 
+    def set_link_lost(self, reason: str) -> None:
+        """The bus-loss watchdog: ``reason`` (non-empty) stops the tree now (the running goal is
+        canceled: the robot stands) and keeps it stopped; ``""`` lets the next :meth:`tick` run
+        it again from the blackboard's task. Call from the ticking thread."""
+        if reason and not self.link_lost:
+            logger.warning("robot %s: stopped: %s", self.name, reason)
+            self._stop_tree()
+            self.link_stops += 1
+            self.bb.mode = Mode.SAFETY_STOP
+            self.bb.active_leaf = "BusWatchdog"
+        elif not reason and self.link_lost:
+            logger.warning("robot %s: bus link back: resuming", self.name)
+            self.bb.mode = Mode.IDLE
+        self.link_lost = reason
+
     # -- ticking -----------------------------------------------------------------------
 
     def _default_charger(self, pose: Pose2D | None) -> None:
@@ -382,6 +381,10 @@ class RobotAgent:
                 self._stop_tree()
             self.halted = halt
             self.bb.mode = halt
+        elif self.link_lost:
+            self.halted = None
+            self.bb.mode = Mode.SAFETY_STOP
+            self.bb.active_leaf = "BusWatchdog"
         elif reason:
             self.halted = None
             if not was:

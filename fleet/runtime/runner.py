@@ -58,6 +58,7 @@ if TYPE_CHECKING:
     import zenoh
 
     from fleet.bus.lease import CoordinatorLease, LeaseWatch
+    from fleet.bus.link import LinkWatch
     from fleet.bus.session import Secure
     from fleet.bus.status_bus import StatusBus
     from fleet.coordination.coordinator import Coordinator
@@ -135,6 +136,12 @@ class FleetRunner:
     Raises :class:`~fleet.errors.ConfigError` for an unknown backend or robot, a negative
     speed, a non-positive duration, or a bad ``api`` address.
     """
+
+    #: The bus-loss watchdog of a connecting runner (``None`` for one that listens): it stops
+    #: the local robots while the link is lost (``bus.link_timeout_s``, ``docs/faults.md``) and
+    #: tells the coordinator which liveliness losses were this process's own.
+    link: LinkWatch | None = None
+    _link_reason = ""
 
     # long: one attribute per part of the run, each set once here
     def __init__(
@@ -237,6 +244,10 @@ class FleetRunner:
         session = open_session(self.endpoint, "router" if listen else "client", secure=self.secure)
         interrupted = False
         try:
+            if not listen:
+                from fleet.bus.link import LinkWatch
+
+                self.link = LinkWatch(session, self.config.link_timeout_s)
             world = self._setup(factory, session)
             try:
                 self._loop(world)
@@ -318,7 +329,7 @@ class FleetRunner:
             self.traffic_policy = traffic_from_config(self.config)
         token = self.secure.keyring().api_token() if self.secure is not None and self.api else None
         self.host = host = ServiceHost(self.config, world.clock, self.state_dir, self.api, api_token=token)
-        self.lease = _take_lease(bus.session, host, self.endpoint)
+        self.lease = host.take_lease(bus.session, self.endpoint)
         coordinator = Coordinator(
             self.config,
             bus,
@@ -329,6 +340,9 @@ class FleetRunner:
             first_id=host.service.first_assignment_id,
             epoch=self.lease.epoch,
         )
+        link = self.link
+        if link is not None:
+            coordinator.link_losses = lambda: link.losses
         host.service.attach(coordinator.state)
         return coordinator
 
@@ -395,6 +409,8 @@ class FleetRunner:
         next_show = self._wall.now() + display.interval_s
         try:
             while not self.stop_event.is_set():
+                if self.link is not None:
+                    self._watch_link(self.link)
                 now = clock.now()
                 if ticks.finished(now):
                     break
@@ -413,6 +429,15 @@ class FleetRunner:
         finally:
             self._t_end = clock.now()  # a remote world's clock runs on while the run closes
             display.close(self.snapshot())
+
+    def _watch_link(self, link: LinkWatch) -> None:
+        """The bus-loss watchdog: stop every local robot while the bus link is lost for longer
+        than ``bus.link_timeout_s``, let them resume when it is back."""
+        reason = link.check()
+        if reason != self._link_reason:
+            self._link_reason = reason
+            for a in self.agents:
+                a.set_link_lost(reason)
 
     def _pace(self, pacer: Pacer) -> None:
         """Wait for real time to catch up (``speed``), reacting to commands meanwhile."""
@@ -550,18 +575,6 @@ class FleetRunner:
             session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves Session.close unannotated
         except Exception as e:  # noqa: BLE001 - already closed by the bus
             logger.debug("closing the session: %s", e)
-
-
-def _take_lease(session: zenoh.Session, host: ServiceHost, endpoint: str) -> CoordinatorLease:
-    """The coordinator lease with the next epoch after the durable book's (kept there)."""
-    from fleet.bus.lease import acquire_coordinator_lease, next_epoch
-
-    store = host.service.store
-    epoch = next_epoch(store.counter("epoch") if store is not None else 0)
-    lease = acquire_coordinator_lease(session, epoch, endpoint)
-    if store is not None:
-        store.raise_counter("epoch", epoch)
-    return lease
 
 
 def _sum_counts(counts: Iterable[Mapping[str, int]]) -> dict[str, int]:

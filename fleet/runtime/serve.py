@@ -7,7 +7,9 @@ publishes the robots' states and the simulated clock ``publish_hz`` times per wa
 callback (``fleet sim`` shows it with :mod:`fleet.viz.display`). It follows the fleet's
 control state on the bus (``fleet/control/state``): while the coordinator's e-stop is latched,
 every robot is stalled before each step (:class:`fleet.runtime.latch.WorldLatch`), whatever
-its agent sends.
+its agent sends. With ``state_dir`` it keeps the simulator's snapshot there
+(:mod:`fleet.runtime.snapshot`) and starts from the one it finds: a ``fleet sim`` killed and
+started again puts its robots back where they were.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import zenoh
@@ -29,6 +32,7 @@ from fleet.clock import Pacer, WallClock
 from fleet.config.model import FleetConfig
 from fleet.errors import BackendError
 from fleet.runtime.latch import Latch, WorldLatch
+from fleet.runtime.snapshot import SNAPSHOT_EVERY_S, SNAPSHOT_FILE, SimSnapshot, read, take, write
 
 if TYPE_CHECKING:
     from fleet.bus.session import Secure
@@ -64,15 +68,40 @@ class ServeProgress:
     malformed: int = 0
 
 
-def simulator_from_config(config: FleetConfig) -> Simulator:
-    """A :class:`sim.simulator.Simulator` with every robot of a fleet config."""
+def simulator_from_config(config: FleetConfig, snapshot: SimSnapshot | None = None) -> Simulator:
+    """A :class:`sim.simulator.Simulator` with every robot of a fleet config; with a
+    ``snapshot``, its clock starts at the snapshot's time and its robots at their saved poses
+    and batteries (a robot whose saved pose is not free starts at its configured start)."""
     from fleet.clock import SimClock
     from sim.simulator import Simulator
 
-    sim = Simulator(config.grid, config.sim, SimClock())
+    sim = Simulator(config.grid, config.sim, SimClock(snapshot.t if snapshot is not None else 0.0))
     for spec in config.robots:
-        sim.add_robot(spec)
+        if snapshot is None:
+            sim.add_robot(spec)
+            continue
+        try:
+            sim.add_robot(snapshot.respec(spec))
+        except BackendError as e:
+            logger.warning("%s starts at its configured pose: %s", spec.name, e)
+            sim.add_robot(spec)
     return sim
+
+
+def resume_simulator(config: FleetConfig, state_dir: Path) -> Simulator:
+    """The simulator of ``config`` resumed from the snapshot in ``state_dir`` (fresh if there
+    is none; the directory is created). Raises :class:`~fleet.errors.ConfigError` for a file
+    there that is not a snapshot of this fleet."""
+    state_dir.mkdir(parents=True, exist_ok=True)
+    snap = read(state_dir / SNAPSHOT_FILE, config.name)
+    if snap is not None:
+        logger.warning(
+            "resuming the simulator from %s: t=%.1f s, %d robots at their saved poses",
+            state_dir / SNAPSHOT_FILE,
+            snap.t,
+            len(snap.robots),
+        )
+    return simulator_from_config(config, snap)
 
 
 @contextmanager
@@ -101,6 +130,7 @@ def serve_simulator(
     quiet: bool = False,
     progress: Callable[[ServeProgress], None] | None = None,
     progress_every_s: float = 10.0,
+    state_dir: Path | None = None,
 ) -> ServeResult:
     """Step ``simulator`` at ``speed`` x real time (``0``: as fast as possible) and serve it
     with a :class:`SimNavServer` until ``duration`` simulated seconds passed (``None``:
@@ -111,7 +141,9 @@ def serve_simulator(
     (:class:`~fleet.errors.BusError` if it cannot be); with ``secure`` it enforces the key
     directory's credentials and access control (``docs/security.md``). Requests are applied before every step;
     states and the clock are published ``publish_hz`` times per wall second. Unless ``quiet``,
-    ``progress`` is called every ``progress_every_s`` wall seconds. Raises
+    ``progress`` is called every ``progress_every_s`` wall seconds. With ``state_dir`` the
+    simulator (built from a config) resumes from the snapshot there, and a snapshot is written
+    every :data:`~fleet.runtime.snapshot.SNAPSHOT_EVERY_S` wall seconds and at the end. Raises
     :class:`~fleet.errors.BackendError` for a negative or infinite ``speed``.
     """
     from fleet.bus.session import open_session
@@ -119,11 +151,19 @@ def serve_simulator(
 
     if speed < 0 or not math.isfinite(speed):
         raise BackendError(f"speed must be >= 0, got {speed}")
-    sim = simulator_from_config(simulator) if isinstance(simulator, FleetConfig) else simulator
+    if isinstance(simulator, FleetConfig):
+        config: FleetConfig | None = simulator
+        sim = (
+            simulator_from_config(simulator) if state_dir is None else resume_simulator(simulator, state_dir)
+        )
+    else:
+        config, sim = None, simulator
     stop = stop_event or threading.Event()
     sess = open_session(endpoint or DEFAULT_ENDPOINT, "router", secure=secure) if session is None else session
     server: SimNavServer | None = None
     loop = _ServeLoop(sim, speed, duration, stop, 1.0 / publish_hz)
+    if state_dir is not None and config is not None:
+        loop.snapshots = _Snapshots(sim, config, state_dir)
     bus = StatusBus(sess)
     try:
         bus.subscribe_control(loop.latch.latch.follow)  # the e-stop latch, from the coordinator
@@ -161,6 +201,8 @@ class _ServeLoop:
         self.interrupted = False
         #: The e-stop latch below every agent, applied before each step (``fleet.runtime.latch``).
         self.latch = WorldLatch(Latch(), sim)
+        #: Where the simulator's snapshot goes (``None``: nowhere).
+        self.snapshots: _Snapshots | None = None
 
     def wall_s(self) -> float:
         return self.wall.now() - self.w0
@@ -192,6 +234,8 @@ class _ServeLoop:
                 server.process()
                 server.publish()
                 next_pub = max(next_pub + self.period_s, w)
+                if self.snapshots is not None:
+                    self.snapshots.maybe(w)
                 if progress is not None and w >= next_progress:
                     progress(
                         ServeProgress(
@@ -203,4 +247,28 @@ class _ServeLoop:
             self.interrupted = True
         server.process()
         server.publish()
+        if self.snapshots is not None:
+            self.snapshots.save()
         self.interrupted = self.interrupted or self.stop.is_set()
+
+
+class _Snapshots:
+    """Writes the simulator's snapshot to ``state_dir`` every :data:`SNAPSHOT_EVERY_S` wall s."""
+
+    def __init__(self, sim: Simulator, config: FleetConfig, state_dir: Path) -> None:
+        self.sim = sim
+        self.fleet = config.name
+        self.names = {r.namespace: r.name for r in config.robots}
+        self.path = state_dir / SNAPSHOT_FILE
+        self.next_wall = 0.0
+
+    def maybe(self, wall: float) -> None:
+        if wall >= self.next_wall:
+            self.next_wall = wall + SNAPSHOT_EVERY_S
+            self.save()
+
+    def save(self) -> None:
+        try:
+            write(self.path, take(self.sim, self.fleet, self.names))
+        except OSError as e:  # a full disk must not stop the simulator
+            logger.warning("cannot write the simulator snapshot %s: %s", self.path, e)

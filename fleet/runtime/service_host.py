@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     import zenoh
 
     from fleet.api.server import ApiServer
+    from fleet.bus.lease import CoordinatorLease
     from fleet.bus.status_bus import StatusBus
     from fleet.config.model import FleetConfig
     from fleet.navigation import Clock
@@ -132,6 +133,18 @@ class ServiceHost:
                     port,
                 )
             self.api = ApiServer(create_app(self.service, token=self.api_token), host, port).start()
+
+    def take_lease(self, session: zenoh.Session, endpoint: str) -> CoordinatorLease:
+        """The coordinator lease with the next epoch after the durable book's (kept there);
+        raises :class:`~fleet.errors.LeaseError` if another coordinator holds one."""
+        from fleet.bus.lease import acquire_coordinator_lease, next_epoch
+
+        store = self.service.store
+        epoch = next_epoch(store.counter("epoch") if store is not None else 0)
+        lease = acquire_coordinator_lease(session, epoch, endpoint)
+        if store is not None:
+            store.raise_counter("epoch", epoch)
+        return lease
 
     def tick(self, now: float) -> None:
         """Re-publish the control state every :data:`CONTROL_REPUBLISH_S` fleet seconds."""

@@ -3,6 +3,7 @@ time), and the two built-in worlds: the in-process simulator and a simulator ser
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
@@ -14,6 +15,8 @@ from fleet.errors import BackendError, BusError
 from fleet.navigation import Clock, NavigationBackend
 from fleet.robots import RobotSpec
 
+logger = logging.getLogger(__name__)
+
 if TYPE_CHECKING:
     from fleet.bus.nav_client import ZenohNavBackend
 
@@ -21,8 +24,9 @@ if TYPE_CHECKING:
 CONNECT_TIMEOUT_S = 10.0
 
 
-#: A remote world whose simulator clock does not move for this long (wall s) ends the run.
-SIM_SILENT_S = 10.0
+#: A remote world whose simulator is silent this long (wall s) says so in the log (and
+#: again every as long), until it is back or ``bus.reconnect_s`` ends the run.
+SIM_SILENT_S = 5.0
 
 
 class World(Protocol):
@@ -116,7 +120,13 @@ class BlindWorld:
 
 
 class RemoteWorld(BlindWorld):
-    """Robots of a simulator served over Zenoh by ``fleet sim`` (see :mod:`fleet.bus.nav_server`)."""
+    """Robots of a simulator served over Zenoh by ``fleet sim`` (see :mod:`fleet.bus.nav_server`).
+
+    A simulator that goes silent (its process was killed, it hangs, the bus is down) is waited
+    for: the Zenoh client reconnects when a ``fleet sim`` listens again on the endpoint, and
+    the fleet clock holds until the restarted simulator's time passes it
+    (:class:`~fleet.bus.clock.BusClock`). Only after the config's ``bus.reconnect_s`` wall
+    seconds of silence does :meth:`advance` end the run."""
 
     remote = True
     #: ``fleet sim`` hosts the Zenoh router: the runner connects to it instead of listening.
@@ -142,6 +152,11 @@ class RemoteWorld(BlindWorld):
             )
         self._last = self.clock.now()
         self._last_wall = self._wall.now()
+        self._updates = self.clock.updates
+        self._warned_wall = self._last_wall
+        self.reconnect_s = config.reconnect_s
+        #: Times the simulator went silent for longer than :data:`SIM_SILENT_S` and came back.
+        self.outages = 0
 
     def malformed(self) -> int:
         """Payloads dropped unparsed: clock messages and robots' navigation states."""
@@ -164,13 +179,33 @@ class RemoteWorld(BlindWorld):
 
     def advance(self) -> None:
         """Wait up to 50 ms for the simulator's clock to move; raises :class:`BackendError`
-        when it has not moved for :data:`SIM_SILENT_S` wall seconds."""
-        if self.clock.wait_until(self._last + 1e-6, 0.05):
+        when no clock message came for ``bus.reconnect_s`` wall seconds (see the class)."""
+        moved = self.clock.wait_until(self._last + 1e-6, 0.05)
+        now = self._wall.now()
+        updates = self.clock.updates
+        if moved or updates != self._updates:  # a clock message: the simulator is there
+            silent = now - self._last_wall
+            if silent > SIM_SILENT_S:
+                self.outages += 1
+                logger.warning(
+                    "the simulator is back after %.1f s of silence (t=%.1f s)", silent, self.clock.now()
+                )
             self._last = self.clock.now()
-            self._last_wall = self._wall.now()
-        elif self._wall.now() - self._last_wall > SIM_SILENT_S:
+            self._last_wall = self._warned_wall = now
+            self._updates = updates
+            return
+        silent = now - self._last_wall
+        if self.reconnect_s is not None and silent > self.reconnect_s:
             raise BackendError(
-                f"the simulator's clock has not moved for {SIM_SILENT_S:g} s (did `fleet sim` stop?)"
+                f"no message from the simulator for {self.reconnect_s:g} s (did `fleet sim` stop? "
+                "bus.reconnect_s sets how long to wait)"
+            )
+        if now - self._warned_wall > SIM_SILENT_S:
+            self._warned_wall = now
+            logger.warning(
+                "no message from the simulator for %.0f s: waiting for `fleet sim` to come back on the "
+                "endpoint (Ctrl-C to stop)",
+                silent,
             )
 
     def close(self) -> None:

@@ -1,0 +1,59 @@
+"""The simulator's snapshot (``fleet sim --state DIR``): a simulator resumed from it starts at
+the saved time with every robot at its saved pose and battery; a file that is not a snapshot of
+this fleet is refused naming the file and the field."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from fleet_procs import PATROL
+
+from fleet.config.loader import load_config
+from fleet.errors import ConfigError
+from fleet.runtime.serve import resume_simulator, simulator_from_config
+from fleet.runtime.snapshot import SNAPSHOT_FILE, take, write
+from fleet.types import NavigateToPose, Pose2D
+
+
+def test_a_resumed_simulator_starts_where_the_snapshot_left_its_robots(tmp_path: Path) -> None:
+    config = load_config(PATROL)
+    sim = simulator_from_config(config)
+    ns = config.robots[0].namespace
+    start = sim.robot_state(ns).pose
+    assert start is not None
+    sim.send_goal(ns, NavigateToPose(Pose2D(start.x, start.y + 3.0, start.theta)))
+    for _ in range(100):
+        sim.step()
+    names = {r.namespace: r.name for r in config.robots}
+    snap = take(sim, config.name, names)
+    write(tmp_path / SNAPSHOT_FILE, snap)
+
+    again = resume_simulator(config, tmp_path)
+    assert again.clock.now() == pytest.approx(sim.clock.now())
+    for r in config.robots:
+        a, b = sim.robot_state(r.namespace), again.robot_state(r.namespace)
+        assert a.pose is not None and b.pose is not None
+        assert b.pose.distance_to(a.pose) < 1e-6 and b.battery == pytest.approx(a.battery)
+    moved = again.robot_state(ns).pose
+    assert moved is not None and moved.distance_to(start) > 0.5
+
+
+def test_no_snapshot_starts_from_the_config_and_a_bad_one_is_refused(tmp_path: Path) -> None:
+    config = load_config(PATROL)
+    fresh = resume_simulator(config, tmp_path / "new")
+    assert fresh.clock.now() == 0.0
+    path = tmp_path / SNAPSHOT_FILE
+    for doc, field in (
+        ({"version": 1, "fleet": "other", "t": 1.0, "robots": {}}, "fleet"),
+        ({"version": 1, "fleet": config.name, "t": "soon", "robots": {}}, "t"),
+        ({"version": 1, "fleet": config.name, "t": 1.0, "robots": {"robot1": {"x": 1.0}}}, "robots.robot1.y"),
+    ):
+        path.write_text(json.dumps(doc))
+        with pytest.raises(ConfigError) as e:
+            resume_simulator(config, tmp_path)
+        assert e.value.file == str(path) and e.value.field == field
+    path.write_text("{not json")
+    with pytest.raises(ConfigError, match="not a simulator snapshot"):
+        resume_simulator(config, tmp_path)
