@@ -309,8 +309,11 @@ def test_a_lone_clock_jump_is_dropped_and_a_confirmed_one_followed(net: Net) -> 
         put(CLOCK_KEY, ClockMsg(5000.0).to_json())  # the simulator really jumped
         put(CLOCK_KEY, ClockMsg(5000.1).to_json())
         wait_until(lambda: clock.now() == 5000.1, "the confirmed jump")
-        put(CLOCK_KEY, ClockMsg(0.0).to_json())  # a restarted simulator starts again
-        wait_until(lambda: clock.now() == 0.0, "the restarted clock")
+        put(CLOCK_KEY, ClockMsg(0.0).to_json())  # a restarted simulator starts again:
+        wait_until(lambda: clock.rewinds == 1, "the restarted clock")  # fleet time holds
+        assert clock.now() == 5000.1
+        put(CLOCK_KEY, ClockMsg(5000.2).to_json())  # until the simulator's time passes it
+        wait_until(lambda: clock.now() == 5000.2, "the caught-up clock")
         assert clock.rejected == 1 and clock.malformed == 0
     finally:
         clock.close()
@@ -345,7 +348,6 @@ def test_forged_simulator_states_and_clock_are_ignored(config: FleetConfig, net:
 def test_each_coordinator_taking_over_starts_a_higher_epoch_kept_in_its_book(
     tmp_path: Path, net: Net
 ) -> None:
-    from fleet.runtime.runner import _take_lease
     from fleet.runtime.service_host import ServiceHost
 
     assert next_epoch(5, now_s=0.0) == 6 and next_epoch(0, now_s=1000.0) == 1_000_000
@@ -354,7 +356,7 @@ def test_each_coordinator_taking_over_starts_a_higher_epoch_kept_in_its_book(
     for _ in range(3):  # a coordinator, restarted twice on the same durable task book
         host = ServiceHost(config, SimClock(), tmp_path / "book", None)
         try:
-            lease = _take_lease(net.router, host, net.endpoint)
+            lease = host.take_lease(net.router, net.endpoint)
             epochs.append(lease.epoch)
             lease.release()
             store = host.service.store
