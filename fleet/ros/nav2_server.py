@@ -80,6 +80,8 @@ PAUSED_TICK_S = 0.05
 MAP_QOS = QoSProfile(
     depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
 )
+#: Robots per DDS participant by default (``--shards``).
+ROBOTS_PER_SHARD = 25
 #: Exit status after SIGINT / SIGTERM (docs/cli.md).
 EXIT_INTERRUPTED = 130
 
@@ -108,6 +110,12 @@ class Nav2SimServer:
         nav_to_pose_xml, nav_through_poses_xml: the navigator trees of goals with an empty
             ``behavior_tree`` (default: the project's ``nodes/trees/navigate_to_pose.xml`` /
             ``navigate_through_poses.xml``).
+        shards: spread the robots' nodes over this many rclpy contexts, i.e. DDS
+            participants (robot ``k`` in shard ``k % shards``), each with its own executor,
+            all spun by the same thread in turn (the simulator stays one world, touched by
+            one thread). One participant carrying every robot's endpoints is what makes
+            discovery of hundreds of robots slow; see ``docs/ros.md``. Needs ``context``
+            unset when above 1.
 
     Call :meth:`spin` (blocks until :meth:`request_stop`, e.g. from a signal handler) or
     :meth:`spin_once` in your own loop, then :meth:`close`.
@@ -130,21 +138,29 @@ class Nav2SimServer:
         wall: Clock | None = None,
         nav_to_pose_xml: str | None = None,
         nav_through_poses_xml: str | None = None,
+        shards: int = 1,
     ) -> None:
         profile = Profile.parse(profile)
         if not speed >= 0 or speed == float("inf"):
             raise BackendError(f"speed must be a finite number >= 0, got {speed}")
+        if shards < 1 or (shards > 1 and context is not None):
+            raise BackendError(f"shards must be >= 1 (and 1 with a context passed in), got {shards}")
         self.sim = sim
         self.speed = float(speed)
         self.wall = wall if wall is not None else WallClock()
         self.pacer = Pacer(sim.clock, self.speed, wall=self.wall)
         feedback_period = 1.0 / feedback_hz if feedback_hz > 0 else None
         self._owns_context = context is None
-        if context is None:
-            context = Context()
-            rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
-        self.context = context
-        self.executor = SingleThreadedExecutor(context=context)
+        contexts = [context] if context is not None else []
+        while len(contexts) < shards:
+            ctx = Context()
+            rclpy.init(context=ctx, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+            contexts.append(ctx)
+        #: The rclpy contexts (one DDS participant each); the world node is in the first.
+        self.contexts: list[Context] = contexts
+        self.context = context = contexts[0]
+        self.executors = [SingleThreadedExecutor(context=c) for c in contexts]
+        self.executor = self.executors[0]
         self._stop = False
         #: Why the server stopped: ``"signal"``, ``"duration"`` (set by :func:`serve`), or ``""``.
         self.stopped_by = ""
@@ -153,12 +169,12 @@ class Nav2SimServer:
         t_create = self.wall.now()
         self.world = Node("fleet_sim", context=context, start_parameter_services=False, enable_rosout=False)
         self.robots: dict[str, RobotFacade] = {}
-        for ns in namespaces if namespaces is not None else list(sim.namespaces):
+        for k, ns in enumerate(namespaces if namespaces is not None else list(sim.namespaces)):
             sim.robot_state(ns)  # raises BackendError for an unknown robot
             self.robots[ns] = RobotFacade(
                 sim,
                 ns,
-                context,
+                contexts[k % shards],
                 profile,
                 stamp=self.stamp,
                 feedback_period=feedback_period,
@@ -170,9 +186,9 @@ class Nav2SimServer:
         #: Wall seconds it took to create every robot's interfaces.
         self.create_time_s = self.wall.now() - t_create
         self.executor.add_node(self.world)
-        for r in self.robots.values():
+        for k, r in enumerate(self.robots.values()):
             for node in r.nodes:
-                self.executor.add_node(node)
+                self.executors[k % shards].add_node(node)
         self.tf_pub = self.world.create_publisher(TFMessage, "/tf", 100)
         self.map_pub = self.world.create_publisher(GridMsg, "/map", MAP_QOS)
         self.diag_pub = self.world.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -258,8 +274,14 @@ class Nav2SimServer:
     # -- running --------------------------------------------------------------------------
 
     def spin_once(self, timeout_s: float = 0.1) -> None:
-        """Run at most one ready callback, waiting up to ``timeout_s`` wall seconds for one."""
-        self.executor.spin_once(timeout_sec=timeout_s)
+        """Run at most one ready callback of each shard, waiting up to ``timeout_s`` wall
+        seconds in all (split over the shards) for them."""
+        if len(self.executors) == 1:
+            self.executor.spin_once(timeout_sec=timeout_s)
+            return
+        each = timeout_s / len(self.executors)
+        for ex in self.executors:
+            ex.spin_once(timeout_sec=each)
 
     def request_stop(self) -> None:
         """Make :meth:`spin` return (safe from a signal handler or another thread)."""
@@ -268,7 +290,7 @@ class Nav2SimServer:
     @property
     def running(self) -> bool:
         """False once :meth:`request_stop` was called or the context was shut down."""
-        return not self._stop and self.context.ok()
+        return not self._stop and all(c.ok() for c in self.contexts)
 
     def spin(self) -> None:
         """Serve until :meth:`request_stop` (or the context shuts down)."""
@@ -280,14 +302,22 @@ class Nav2SimServer:
         for r in self.robots.values():
             r.destroy()
         self.world.destroy_node()
-        self.executor.shutdown(timeout_sec=1.0)
-        if self._owns_context and self.context.ok():
-            rclpy.shutdown(context=self.context)
+        for ex in self.executors:
+            ex.shutdown(timeout_sec=1.0)
+        if self._owns_context:
+            for c in self.contexts:
+                if c.ok():
+                    rclpy.shutdown(context=c)
 
     @property
     def served(self) -> list[str]:
         """The namespaces served."""
         return list(self.robots)
+
+
+def default_shards(robots: int) -> int:
+    """DDS participants for ``robots`` robots by default: one per :data:`ROBOTS_PER_SHARD`."""
+    return max(1, -(-robots // ROBOTS_PER_SHARD))
 
 
 def build_simulator(config_path: str, robots: int | None = None) -> Simulator:
@@ -362,6 +392,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="leave the Nav2 lifecycle nodes unconfigured until a manage_nodes STARTUP",
     )
     ap.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: the environment's)")
+    ap.add_argument(
+        "--shards",
+        type=int,
+        default=None,
+        help="DDS participants the robots' nodes are spread over (default: one per "
+        f"{ROBOTS_PER_SHARD} robots); discovery of hundreds of robots needs several",
+    )
     ap.add_argument("--ready-file", default=None, help="write a JSON line here once every server exists")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
     ap.add_argument(
@@ -393,6 +430,9 @@ def main(argv: list[str] | None = None) -> int:
     Returns the exit status: 0 after ``--duration``, 130 after Ctrl-C / SIGTERM, 2 for a bad
     config or argument."""
     args = build_parser().parse_args(argv)
+    if args.shards is not None and args.shards < 1:
+        print(f"error: --shards must be at least 1, got {args.shards}", file=sys.stderr)
+        return 2
     if args.duration is not None and not args.duration > 0:
         print(
             f"error: --duration must be a positive number of simulated seconds, got {args.duration}",
@@ -426,6 +466,7 @@ def main(argv: list[str] | None = None) -> int:
         duration_s=args.duration,
         nav_to_pose_xml=args.nav_to_pose_xml,
         nav_through_poses_xml=args.nav_through_poses_xml,
+        shards=args.shards if args.shards is not None else default_shards(len(cfg.robots)),
     )
     if args.truth:
         write_truth(sim, args.truth)
@@ -469,10 +510,11 @@ def serve(
     domain_id: int | None = None,
     nav_to_pose_xml: str | None = None,
     nav_through_poses_xml: str | None = None,
+    shards: int = 1,
 ) -> int:
     """Serve ``sim`` (the other arguments are :class:`Nav2SimServer`'s) until SIGINT/SIGTERM
     or ``duration_s`` simulated seconds have passed. Writes ``ready_file`` (JSON: pid, robots,
-    create_s, domain_id) once every server exists. Returns the process exit status: 0 after
+    create_s, domain_id, shards) once every server exists. Returns the process exit status: 0 after
     the duration, :data:`EXIT_INTERRUPTED` after a signal."""
     wall = WallClock()
     t0 = wall.now()
@@ -488,6 +530,7 @@ def serve(
         domain_id=domain_id,
         nav_to_pose_xml=nav_to_pose_xml,
         nav_through_poses_xml=nav_through_poses_xml,
+        shards=shards,
     )
 
     def _stop(_sig: int, _frame: FrameType | None) -> None:
@@ -501,9 +544,11 @@ def serve(
         "robots": server.served,
         "create_s": round(wall.now() - t0, 3),
         "domain_id": os.environ.get("ROS_DOMAIN_ID", "0"),
+        "shards": len(server.contexts),
     }
     print(
-        f"[sim-ros] serving {len(server.served)} robots as namespaced Nav2 (created in {info['create_s']} s, "
+        f"[sim-ros] serving {len(server.served)} robots as namespaced Nav2 over {info['shards']} DDS "
+        f"participant(s) (created in {info['create_s']} s, "
         f"ROS_DOMAIN_ID={info['domain_id']}); Ctrl-C stops",
         flush=True,
     )
