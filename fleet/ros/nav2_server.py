@@ -16,13 +16,15 @@ robot's name) and ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``: each ro
 localization, motion and navigation checks of :mod:`fleet.diagnostics`, and each lifecycle
 manager's health) at ``--diagnostics-hz``.
 
-This module is the server process: :class:`Nav2SimServer` owns the rclpy context, one
-``SingleThreadedExecutor`` and the simulator's time; :func:`serve` runs it until a signal;
-:func:`main` is the command line.
+This module is the server process: :class:`Nav2SimServer` owns the rclpy contexts (one DDS
+participant each, ``--shards``; one by default up to :data:`ROBOTS_PER_SHARD` robots), one
+single-threaded executor per context (:mod:`fleet.ros.shards`) and the simulator's time;
+:func:`serve` runs it until a signal; :func:`main` is the command line.
 
-Threading: everything (ROS callbacks, stepping the simulator) runs on one thread; execute
-callbacks are coroutines that await the simulator's verdict, so the simulator is never
-touched concurrently. Time: a timer steps the simulator so that simulated time follows wall
+Threading: with one shard everything (ROS callbacks, stepping the simulator) runs on one
+thread; with more, each further shard's executor waits for work in a thread of its own, but
+every callback runs holding one lock. Execute callbacks are coroutines that await the
+simulator's verdict, so the simulator is never touched concurrently. Time: a timer steps the simulator so that simulated time follows wall
 time times ``speed``, paced by the project's one real-time pacer, :class:`fleet.clock.Pacer`
 (the only wall-clock reads, besides the wall-clock publication rates).
 
@@ -45,15 +47,12 @@ from fleet.ros.env import apply_ros_env_defaults
 
 apply_ros_env_defaults()
 
-import rclpy  # noqa: E402
 from builtin_interfaces.msg import Time  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 from nav_msgs.msg import OccupancyGrid as GridMsg  # noqa: E402
 from rclpy.context import Context  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from rclpy.signals import SignalHandlerOptions  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 
 from fleet.clock import Pacer, WallClock  # noqa: E402
@@ -64,6 +63,7 @@ from fleet.navigation import Clock  # noqa: E402
 from fleet.ros.conversions import pose2d_to_pose, seconds_to_time  # noqa: E402
 from fleet.ros.lifecycle import LIFECYCLE_NODES  # noqa: E402
 from fleet.ros.nav2_facade import Profile, RobotFacade  # noqa: E402
+from fleet.ros.shards import Shards  # noqa: E402
 from fleet.types import Pose2D  # noqa: E402
 from nodes.bt_xml import parse_file  # noqa: E402
 
@@ -111,9 +111,9 @@ class Nav2SimServer:
             ``behavior_tree`` (default: the project's ``nodes/trees/navigate_to_pose.xml`` /
             ``navigate_through_poses.xml``).
         shards: spread the robots' nodes over this many rclpy contexts, i.e. DDS
-            participants (robot ``k`` in shard ``k % shards``), each with its own executor,
-            all spun by the same thread in turn (the simulator stays one world, touched by
-            one thread). One participant carrying every robot's endpoints is what makes
+            participants (robot ``k`` in shard ``k % shards``), each with its own executor
+            and thread, callbacks serialized by one lock (:mod:`fleet.ros.shards`: the
+            simulator stays one world, touched by one callback at a time). One participant carrying every robot's endpoints is what makes
             discovery of hundreds of robots slow; see ``docs/ros.md``. Needs ``context``
             unset when above 1.
 
@@ -145,29 +145,24 @@ class Nav2SimServer:
             raise BackendError(f"speed must be a finite number >= 0, got {speed}")
         if shards < 1 or (shards > 1 and context is not None):
             raise BackendError(f"shards must be >= 1 (and 1 with a context passed in), got {shards}")
+        self.shards = Shards(shards, domain_id, context)  # the DDS participants (fleet.ros.shards)
         self.sim = sim
         self.speed = float(speed)
         self.wall = wall if wall is not None else WallClock()
         self.pacer = Pacer(sim.clock, self.speed, wall=self.wall)
         feedback_period = 1.0 / feedback_hz if feedback_hz > 0 else None
-        self._owns_context = context is None
-        contexts = [context] if context is not None else []
-        while len(contexts) < shards:
-            ctx = Context()
-            rclpy.init(context=ctx, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
-            contexts.append(ctx)
-        #: The rclpy contexts (one DDS participant each); the world node is in the first.
-        self.contexts: list[Context] = contexts
-        self.context = context = contexts[0]
-        self.executors = [SingleThreadedExecutor(context=c) for c in contexts]
-        self.executor = self.executors[0]
+        contexts = self.contexts = self.shards.contexts  # the world node's is the first
+        self.executors = self.shards.executors
+        self.context, self.executor = contexts[0], self.executors[0]
         self._stop = False
         #: Why the server stopped: ``"signal"``, ``"duration"`` (set by :func:`serve`), or ``""``.
         self.stopped_by = ""
         #: Simulated time the world does not step beyond (``serve``'s ``duration_s``).
         self.end_time: float | None = None
         t_create = self.wall.now()
-        self.world = Node("fleet_sim", context=context, start_parameter_services=False, enable_rosout=False)
+        self.world = Node(
+            "fleet_sim", context=self.context, start_parameter_services=False, enable_rosout=False
+        )
         self.robots: dict[str, RobotFacade] = {}
         for k, ns in enumerate(namespaces if namespaces is not None else list(sim.namespaces)):
             sim.robot_state(ns)  # raises BackendError for an unknown robot
@@ -205,6 +200,7 @@ class Nav2SimServer:
             self.world.create_timer(1.0 / diagnostics_hz, self.publish_diagnostics)
         self._publish_amcl()
         self.pacer.start()
+        self.shards.start()
 
     # -- time -----------------------------------------------------------------------------
 
@@ -274,14 +270,10 @@ class Nav2SimServer:
     # -- running --------------------------------------------------------------------------
 
     def spin_once(self, timeout_s: float = 0.1) -> None:
-        """Run at most one ready callback of each shard, waiting up to ``timeout_s`` wall
-        seconds in all (split over the shards) for them."""
-        if len(self.executors) == 1:
-            self.executor.spin_once(timeout_sec=timeout_s)
-            return
-        each = timeout_s / len(self.executors)
-        for ex in self.executors:
-            ex.spin_once(timeout_sec=each)
+        """Run at most one ready callback of the first shard (the world node's, and its
+        robots'), waiting up to ``timeout_s`` wall seconds for one; the other shards spin in
+        threads of their own (callbacks never run concurrently)."""
+        self.shards.spin_once(timeout_s)
 
     def request_stop(self) -> None:
         """Make :meth:`spin` return (safe from a signal handler or another thread)."""
@@ -290,7 +282,7 @@ class Nav2SimServer:
     @property
     def running(self) -> bool:
         """False once :meth:`request_stop` was called or the context was shut down."""
-        return not self._stop and all(c.ok() for c in self.contexts)
+        return not self._stop and self.shards.ok()
 
     def spin(self) -> None:
         """Serve until :meth:`request_stop` (or the context shuts down)."""
@@ -299,15 +291,11 @@ class Nav2SimServer:
 
     def close(self) -> None:
         """Abort nothing, destroy every node, shut the context down (if the server owns it)."""
+        self.shards.stop()
         for r in self.robots.values():
             r.destroy()
         self.world.destroy_node()
-        for ex in self.executors:
-            ex.shutdown(timeout_sec=1.0)
-        if self._owns_context:
-            for c in self.contexts:
-                if c.ok():
-                    rclpy.shutdown(context=c)
+        self.shards.close()
 
     @property
     def served(self) -> list[str]:

@@ -86,3 +86,22 @@ def test_robots_of_other_participants_drive_in_the_one_world(
     for ns, p in goals.items():
         x, y, _ = truth[ns]["pose"]
         assert abs(x - p.x) < 0.3 and abs(y - p.y) < 0.3, (ns, truth[ns]["pose"])
+
+
+def test_a_goal_is_sent_once_whoever_sends_it_first(backends: RosBackends) -> None:
+    """``send_goal`` queues the request and the backend's watchdog may send it first: the
+    queued send then does nothing (twice sent, the second request preempted the first)."""
+    from fleet.ros.remote_goal import RemoteGoal
+
+    b = backends["/robot1"]
+    rec = RemoteGoal("/robot1#x", "wait", Wait(0.5))
+    rec.handle = object()  # type: ignore[assignment]  # "request sent"
+
+    def no_client(kind: str) -> None:
+        raise AssertionError(f"a second {kind} request was sent")
+
+    b._client = no_client  # type: ignore[method-assign,assignment]
+    try:
+        b._send_remote(rec)
+    finally:
+        del b._client
