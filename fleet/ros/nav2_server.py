@@ -17,7 +17,7 @@ localization, motion and navigation checks of :mod:`fleet.diagnostics`, and each
 manager's health) at ``--diagnostics-hz``.
 
 This module is the server process: :class:`Nav2SimServer` owns the rclpy contexts (one DDS
-participant each, ``--shards``; one by default up to :data:`ROBOTS_PER_SHARD` robots), one
+participant each, ``--shards``, one by default), one
 single-threaded executor per context (:mod:`fleet.ros.shards`) and the simulator's time;
 :func:`serve` runs it until a signal; :func:`main` is the command line.
 
@@ -80,8 +80,6 @@ PAUSED_TICK_S = 0.05
 MAP_QOS = QoSProfile(
     depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
 )
-#: Robots per DDS participant by default (``--shards``).
-ROBOTS_PER_SHARD = 25
 #: Exit status after SIGINT / SIGTERM (docs/cli.md).
 EXIT_INTERRUPTED = 130
 
@@ -113,8 +111,7 @@ class Nav2SimServer:
         shards: spread the robots' nodes over this many rclpy contexts, i.e. DDS
             participants (robot ``k`` in shard ``k % shards``), each with its own executor
             and thread, callbacks serialized by one lock (:mod:`fleet.ros.shards`: the
-            simulator stays one world, touched by one callback at a time). One participant carrying every robot's endpoints is what makes
-            discovery of hundreds of robots slow; see ``docs/ros.md``. Needs ``context``
+            simulator stays one world, touched by one callback at a time). Needs ``context``
             unset when above 1.
 
     Call :meth:`spin` (blocks until :meth:`request_stop`, e.g. from a signal handler) or
@@ -303,11 +300,6 @@ class Nav2SimServer:
         return list(self.robots)
 
 
-def default_shards(robots: int) -> int:
-    """DDS participants for ``robots`` robots by default: one per :data:`ROBOTS_PER_SHARD`."""
-    return max(1, -(-robots // ROBOTS_PER_SHARD))
-
-
 def build_simulator(config_path: str, robots: int | None = None) -> Simulator:
     """Load a fleet config and make a simulator with its robots (``robots`` overrides the count)."""
     from fleet.config.loader import load_config
@@ -383,9 +375,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument(
         "--shards",
         type=int,
-        default=None,
-        help="DDS participants the robots' nodes are spread over (default: one per "
-        f"{ROBOTS_PER_SHARD} robots); discovery of hundreds of robots needs several",
+        default=1,
+        help="DDS participants the robots' nodes are spread over (default 1; see docs/ros.md, "
+        "Scale: more did not make discovery faster here)",
     )
     ap.add_argument("--ready-file", default=None, help="write a JSON line here once every server exists")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
@@ -418,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
     Returns the exit status: 0 after ``--duration``, 130 after Ctrl-C / SIGTERM, 2 for a bad
     config or argument."""
     args = build_parser().parse_args(argv)
-    if args.shards is not None and args.shards < 1:
+    if args.shards < 1:
         print(f"error: --shards must be at least 1, got {args.shards}", file=sys.stderr)
         return 2
     if args.duration is not None and not args.duration > 0:
@@ -454,7 +446,7 @@ def main(argv: list[str] | None = None) -> int:
         duration_s=args.duration,
         nav_to_pose_xml=args.nav_to_pose_xml,
         nav_through_poses_xml=args.nav_through_poses_xml,
-        shards=args.shards if args.shards is not None else default_shards(len(cfg.robots)),
+        shards=args.shards,
     )
     if args.truth:
         write_truth(sim, args.truth)

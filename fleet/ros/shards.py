@@ -1,12 +1,15 @@
 """The server's DDS participants: the robots' nodes spread over several rclpy contexts.
 
-One rclpy :class:`~rclpy.context.Context` is one DDS participant, and FastDDS discovery
-between two participants carrying thousands of endpoints each grows faster than linearly
-(``docs/ros.md``, "Scale"): 100 robots in one participant took 125 s to be discovered.
-:class:`Shards` makes ``K`` contexts, each with its own executor; the caller spins the first
-one (the world node's), a thread spins each of the others, and every callback of every
-executor runs holding one lock, so the simulator behind them is still touched by one callback
-at a time (only the waiting for work runs in parallel). Imported by the server only.
+One rclpy :class:`~rclpy.context.Context` is one DDS participant. :class:`Shards` makes ``K``
+contexts, each with its own executor; the caller spins the first one (the world node's), a
+thread spins each of the others, and every callback of every executor runs holding one lock,
+so the simulator behind them is still touched by one callback at a time (only the waiting
+for work runs in parallel). Imported by the server only.
+
+Measured here (``docs/ros.md``, "Scale"): with FastDDS's simple discovery, spreading 100
+robots over 4 participants (and the client over 4) made discovery slower, not faster: every
+participant announces all its endpoints to every other, so the discovery traffic grows with
+the participants. The default is one.
 """
 
 from __future__ import annotations
