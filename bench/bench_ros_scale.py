@@ -7,13 +7,14 @@ CONFIG --robots N`` in a child process and measure
   * create_s: creating the N facades (nodes, action servers, services) in the server;
   * server_rss_mb: the server's resident memory once ready;
   * discover_s: in this process, from creating N RosNavigationBackends (one lean node each,
-    one shared executor thread) until every robot's 7 action servers are discovered;
+    in as many rclpy contexts, i.e. DDS participants, as the server's --shards, one executor
+    thread each) until every robot's 7 action servers are discovered;
   * wait_all_s: sending one Wait(0.5 s) goal to every robot at once until all SUCCEEDED
     (the goal round trip under load, at --speed 1);
   * client_rss_mb: this process's resident memory growth.
 Private ROS domain, loopback, the fleet's FastDDS discovery profile.
 
-Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full]
+Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full] [--shards 1,8]
        [--config configs/warehouse_patrol_30.yaml] [--json out/bench_ros_scale.json]
 """
 
@@ -41,11 +42,11 @@ def rss_mb(pid: int | str = "self") -> float:
     return float("nan")
 
 
-def one(config: str, n: int, profile: str, timeout_s: float) -> dict[str, float | int | str]:
+def one(config: str, n: int, profile: str, timeout_s: float, shards: int = 1) -> dict[str, float | int | str]:
     from fleet.ros.backend import make_ros_backends
     from fleet.types import GoalStatus, Wait
 
-    row: dict[str, float | int | str] = {"robots": n, "profile": profile}
+    row: dict[str, float | int | str] = {"robots": n, "profile": profile, "shards": shards}
     with ServerProcess.for_config(
         config,
         "--robots",
@@ -56,6 +57,8 @@ def one(config: str, n: int, profile: str, timeout_s: float) -> dict[str, float 
         "2",
         "--amcl-hz",
         "0.5",
+        "--shards",
+        str(shards),
         ready_timeout_s=timeout_s,
     ) as srv:
         row["create_s"] = srv.info["create_s"]
@@ -63,15 +66,19 @@ def one(config: str, n: int, profile: str, timeout_s: float) -> dict[str, float 
         row["server_rss_mb"] = round(rss_mb(srv.proc.pid), 1)
         rss0 = rss_mb()
         t0 = time.monotonic()
-        rb = make_ros_backends([f"/robot{i + 1}" for i in range(n)])
+        names = [f"/robot{i + 1}" for i in range(n)]
+        # the client side in as many participants (contexts) as the server side
+        groups = [make_ros_backends(names[k::shards]) for k in range(min(shards, n))]
+        rb = {ns: g[ns] for g in groups for ns in g.backends}
         row["client_create_s"] = round(time.monotonic() - t0, 3)
-        missing = rb.wait_for_servers(timeout_s)
+        deadline = time.monotonic() + timeout_s
+        missing = [m for g in groups for m in g.wait_for_servers(max(0.0, deadline - time.monotonic()))]
         row["discover_s"] = round(time.monotonic() - t0, 3) if not missing else float("nan")
         row["missing"] = len(missing)
         try:
             if not missing:
                 t1 = time.monotonic()
-                ids = {ns: b.send_goal(Wait(0.5)) for ns, b in rb.backends.items()}
+                ids = {ns: b.send_goal(Wait(0.5)) for ns, b in rb.items()}
                 while time.monotonic() - t1 < timeout_s:
                     if all(rb[ns].goal_state(g).status.terminal for ns, g in ids.items()):
                         break
@@ -81,7 +88,8 @@ def one(config: str, n: int, profile: str, timeout_s: float) -> dict[str, float 
                 row["wait_ok"] = ok
             row["client_rss_mb"] = round(rss_mb() - rss0, 1)
         finally:
-            rb.close()
+            for g in groups:
+                g.close()
     return row
 
 
@@ -91,6 +99,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--profile", default="lean,full")
     ap.add_argument("--config", default=str(ROOT / "configs" / "warehouse_patrol_30.yaml"))
     ap.add_argument("--timeout", type=float, default=120.0)
+    ap.add_argument(
+        "--shards",
+        default="1",
+        help="comma-separated DDS participant counts of the server (fleet sim-ros --shards), one run each",
+    )
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     # SIGTERM (e.g. `timeout`) unwinds like Ctrl-C so the server child is stopped
@@ -100,9 +113,10 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for profile in args.profile.split(","):
         for n in (int(x) for x in args.robots.split(",")):
-            row = one(args.config, n, profile, args.timeout)
-            rows.append(row)
-            print(json.dumps(row), flush=True)
+            for shards in (int(x) for x in args.shards.split(",")):
+                row = one(args.config, n, profile, args.timeout, shards)
+                rows.append(row)
+                print(json.dumps(row), flush=True)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")

@@ -11,7 +11,9 @@ excluded from the timing (``setup_wall_s``); later goals (re-planned patrol laps
 the timed loop. The headline figure is ``N * K / wall seconds of the K timed steps`` including
 the goal polling (``goal_state`` of every robot at ``poll_hz``), as in ``bench/sumo_steps.py``;
 ``step_only_*`` counts the time inside ``Simulator.step()`` alone and ``poll_wall_s`` the time in
-the polling rounds (``goal_state`` calls and the goals re-sent).
+the polling rounds (the goals re-sent included). Polling reads every robot's goal status in one
+``Simulator.goal_table()`` call (arrays, no snapshot objects), as a batch-polling runner does;
+``--per-goal`` polls with one ``goal_state`` snapshot per goal instead.
 
 Command line::
 
@@ -80,8 +82,12 @@ def run_sim_steps(
     progress: bool = False,
     warmup: int = 0,
     stages: bool = False,
+    batch: bool = True,
 ) -> SimBenchResult:
-    """Run ``steps`` timed steps of every robot of ``cfg`` patrolling (module docstring)."""
+    """Run ``steps`` timed steps of every robot of ``cfg`` patrolling (module docstring).
+    ``batch``: poll every goal at once with ``Simulator.goal_table()``; else one
+    ``goal_state`` snapshot per goal."""
+    from sim.goals import STATUS_CODES, TERMINAL
     from sim.simulator import Simulator
 
     t0 = time.perf_counter()
@@ -97,12 +103,21 @@ def run_sim_steps(
         goals.append(sim.send_goal(ns, NavigateThroughPoses(routes[i % len(routes)])))
     setup = time.perf_counter() - t0
 
-    def dispatch() -> None:
+    def dispatch_each() -> None:
         for i, ns in enumerate(nss):
             status = sim.goal_state(goals[i]).status
             if status.terminal:
                 counts["ok" if status is GoalStatus.SUCCEEDED else "failed"] += 1
                 goals[i] = sim.send_goal(ns, NavigateThroughPoses(routes[i % len(routes)]))
+
+    def dispatch_table() -> None:
+        # every robot's goal here is its latest motion goal, so the table's row is its goal
+        codes = sim.goal_table().status
+        for i in TERMINAL[codes].nonzero()[0].tolist():
+            counts["ok" if STATUS_CODES[codes[i]] is GoalStatus.SUCCEEDED else "failed"] += 1
+            goals[i] = sim.send_goal(nss[i], NavigateThroughPoses(routes[i % len(routes)]))
+
+    dispatch = dispatch_table if batch else dispatch_each
 
     poll_every = max(1, round(1.0 / (poll_hz * step_s)))
     prof = cProfile.Profile() if profile else None
@@ -137,7 +152,7 @@ def run_sim_steps(
     if stages:
         parts = ", ".join(f"{k} {v / steps * 1000:.2f}" for k, v in stage_s.items())
         print(
-            "  stage ms/step (nested: follow includes corridor_free, detour (which includes blocks) and "
+            "  stage ms/step (nested: follow includes corridor_free, detour (which includes pair blocks) and "
             f"footprint free; pairs.update includes neighbor_pairs; move includes footprint free): {parts}",
             file=sys.stderr,
         )
@@ -185,11 +200,12 @@ def _time_stages(sim: Any, stage_s: dict[str, float]) -> None:
     timed(follower, "follow", "follow")
     timed(avoidance, "corridor_free", "corridor_free")
     timed(avoidance, "detour", "detour")
-    timed(avoidance, "_blocks", "blocks")
+    timed(avoidance, "_pair_blocks", "pair blocks")
     timed(avoidance.footprints, "free", "footprint free")
     timed(sim._safety, "reactive_stop", "reactive_stop")
     timed(sim._safety, "move", "move")
     timed(sim._contacts, "count", "contacts")
+    timed(sim.costmaps, "sense", "costmaps.sense")
 
 
 def _room(width_m: float, height_m: float, res: float = 0.1) -> Any:
@@ -287,6 +303,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", "-k", type=int, default=500, help="steps to time (default 500)")
     ap.add_argument("--step-s", type=float, default=0.05, help="step length in s (default 0.05)")
     ap.add_argument("--poll-hz", type=float, default=10.0, help="goal polling rate, sim Hz (default 10)")
+    ap.add_argument(
+        "--per-goal",
+        action="store_true",
+        help="poll with one goal_state snapshot per goal instead of one Simulator.goal_table() call",
+    )
     ap.add_argument("--out", help="directory for the generated warehouse (default: a temp dir)")
     ap.add_argument("--warmup", type=int, default=0, help="untimed steps before the timed ones (default 0)")
     ap.add_argument(
@@ -315,6 +336,7 @@ def main(argv: list[str] | None = None) -> int:
         progress=args.progress,
         warmup=args.warmup,
         stages=args.stages,
+        batch=not args.per_goal,
     )
     print(json.dumps(asdict(res)) if args.json else describe(res))
     return 0

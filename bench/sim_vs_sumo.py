@@ -10,16 +10,19 @@ warm-up. What each side computes per step:
   path follower, local avoidance, reactive safety stop, static-obstacle clamping, battery,
   progress checker and contact counting. Robot ``i`` patrols route ``i mod R`` of the config
   (NavigateThroughPoses of ``config.route_poses(route)``, re-sent when it ends); goals are
-  polled with ``goal_state`` at 10 Hz of simulated time inside the timed loop.
+  polled at 10 Hz of simulated time inside the timed loop, every robot's goal status in one
+  ``Simulator.goal_table()`` call.
 * **SUMO** (``bench/sumo_steps.py``, ``sim/sumo/world.py``): the warehouse roadmap converted
   to a SUMO network, one vehicle per robot, ``libsumo.simulationStep()`` plus the backend's
   per-step bookkeeping (positions of every vehicle, arrivals, collisions, teleports). Each
   robot gets NavigateThroughPoses through random roadmap nodes, re-sent when it ends, polled at
-  10 Hz of simulated time inside the timed loop.
+  10 Hz of simulated time inside the timed loop, every goal's status in one call of the world's
+  goal book (``GoalBook.status_codes``).
 
 Command line::
 
     python bench/sim_vs_sumo.py --robots 1000 --steps 400
+    python bench/sim_vs_sumo.py --robots 1000 5000 10000 --steps 200   # the issue's three sizes
     python bench/sim_vs_sumo.py --robots 30 --steps 2000 --json
 """
 
@@ -37,31 +40,21 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_sim import describe, load_world, run_sim_steps  # noqa: E402
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        description="Robot-steps/s of the kinematic simulator and of SUMO (libsumo) on the same "
-        "generated warehouse roadmap, robot count, step length and step count.",
-        epilog="Example: python bench/sim_vs_sumo.py --robots 1000 --steps 400",
-    )
-    ap.add_argument("--robots", "-n", type=int, default=1000, help="number of robots (default 1000)")
-    ap.add_argument("--steps", "-k", type=int, default=400, help="steps to time on each side (default 400)")
-    ap.add_argument(
-        "--step-s", type=float, default=0.05, help="step length in s on both sides (default 0.05)"
-    )
-    ap.add_argument("--json", action="store_true", help="print both results and the ratio as JSON")
-    args = ap.parse_args(argv)
+def compare(n_robots: int, steps: int, step_s: float) -> dict[str, object]:
+    """One size: the simulator's side, then SUMO's, on the same generated warehouse; prints
+    both lines and returns the figures."""
     out = Path(tempfile.mkdtemp(prefix="sim_vs_sumo_"))
-    cfg = load_world(args.robots, out)
-    sim_res = run_sim_steps(cfg, args.steps, step_s=args.step_s)
+    cfg = load_world(n_robots, out)
+    sim_res = run_sim_steps(cfg, steps, step_s=step_s)
     print(describe(sim_res), flush=True)
     from sumo_steps import run_sumo_steps
 
     sumo_res = run_sumo_steps(
-        args.robots,
-        args.steps,
+        n_robots,
+        steps,
         roadmap=cfg.roadmap,
         robots=list(cfg.robots),
-        params=replace(cfg.sim, step_s=args.step_s),
+        params=replace(cfg.sim, step_s=step_s),
         cache_dir=out / "sumo",
     )
     print(
@@ -70,16 +63,53 @@ def main(argv: list[str] | None = None) -> int:
         f"{sumo_res.robot_steps_per_s:,.0f} robot-steps/s "
         f"({sumo_res.step_wall_s / sumo_res.steps * 1000:.2f} ms/step, {sumo_res.real_time_factor:.1f}x real time; "
         f"setup {sumo_res.setup_wall_s:.1f} s; goals ok {sumo_res.goals_succeeded}, failed "
-        f"{sumo_res.goals_failed}; collisions {sumo_res.collisions}, teleports {sumo_res.teleports})"
+        f"{sumo_res.goals_failed}; collisions {sumo_res.collisions}, teleports {sumo_res.teleports})",
+        flush=True,
     )
     ratio = sim_res.robot_steps_per_s / sumo_res.robot_steps_per_s
     ratio_step = sim_res.step_only_robot_steps_per_s / sumo_res.robot_steps_per_s
     print(
-        f"ratio sim / SUMO at {args.robots} robots: {ratio:.1f}x (with goal polling on both sides); "
-        f"Simulator.step() alone vs SUMO: {ratio_step:.1f}x"
+        f"ratio sim / SUMO at {n_robots} robots: {ratio:.1f}x (with goal polling on both sides); "
+        f"Simulator.step() alone vs SUMO: {ratio_step:.1f}x",
+        flush=True,
     )
+    return {"sim": asdict(sim_res), "sumo": asdict(sumo_res), "ratio": ratio, "ratio_step_only": ratio_step}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        description="Robot-steps/s of the kinematic simulator and of SUMO (libsumo) on the same "
+        "generated warehouse roadmap, robot count, step length and step count, for each size.",
+        epilog="Example: python bench/sim_vs_sumo.py --robots 1000 5000 10000 --steps 200",
+    )
+    ap.add_argument(
+        "--robots",
+        "-n",
+        type=int,
+        nargs="+",
+        default=[1000],
+        help="robot counts, one comparison each (default 1000)",
+    )
+    ap.add_argument("--steps", "-k", type=int, default=400, help="steps to time on each side (default 400)")
+    ap.add_argument(
+        "--step-s", type=float, default=0.05, help="step length in s on both sides (default 0.05)"
+    )
+    ap.add_argument("--json", action="store_true", help="print every result and ratio as JSON at the end")
+    args = ap.parse_args(argv)
+    results = [compare(n, args.steps, args.step_s) for n in args.robots]
+    print(
+        "\n| robots | sim robot-steps/s (with polling) | sim step only | SUMO robot-steps/s | ratio | ratio, step only |"
+    )
+    print("|---|---|---|---|---|---|")
+    for n, r in zip(args.robots, results, strict=True):
+        sim_r, sumo_r = r["sim"], r["sumo"]
+        assert isinstance(sim_r, dict) and isinstance(sumo_r, dict)
+        print(
+            f"| {n} | {sim_r['robot_steps_per_s']:,.0f} | {sim_r['step_only_robot_steps_per_s']:,.0f} | "
+            f"{sumo_r['robot_steps_per_s']:,.0f} | {r['ratio']:.1f}x | {r['ratio_step_only']:.1f}x |"
+        )
     if args.json:
-        print(json.dumps({"sim": asdict(sim_res), "sumo": asdict(sumo_res), "ratio": ratio}))
+        print(json.dumps(results))
     return 0
 
 

@@ -4,7 +4,8 @@ Runs ``N`` robots as SUMO vehicles through :class:`sim.sumo.world.SumoWorld` (th
 backend protocol the behavior trees use) for ``K`` steps and reports robot-steps per wall
 second (``N * K / elapsed``). Every robot patrols: it gets a NavigateThroughPoses through
 ``poses_per_goal`` random roadmap nodes and a new one whenever its goal ends; goals are polled
-at ``poll_hz`` of simulated time, like agents ticking their trees. As for patrol routes, the
+at ``poll_hz`` of simulated time, like agents ticking their trees (every goal's status in one
+call by default, as the simulator's side of ``bench/sim_vs_sumo.py`` does). As for patrol routes, the
 goal's poses are every node of the shortest roadmap paths between the random nodes, each facing
 the next node. Network building and SUMO
 start-up, inserting the vehicles and routing every robot's first goal are excluded from the
@@ -122,13 +123,17 @@ def run_sumo_steps(
     seed: int = 1,
     cache_dir: str | Path | None = None,
     progress: bool = False,
+    batch: bool = True,
 ) -> SumoBenchResult:
     """Run the benchmark once and return its figures (see the module docstring).
 
     ``roadmap`` (a graph or ``fleet.roadmap.Roadmap``) defaults to a ``grid`` of nodes
     ``spacing`` m apart; ``robots`` default to :func:`grid_starts`; ``params`` default to
-    ``SimParams(step_s=0.1, seed=seed)``.
+    ``SimParams(step_s=0.1, seed=seed)``. ``batch``: poll every goal's status in one call
+    (``sim.goals.GoalBook.status_codes`` of the world's goal book); else one ``goal_state``
+    snapshot per goal.
     """
+    from sim.goals import STATUS_CODES, TERMINAL
     from sim.sumo.net import as_graph, grid_roadmap
     from sim.sumo.world import SumoWorld
 
@@ -150,10 +155,16 @@ def run_sumo_steps(
         counts = {"ok": 0, "failed": 0}
 
         def dispatch() -> None:
-            for i, b in enumerate(backends):
-                gid = goals[i]
+            if batch and None not in goals:
+                # one call for every goal: the world's goal book as status codes
+                codes = world._goals.status_codes(goals)  # type: ignore[arg-type]
+                todo = TERMINAL[codes].nonzero()[0].tolist()
+            else:
+                codes, todo = None, range(len(backends))
+            for i in todo:
+                b, gid = backends[i], goals[i]
                 if gid is not None:
-                    status = b.goal_state(gid).status
+                    status = STATUS_CODES[codes[i]] if codes is not None else b.goal_state(gid).status
                     if not status.terminal:
                         continue
                     counts["ok" if status is GoalStatus.SUCCEEDED else "failed"] += 1

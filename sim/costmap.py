@@ -198,18 +198,25 @@ class Costmaps:
         return out
 
     def _in_sight(
-        self, ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray, r: np.ndarray
+        self,
+        ax: np.ndarray,
+        ay: np.ndarray,
+        bx: np.ndarray,
+        by: np.ndarray,
+        r: np.ndarray,
+        samples: int | None = None,
     ) -> np.ndarray:
         """For each pair: no static obstacle cell between the sensor at ``a`` and the near
-        edge of the disc of radius ``r`` at ``b`` (sampled every half cell)."""
+        edge of the disc of radius ``r`` at ``b``, sampled at ``samples`` points along the way
+        (default: every half cell of the longest way of the batch, :meth:`_samples`)."""
         if ax.size == 0:
             return np.zeros(0, dtype=bool)
         g = self.grid
         dx, dy = bx - ax, by - ay
         length = np.hypot(dx, dy)
         reach = np.maximum(length - r, 0.0)
-        k = int(math.ceil(float(reach.max()) / (0.5 * g.resolution))) + 1
-        t = np.linspace(0.0, 1.0, max(k, 2))[None, :]
+        k = self._samples(float(reach.max())) if samples is None else samples
+        t = np.linspace(0.0, 1.0, k)[None, :]
         scale = np.where(length > 1e-9, reach / np.maximum(length, 1e-9), 0.0)[:, None]
         px = ax[:, None] + dx[:, None] * scale * t
         py = ay[:, None] + dy[:, None] * scale * t
@@ -221,9 +228,25 @@ class Costmaps:
         out: np.ndarray = ~hit.any(axis=1) & inside.all(axis=1)
         return out
 
+    def _samples(self, reach: float) -> int:
+        """Points sampled along a line of sight of ``reach`` m (every half cell, at least 2)."""
+        return max(int(math.ceil(reach / (0.5 * self.grid.resolution))) + 1, 2)
+
+    # long: one pass gathering every robot's marks, one batched sight test, one pass applying
     def _forget(self, now: float, x: np.ndarray, y: np.ndarray, seen: dict[int, dict[str, Mark]]) -> None:
-        """Raytrace clearing, decay and the local window, for robots that hold marks."""
+        """Raytrace clearing, decay and the local window, for robots that hold marks.
+
+        Each layer's look (its marks in range and not seen now) is sampled as if tested on
+        its own (:meth:`_samples` of the layer's longest way), but all looks are tested in a
+        few batched :meth:`_in_sight` calls, one per sample count."""
         half = 0.5 * LOCAL_SIZE_M
+        layers: list[tuple[dict[str, Mark], bool, list[str], list[str]]] = []
+        rx_l: list[float] = []
+        ry_l: list[float] = []
+        mx_l: list[float] = []
+        my_l: list[float] = []
+        mr_l: list[float] = []
+        owner: list[int] = []
         for i, cm in enumerate(self.robots):
             if not cm.global_marks and not cm.local_marks:
                 continue
@@ -241,20 +264,55 @@ class Costmaps:
                     for src, m in marks.items()
                     if src not in fresh and math.hypot(m.x - rx, m.y - ry) <= SENSOR_RANGE_M
                 ]
-                if look:
-                    ok = self._in_sight(
-                        np.full(len(look), rx),
-                        np.full(len(look), ry),
-                        np.array([m.x for _, m in look]),
-                        np.array([m.y for _, m in look]),
-                        np.array([m.r for _, m in look]),
-                    )
-                    cleared = [src for (src, _), vis in zip(look, ok.tolist(), strict=True) if vis]
-                    if not local:
-                        self.cleared_by_sight += len(cleared)
-                    gone.extend(cleared)
-                for src in set(gone):
-                    marks.pop(src, None)
+                k = len(layers)
+                layers.append((marks, local, gone, [src for src, _ in look]))
+                for _, m in look:
+                    rx_l.append(rx)
+                    ry_l.append(ry)
+                    mx_l.append(m.x)
+                    my_l.append(m.y)
+                    mr_l.append(m.r)
+                    owner.append(k)
+        if owner:
+            visible = self._sight_by_layer(rx_l, ry_l, mx_l, my_l, mr_l, np.array(owner), len(layers))
+            o = 0
+            for _, local, gone, look_src in layers:
+                cleared = [
+                    src for src, vis in zip(look_src, visible[o : o + len(look_src)], strict=True) if vis
+                ]
+                o += len(look_src)
+                if not local:
+                    self.cleared_by_sight += len(cleared)
+                gone.extend(cleared)
+        for marks, _, gone, _ in layers:
+            for src in set(gone):
+                marks.pop(src, None)
+
+    def _sight_by_layer(
+        self,
+        rx: list[float],
+        ry: list[float],
+        mx: list[float],
+        my: list[float],
+        mr: list[float],
+        owner: np.ndarray,
+        n_layers: int,
+    ) -> list[bool]:
+        """:meth:`_in_sight` of the looks (sensor ``rx, ry``, mark ``mx, my, mr``), each
+        sampled with the sample count of its layer ``owner`` (the layer's longest way)."""
+        ax, ay, bx, by, r = (np.array(v) for v in (rx, ry, mx, my, mr))
+        reach = np.maximum(np.hypot(bx - ax, by - ay) - r, 0.0)
+        longest = np.zeros(n_layers)
+        np.maximum.at(longest, owner, reach)
+        # as _samples, for every layer at once (the same float division and ceiling)
+        half_cell = 0.5 * self.grid.resolution
+        counts = np.maximum(np.ceil(longest / half_cell).astype(np.int64) + 1, 2)[owner]
+        out = np.zeros(owner.size, dtype=bool)
+        for k in np.unique(counts).tolist():
+            sel = np.flatnonzero(counts == k)
+            out[sel] = self._in_sight(ax[sel], ay[sel], bx[sel], by[sel], r[sel], samples=k)
+        visible: list[bool] = out.tolist()
+        return visible
 
     def _static_ring(self) -> np.ndarray:
         """Cells within the robot radius of a static obstacle or the map border (cached)."""

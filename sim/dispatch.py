@@ -20,7 +20,7 @@ from fleet.robots import SimParams
 from fleet.types import Costmap, GoalState, GoalStatus
 from sim.computations import Point, compute
 from sim.costmap import Costmaps
-from sim.goals import GoalBook, is_computation, preempt, reject_if_invalid
+from sim.goals import STATUS_CODE, GoalBook, GoalRecord, is_computation, preempt, reject_if_invalid
 from sim.planner import GridPlanner, PlanResult
 from sim.robot import Robot
 from sim.safety import Safety
@@ -63,6 +63,8 @@ class GoalDispatch:
         self.tasks: dict[int, Task] = {}
         #: robots whose task gets :meth:`Task.control` calls (not following a path), by index
         self._py: dict[int, Robot] = {}
+        #: each robot's latest motion goal (by robot index), for the status arrays
+        self._current: dict[int, GoalRecord] = {}
 
     def add(self, robot: Robot) -> None:
         """Register ``robot`` (its index is the next row of the state)."""
@@ -79,6 +81,7 @@ class GoalDispatch:
             if not reject_if_invalid(record):
                 compute(record, robot.pose, self)
             return record.goal_id
+        self._track(robot, record)
         old = self.tasks.get(robot.index)
         # a FollowPath replacing a running FollowPath is a path update, as in Nav2's controller
         # server: the progress checker keeps timing (replanning cannot hide a stuck robot)
@@ -96,6 +99,20 @@ class GoalDispatch:
             if not path_update:
                 s.px[i], s.py[i], s.pt[i] = s.x[i], s.y[i], now
         return record.goal_id
+
+    def _track(self, robot: Robot, record: GoalRecord) -> None:
+        """Make ``record`` the robot's latest motion goal in the status arrays (``g_num``,
+        ``g_code`` of :class:`sim.state.FleetState`)."""
+        i = robot.index
+        self._current[i] = record
+        self.state.g_num[i] = int(record.goal_id.rpartition("#")[2])
+        self.state.g_code[i] = STATUS_CODE[record.status]
+        record.on_finish = self._finished
+
+    def _finished(self, record: GoalRecord) -> None:
+        i = self.robots[record.namespace].index
+        if self._current.get(i) is record:
+            self.state.g_code[i] = STATUS_CODE[record.status]
 
     def goal_state(self, goal_id: str) -> GoalState:
         """Snapshot of goal ``goal_id``; ``KeyError`` for an id never issued."""

@@ -33,9 +33,11 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import get_args
+
+import numpy as np
 
 from fleet.errors import BackendError
 from fleet.types import (
@@ -64,6 +66,16 @@ from sim.snapshots import make_goal_state
 GOAL_TYPES: tuple[type, ...] = get_args(Goal)
 #: Finished goals kept per robot for ``goal_state`` (older ones are forgotten).
 KEEP_FINISHED = 4096
+#: The goal statuses by their small-integer code (the codes of the batch status arrays:
+#: :meth:`GoalBook.status_codes`, ``sim.simulator.Simulator.goal_table``).
+STATUS_CODES: tuple[GoalStatus, ...] = tuple(GoalStatus)
+#: ``GoalStatus`` -> its code in :data:`STATUS_CODES`.
+STATUS_CODE: dict[GoalStatus, int] = {s: i for i, s in enumerate(STATUS_CODES)}
+#: ``TERMINAL[code]``: whether the status of that code is terminal (``TERMINAL[-1]``, no goal
+#: or an unknown id, is False).
+TERMINAL = np.array([*(s.terminal for s in STATUS_CODES), False], dtype=bool)
+#: Code of an id that is unknown (never issued or forgotten) in :meth:`GoalBook.status_codes`.
+UNKNOWN_CODE = -1
 
 
 @dataclass(frozen=True)
@@ -184,6 +196,7 @@ class GoalRecord:
         "feedback",
         "final",
         "path",
+        "on_finish",
     )
 
     def __init__(self, goal_id: str, goal: Goal, namespace: str) -> None:
@@ -200,6 +213,8 @@ class GoalRecord:
         self.final: GoalState | None = None
         #: The path a computation goal produced (its result).
         self.path: Path = ()
+        #: Called once with the record when it ends (the world's status arrays), or ``None``.
+        self.on_finish: Callable[[GoalRecord], None] | None = None
 
     def finish(self, status: GoalStatus, code: int = 0, msg: str = "") -> None:
         """Move to terminal ``status`` once; later calls are ignored."""
@@ -209,6 +224,8 @@ class GoalRecord:
         self.terminal = status.terminal
         self.error_code = int(code)
         self.error_msg = msg
+        if self.on_finish is not None:
+            self.on_finish(self)
 
     def snapshot(self, live: Feedback | None = None) -> GoalState:
         """The goal's state with feedback ``live`` (default: the feedback stored when the goal
@@ -272,6 +289,18 @@ class GoalBook:
         """The record of ``goal_id`` if it is still running, else ``None`` (unknown or finished)."""
         record = self._records.get(goal_id)
         return None if record is None or record.terminal else record
+
+    def status_codes(self, goal_ids: Sequence[str]) -> np.ndarray:
+        """The status of each of ``goal_ids`` as an ``int8`` code of :data:`STATUS_CODES`
+        (:data:`UNKNOWN_CODE` for an id never issued or forgotten): one call for a whole
+        fleet's goals, no snapshot objects built."""
+        records = self._records
+        code = STATUS_CODE
+        return np.fromiter(
+            (code[r.status] if (r := records.get(g)) is not None else UNKNOWN_CODE for g in goal_ids),
+            dtype=np.int8,
+            count=len(goal_ids),
+        )
 
     def records(self) -> Iterator[GoalRecord]:
         """Every record kept, oldest first per robot."""

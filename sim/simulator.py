@@ -61,7 +61,7 @@ from sim.localization import Localization, LocalizationState
 from sim.planner import GridPlanner, PlanResult
 from sim.robot import Robot
 from sim.safety import STOP_GAP_M, Contacts, Safety
-from sim.snapshots import make_robot_state
+from sim.snapshots import GoalTable, RobotTable, make_robot_state
 from sim.spatial import NeighborPairs
 from sim.state import FleetState
 
@@ -440,6 +440,21 @@ class Simulator:
         return SimBatch(self.state, self.localization, self._dispatch, self.robot_state).query_batch(
             namespaces, goal_ids
         )
+
+    def goal_table(self) -> GoalTable:
+        """Every robot's latest motion goal number and status as arrays (:class:`GoalTable`):
+        polling a whole fleet in one call, no snapshot object built."""
+        n = self.state.n
+        return GoalTable(self.state.g_num[:n].copy(), self.state.g_code[:n].astype(np.int8))
+
+    def robot_table(self) -> RobotTable:
+        """Every robot's true state as arrays (:class:`RobotTable`), in one call."""
+        s, n = self.state, self.state.n
+        x, y, th, v, w, bat, dist, ch, st, col = (
+            a[:n].copy()
+            for a in (s.x, s.y, s.th, s.v, s.w, s.battery, s.dist, s.charging, s.stuck, s.collisions)
+        )
+        return RobotTable(x, y, th, v, w, bat, dist, ch, st, col)
 
     def cancel_goal(self, goal_id: str) -> None:
         """Cancel ``goal_id``: it ends CANCELED at once and the robot decelerates to a stop.

@@ -1,11 +1,15 @@
 """Fast constructors of the frozen snapshot types polled every tick (goal state, feedback,
-robot state)."""
+robot state), and the batch tables (:class:`GoalTable`, :class:`RobotTable`) that poll a
+whole fleet as arrays without building one object per robot."""
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TypeVar
+
+import numpy as np
 
 from fleet.types import Feedback, GoalState, RobotState
 
@@ -45,3 +49,37 @@ def frozen_factory(cls: type[_T]) -> Callable[..., _T]:
 make_feedback = frozen_factory(Feedback)
 make_goal_state = frozen_factory(GoalState)
 make_robot_state = frozen_factory(RobotState)
+
+
+@dataclass(frozen=True)
+class GoalTable:
+    """The latest motion goal of every robot, as arrays in the simulator's robot order
+    (``Simulator.namespaces``), copied out at one instant (between steps).
+
+    ``number[i]`` (int64) is the ``n`` of the robot's goal id ``"<namespace>#<n>"`` (0: it
+    never got a motion goal); ``status[i]`` (int8) is that goal's status as a code of
+    :data:`sim.goals.STATUS_CODES` (-1: no goal); :data:`sim.goals.TERMINAL` indexed by the
+    codes tells which ended. Computation goals (planning, smoothing) are not in the table."""
+
+    number: np.ndarray
+    status: np.ndarray
+
+
+@dataclass(frozen=True)
+class RobotTable:
+    """Every robot's true state as arrays in the simulator's robot order, copied out at one
+    instant: ``x``, ``y`` (m, ``map``), ``theta`` (rad), ``v`` (m/s), ``w`` (rad/s),
+    ``battery`` (0..1), ``distance_m`` (odometer, m), ``charging``, ``stuck`` (bool),
+    ``collisions`` (int64). The true pose: a robot that is not localized reports its estimate
+    through ``Simulator.robot_state`` instead."""
+
+    x: np.ndarray
+    y: np.ndarray
+    theta: np.ndarray
+    v: np.ndarray
+    w: np.ndarray
+    battery: np.ndarray
+    distance_m: np.ndarray
+    charging: np.ndarray
+    stuck: np.ndarray
+    collisions: np.ndarray

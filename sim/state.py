@@ -18,6 +18,10 @@ it ``c_suf``; the next via's point ``c_vx``, ``c_vy``, its point index ``c_vseg`
 ``c_gy``). The values are the same floats the buffers give; :meth:`FleetState.load_segments`
 and :meth:`FleetState.load_vias` refresh them whenever ``f_seg`` / ``f_nv`` change.
 
+The robot's latest motion goal is ``g_num`` (the ``n`` of its id ``"<namespace>#<n>"``, 0:
+none yet) with status ``g_code`` (a code of :data:`sim.goals.STATUS_CODES`, -1: none), kept
+by :class:`sim.dispatch.GoalDispatch` for batch polling.
+
 Snapshots (goal feedback, robot state) read one robot at a time through :meth:`FleetState.row`.
 Between steps every robot's row is copied out of the arrays at once, on the first read after
 a change (``version`` counts the changes: the simulator's step, :meth:`FleetState.attach`,
@@ -35,7 +39,19 @@ _FLOAT = (
     "x y th v w battery dist px py pt f_t f_yaw f_best f_btime vd wd "
     "c_ax c_ay c_bx c_by c_ex c_ey c_den c_suf c_vx c_vy c_gx c_gy"
 ).split()
-_INT = ("collisions", "f_seg", "f_off", "f_len", "f_voff", "f_vn", "f_nv", "f_side", "c_vseg")
+_INT = (
+    "collisions",
+    "f_seg",
+    "f_off",
+    "f_len",
+    "f_voff",
+    "f_vn",
+    "f_nv",
+    "f_side",
+    "c_vseg",
+    "g_num",
+    "g_code",
+)
 _BOOL = ("charging", "stuck", "stalled", "halt", "has_task", "drives", "fol", "f_xy", "c_long", "c_vmore")
 #: The arrays of a :meth:`FleetState.row`, in order.
 ROW = (
@@ -105,6 +121,8 @@ class FleetState:
     c_gx: np.ndarray
     c_gy: np.ndarray
     c_vseg: np.ndarray
+    g_num: np.ndarray
+    g_code: np.ndarray
     c_long: np.ndarray
     c_vmore: np.ndarray
     charging: np.ndarray
@@ -131,6 +149,7 @@ class FleetState:
         self.x[i], self.y[i], self.th[i] = x, y, theta
         self.battery[i] = battery
         self.px[i], self.py[i], self.pt[i] = x, y, now
+        self.g_code[i] = -1
         return i
 
     # -- paths --------------------------------------------------------------------------

@@ -268,7 +268,8 @@ class RosNavigationBackend:
 
     def _send_remote(self, rec: RemoteGoal) -> None:
         with self._lock:
-            if rec.status.terminal:
+            # sent already: send_goal queues this call and the watchdog may run first
+            if rec.status.terminal or rec.handle is not None:
                 return
         if not self._ready(rec.kind):
             return  # the watchdog retries, then gives up after server_timeout_s

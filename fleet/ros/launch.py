@@ -30,6 +30,7 @@ class ReadyInfo(TypedDict):
     robots: list[str]
     create_s: float
     domain_id: str
+    shards: int
 
 
 def private_domain_id(base: int = 40, span: int = 150) -> int:

@@ -16,13 +16,15 @@ robot's name) and ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``: each ro
 localization, motion and navigation checks of :mod:`fleet.diagnostics`, and each lifecycle
 manager's health) at ``--diagnostics-hz``.
 
-This module is the server process: :class:`Nav2SimServer` owns the rclpy context, one
-``SingleThreadedExecutor`` and the simulator's time; :func:`serve` runs it until a signal;
-:func:`main` is the command line.
+This module is the server process: :class:`Nav2SimServer` owns the rclpy contexts (one DDS
+participant each, ``--shards``, one by default), one
+single-threaded executor per context (:mod:`fleet.ros.shards`) and the simulator's time;
+:func:`serve` runs it until a signal; :func:`main` is the command line.
 
-Threading: everything (ROS callbacks, stepping the simulator) runs on one thread; execute
-callbacks are coroutines that await the simulator's verdict, so the simulator is never
-touched concurrently. Time: a timer steps the simulator so that simulated time follows wall
+Threading: with one shard everything (ROS callbacks, stepping the simulator) runs on one
+thread; with more, each further shard's executor waits for work in a thread of its own, but
+every callback runs holding one lock. Execute callbacks are coroutines that await the
+simulator's verdict, so the simulator is never touched concurrently. Time: a timer steps the simulator so that simulated time follows wall
 time times ``speed``, paced by the project's one real-time pacer, :class:`fleet.clock.Pacer`
 (the only wall-clock reads, besides the wall-clock publication rates).
 
@@ -45,15 +47,12 @@ from fleet.ros.env import apply_ros_env_defaults
 
 apply_ros_env_defaults()
 
-import rclpy  # noqa: E402
 from builtin_interfaces.msg import Time  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 from nav_msgs.msg import OccupancyGrid as GridMsg  # noqa: E402
 from rclpy.context import Context  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from rclpy.signals import SignalHandlerOptions  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 
 from fleet.clock import Pacer, WallClock  # noqa: E402
@@ -64,6 +63,7 @@ from fleet.navigation import Clock  # noqa: E402
 from fleet.ros.conversions import pose2d_to_pose, seconds_to_time  # noqa: E402
 from fleet.ros.lifecycle import LIFECYCLE_NODES  # noqa: E402
 from fleet.ros.nav2_facade import Profile, RobotFacade  # noqa: E402
+from fleet.ros.shards import Shards  # noqa: E402
 from fleet.types import Pose2D  # noqa: E402
 from nodes.bt_xml import parse_file  # noqa: E402
 
@@ -108,6 +108,11 @@ class Nav2SimServer:
         nav_to_pose_xml, nav_through_poses_xml: the navigator trees of goals with an empty
             ``behavior_tree`` (default: the project's ``nodes/trees/navigate_to_pose.xml`` /
             ``navigate_through_poses.xml``).
+        shards: spread the robots' nodes over this many rclpy contexts, i.e. DDS
+            participants (robot ``k`` in shard ``k % shards``), each with its own executor
+            and thread, callbacks serialized by one lock (:mod:`fleet.ros.shards`: the
+            simulator stays one world, touched by one callback at a time). Needs ``context``
+            unset when above 1.
 
     Call :meth:`spin` (blocks until :meth:`request_stop`, e.g. from a signal handler) or
     :meth:`spin_once` in your own loop, then :meth:`close`.
@@ -130,35 +135,38 @@ class Nav2SimServer:
         wall: Clock | None = None,
         nav_to_pose_xml: str | None = None,
         nav_through_poses_xml: str | None = None,
+        shards: int = 1,
     ) -> None:
         profile = Profile.parse(profile)
         if not speed >= 0 or speed == float("inf"):
             raise BackendError(f"speed must be a finite number >= 0, got {speed}")
+        if shards < 1 or (shards > 1 and context is not None):
+            raise BackendError(f"shards must be >= 1 (and 1 with a context passed in), got {shards}")
+        self.shards = Shards(shards, domain_id, context)  # the DDS participants (fleet.ros.shards)
         self.sim = sim
         self.speed = float(speed)
         self.wall = wall if wall is not None else WallClock()
         self.pacer = Pacer(sim.clock, self.speed, wall=self.wall)
         feedback_period = 1.0 / feedback_hz if feedback_hz > 0 else None
-        self._owns_context = context is None
-        if context is None:
-            context = Context()
-            rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
-        self.context = context
-        self.executor = SingleThreadedExecutor(context=context)
+        contexts = self.contexts = self.shards.contexts  # the world node's is the first
+        self.executors = self.shards.executors
+        self.context, self.executor = contexts[0], self.executors[0]
         self._stop = False
         #: Why the server stopped: ``"signal"``, ``"duration"`` (set by :func:`serve`), or ``""``.
         self.stopped_by = ""
         #: Simulated time the world does not step beyond (``serve``'s ``duration_s``).
         self.end_time: float | None = None
         t_create = self.wall.now()
-        self.world = Node("fleet_sim", context=context, start_parameter_services=False, enable_rosout=False)
+        self.world = Node(
+            "fleet_sim", context=self.context, start_parameter_services=False, enable_rosout=False
+        )
         self.robots: dict[str, RobotFacade] = {}
-        for ns in namespaces if namespaces is not None else list(sim.namespaces):
+        for k, ns in enumerate(namespaces if namespaces is not None else list(sim.namespaces)):
             sim.robot_state(ns)  # raises BackendError for an unknown robot
             self.robots[ns] = RobotFacade(
                 sim,
                 ns,
-                context,
+                contexts[k % shards],
                 profile,
                 stamp=self.stamp,
                 feedback_period=feedback_period,
@@ -170,9 +178,9 @@ class Nav2SimServer:
         #: Wall seconds it took to create every robot's interfaces.
         self.create_time_s = self.wall.now() - t_create
         self.executor.add_node(self.world)
-        for r in self.robots.values():
+        for k, r in enumerate(self.robots.values()):
             for node in r.nodes:
-                self.executor.add_node(node)
+                self.executors[k % shards].add_node(node)
         self.tf_pub = self.world.create_publisher(TFMessage, "/tf", 100)
         self.map_pub = self.world.create_publisher(GridMsg, "/map", MAP_QOS)
         self.diag_pub = self.world.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -189,6 +197,7 @@ class Nav2SimServer:
             self.world.create_timer(1.0 / diagnostics_hz, self.publish_diagnostics)
         self._publish_amcl()
         self.pacer.start()
+        self.shards.start()
 
     # -- time -----------------------------------------------------------------------------
 
@@ -258,8 +267,10 @@ class Nav2SimServer:
     # -- running --------------------------------------------------------------------------
 
     def spin_once(self, timeout_s: float = 0.1) -> None:
-        """Run at most one ready callback, waiting up to ``timeout_s`` wall seconds for one."""
-        self.executor.spin_once(timeout_sec=timeout_s)
+        """Run at most one ready callback of the first shard (the world node's, and its
+        robots'), waiting up to ``timeout_s`` wall seconds for one; the other shards spin in
+        threads of their own (callbacks never run concurrently)."""
+        self.shards.spin_once(timeout_s)
 
     def request_stop(self) -> None:
         """Make :meth:`spin` return (safe from a signal handler or another thread)."""
@@ -268,7 +279,7 @@ class Nav2SimServer:
     @property
     def running(self) -> bool:
         """False once :meth:`request_stop` was called or the context was shut down."""
-        return not self._stop and self.context.ok()
+        return not self._stop and self.shards.ok()
 
     def spin(self) -> None:
         """Serve until :meth:`request_stop` (or the context shuts down)."""
@@ -277,12 +288,11 @@ class Nav2SimServer:
 
     def close(self) -> None:
         """Abort nothing, destroy every node, shut the context down (if the server owns it)."""
+        self.shards.stop()
         for r in self.robots.values():
             r.destroy()
         self.world.destroy_node()
-        self.executor.shutdown(timeout_sec=1.0)
-        if self._owns_context and self.context.ok():
-            rclpy.shutdown(context=self.context)
+        self.shards.close()
 
     @property
     def served(self) -> list[str]:
@@ -362,6 +372,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="leave the Nav2 lifecycle nodes unconfigured until a manage_nodes STARTUP",
     )
     ap.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: the environment's)")
+    ap.add_argument(
+        "--shards",
+        type=int,
+        default=1,
+        help="DDS participants the robots' nodes are spread over (default 1; see docs/ros.md, "
+        "Scale: more did not make discovery faster here)",
+    )
     ap.add_argument("--ready-file", default=None, help="write a JSON line here once every server exists")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
     ap.add_argument(
@@ -393,6 +410,9 @@ def main(argv: list[str] | None = None) -> int:
     Returns the exit status: 0 after ``--duration``, 130 after Ctrl-C / SIGTERM, 2 for a bad
     config or argument."""
     args = build_parser().parse_args(argv)
+    if args.shards < 1:
+        print(f"error: --shards must be at least 1, got {args.shards}", file=sys.stderr)
+        return 2
     if args.duration is not None and not args.duration > 0:
         print(
             f"error: --duration must be a positive number of simulated seconds, got {args.duration}",
@@ -426,6 +446,7 @@ def main(argv: list[str] | None = None) -> int:
         duration_s=args.duration,
         nav_to_pose_xml=args.nav_to_pose_xml,
         nav_through_poses_xml=args.nav_through_poses_xml,
+        shards=args.shards,
     )
     if args.truth:
         write_truth(sim, args.truth)
@@ -469,10 +490,11 @@ def serve(
     domain_id: int | None = None,
     nav_to_pose_xml: str | None = None,
     nav_through_poses_xml: str | None = None,
+    shards: int = 1,
 ) -> int:
     """Serve ``sim`` (the other arguments are :class:`Nav2SimServer`'s) until SIGINT/SIGTERM
     or ``duration_s`` simulated seconds have passed. Writes ``ready_file`` (JSON: pid, robots,
-    create_s, domain_id) once every server exists. Returns the process exit status: 0 after
+    create_s, domain_id, shards) once every server exists. Returns the process exit status: 0 after
     the duration, :data:`EXIT_INTERRUPTED` after a signal."""
     wall = WallClock()
     t0 = wall.now()
@@ -488,6 +510,7 @@ def serve(
         domain_id=domain_id,
         nav_to_pose_xml=nav_to_pose_xml,
         nav_through_poses_xml=nav_through_poses_xml,
+        shards=shards,
     )
 
     def _stop(_sig: int, _frame: FrameType | None) -> None:
@@ -501,9 +524,11 @@ def serve(
         "robots": server.served,
         "create_s": round(wall.now() - t0, 3),
         "domain_id": os.environ.get("ROS_DOMAIN_ID", "0"),
+        "shards": len(server.contexts),
     }
     print(
-        f"[sim-ros] serving {len(server.served)} robots as namespaced Nav2 (created in {info['create_s']} s, "
+        f"[sim-ros] serving {len(server.served)} robots as namespaced Nav2 over {info['shards']} DDS "
+        f"participant(s) (created in {info['create_s']} s, "
         f"ROS_DOMAIN_ID={info['domain_id']}); Ctrl-C stops",
         flush=True,
     )

@@ -1,0 +1,136 @@
+"""Compiled kernels of the simulator's step (numba): loops over neighbor pairs that NumPy can
+only do as many whole-array passes.
+
+Each kernel computes exactly what the NumPy expression it replaces computes, with the same
+floating-point operations in the same order on the same values: plain IEEE double arithmetic,
+no fast-math (no fused multiply-add, no reassociation), and ``math.cos`` / ``math.sin`` /
+``math.sqrt``, which on the project's machines give the very bits NumPy's ``cos`` / ``sin`` /
+``sqrt`` give (``tests/sim/test_kernels.py`` checks both). Kernels are compiled on first use
+and cached next to this module (``cache=True``); :func:`warm_up` compiles them up front so a
+simulator's first step does not pay for it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def pair_blocks(
+    a_all: np.ndarray,
+    dx_all: np.ndarray,
+    dy_all: np.ndarray,
+    d2_all: np.ndarray,
+    reach2: float,
+    loc: np.ndarray,
+    db: np.ndarray,
+    offsets: np.ndarray,
+    bits: np.ndarray,
+    contact: float,
+    lat: float,
+    cap: float,
+    blocked: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """The detour headings each robot's neighbors block, by the exact corridor test.
+
+    For every directed pair ``p`` (robot ``a_all[p]``, neighbor at offset ``dx_all[p]``,
+    ``dy_all[p]``, squared distance ``d2_all[p]``) with ``d2 < reach2`` whose robot is blocked
+    (``loc[robot] >= 0``, its row in ``db``), and every detour offset ``k``: the heading
+    ``db[r] + offsets[k]`` is blocked when the neighbor is ahead (``along > 0``), inside the
+    corridor (``lateral < lat``), closer than ``cap + contact`` along it, and the robot's
+    disc would touch it within ``cap``; then ``bits[k]`` is or-ed into ``blocked[r]``."""
+    nb = db.shape[0]
+    kk = offsets.shape[0]
+    hx = np.empty((nb, kk))
+    hy = np.empty((nb, kk))
+    for r in range(nb):
+        for k in range(kk):
+            h = db[r] + offsets[k]
+            hx[r, k] = math.cos(h)
+            hy[r, k] = math.sin(h)
+    cc = contact * contact
+    lim = cap + contact
+    for p in range(a_all.shape[0]):
+        if not d2_all[p] < reach2:
+            continue
+        r = loc[a_all[p]]
+        if r < 0:
+            continue
+        dx = dx_all[p]
+        dy = dy_all[p]
+        m = blocked[r]
+        for k in range(kk):
+            along = dx * hx[r, k] + dy * hy[r, k]
+            if not along > 0.0:
+                continue
+            lateral = abs(dx * hy[r, k] - dy * hx[r, k])
+            if not (lateral < lat and along < lim):
+                continue
+            if lateral >= contact:
+                gap = along - contact
+            else:
+                gap = along - math.sqrt(max(cc - lateral * lateral, 0.0))
+            if max(0.0, gap) < cap:
+                m |= bits[k]
+        blocked[r] = m
+
+
+@njit(cache=True, nogil=True)
+def corridor_min(
+    a: np.ndarray,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    hx: np.ndarray,
+    hy: np.ndarray,
+    cap: np.ndarray,
+    contact: float,
+    lat: float,
+    best: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Lower ``best[i]`` to the corridor gap of every pair ``(i = a[p], offset dx[p], dy[p])``
+    whose neighbor is ahead along ``(hx[i], hy[i])``, inside the corridor and closer than
+    ``cap[i] + contact`` (what ``Avoidance.corridor_free`` does with ``np.minimum.at``)."""
+    cc = contact * contact
+    for p in range(a.shape[0]):
+        i = a[p]
+        hxa = hx[i]
+        hya = hy[i]
+        along = dx[p] * hxa + dy[p] * hya
+        if not along > 0.0:
+            continue
+        lateral = abs(dx[p] * hya - dy[p] * hxa)
+        if not (lateral < lat and along < cap[i] + contact):
+            continue
+        if lateral >= contact:
+            gap = along - contact
+        else:
+            gap = along - math.sqrt(max(cc - lateral * lateral, 0.0))
+        gap = max(0.0, gap)
+        if gap < best[i]:
+            best[i] = gap
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) every kernel with the argument types the simulator
+    passes, on empty inputs."""
+    ints = np.zeros(0, dtype=np.int64)
+    floats = np.zeros(0)
+    pair_blocks(
+        ints,
+        floats,
+        floats,
+        floats,
+        1.0,
+        ints,
+        floats,
+        np.zeros(1),
+        np.ones(1, dtype=np.int64),
+        0.6,
+        0.65,
+        0.8,
+        ints,
+    )
+    corridor_min(ints, floats, floats, floats, floats, floats, 0.6, 0.65, floats)

@@ -1,0 +1,107 @@
+"""``fleet sim-ros --shards K``: the robots' Nav2 interfaces spread over K DDS participants of
+one server process, one simulated world. Every robot is discovered and answers its actions,
+whichever participant serves it, and robots of different participants still see each other.
+
+The shipped 6-robot warehouse, served by 3 participants (robots 1 and 4, 2 and 5, 3 and 6
+share one), lean profile, at 2x real time in a child process.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import pytest
+from waiting import DISCOVERY_S, GOAL_S, wait_until
+
+from fleet.ros.launch import ServerProcess
+from fleet.types import GoalStatus, NavigateToPose, Pose2D, Wait
+
+if TYPE_CHECKING:
+    from fleet.ros.backend import RosBackends
+
+pytestmark = pytest.mark.ros
+
+WAREHOUSE = Path(__file__).resolve().parents[3] / "configs" / "warehouse_patrol.yaml"
+ROBOTS = [f"/robot{i}" for i in range(1, 7)]
+
+
+@pytest.fixture(scope="module")
+def truth_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("shards") / "truth.json"
+
+
+@pytest.fixture(scope="module")
+def server(truth_file: Path) -> Iterator[ServerProcess]:
+    with ServerProcess.for_config(
+        WAREHOUSE, "--speed", "2", "--profile", "lean", "--shards", "3", "--truth", str(truth_file)
+    ) as srv:
+        yield srv
+
+
+@pytest.fixture(scope="module")
+def backends(server: ServerProcess) -> Iterator[RosBackends]:
+    from fleet.ros.backend import make_ros_backends
+
+    rb = make_ros_backends(ROBOTS, wait_s=DISCOVERY_S)
+    try:
+        yield rb
+    finally:
+        rb.close()
+
+
+def test_every_robot_of_every_participant_is_discovered_and_answers(
+    server: ServerProcess, backends: RosBackends
+) -> None:
+    assert server.info["shards"] == 3
+    assert sorted(server.info["robots"]) == sorted(ROBOTS)
+    ids = {ns: backends[ns].send_goal(Wait(0.5)) for ns in ROBOTS}
+    wait_until(
+        lambda: all(backends[ns].goal_state(g).status.terminal for ns, g in ids.items()),
+        GOAL_S,
+        "a Wait goal on every robot",
+    )
+    assert {ns: backends[ns].goal_state(g).status for ns, g in ids.items()} == dict.fromkeys(
+        ROBOTS, GoalStatus.SUCCEEDED
+    )
+
+
+def test_robots_of_other_participants_drive_in_the_one_world(
+    server: ServerProcess, backends: RosBackends, truth_file: Path
+) -> None:
+    """Robot 2 (second participant) and robot 3 (third) drive to goals; the world the server
+    steps moves both (its ground truth at the end has them there)."""
+    goals = {"/robot2": Pose2D(2.0, 5.0, 1.57), "/robot3": Pose2D(3.0, 5.0, 1.57)}
+    ids = {ns: backends[ns].send_goal(NavigateToPose(p)) for ns, p in goals.items()}
+    wait_until(
+        lambda: all(backends[ns].goal_state(g).status.terminal for ns, g in ids.items()),
+        GOAL_S,
+        "NavigateToPose on robots 2 and 3",
+    )
+    assert [backends[ns].goal_state(g).status for ns, g in ids.items()] == [GoalStatus.SUCCEEDED] * 2
+    assert server.stop() == 130
+    truth = json.loads(truth_file.read_text())["robots"]
+    for ns, p in goals.items():
+        x, y, _ = truth[ns]["pose"]
+        assert abs(x - p.x) < 0.3 and abs(y - p.y) < 0.3, (ns, truth[ns]["pose"])
+
+
+def test_a_goal_is_sent_once_whoever_sends_it_first(backends: RosBackends) -> None:
+    """``send_goal`` queues the request and the backend's watchdog may send it first: the
+    queued send then does nothing (twice sent, the second request preempted the first)."""
+    from fleet.ros.remote_goal import RemoteGoal
+
+    b = backends["/robot1"]
+    rec = RemoteGoal("/robot1#x", "wait", Wait(0.5))
+    rec.handle = object()  # type: ignore[assignment]  # "request sent"
+
+    def no_client(kind: str) -> None:
+        raise AssertionError(f"a second {kind} request was sent")
+
+    b._client = no_client  # type: ignore[method-assign,assignment]
+    try:
+        b._send_remote(rec)
+    finally:
+        del b._client
