@@ -196,7 +196,8 @@ class Errands:
     def _free_dock(
         self, robot: str, docks: Sequence[str], first: Mapping[str, float] | None = None
     ) -> str | None:
-        """The dock nearest ``robot`` (roadmap distance; with ``first``, the dock of least
+        """The dock nearest ``robot`` (roadmap distance, driving with the fleet's flow:
+        :meth:`TrafficManager.costs_from`; with ``first``, the dock of least
         ``first[dock]``, then nearest) that nobody else holds or heads for."""
         m = self.manager
         taken = {n for r, n in self._target.items() if r != robot}
@@ -205,7 +206,7 @@ class Errands:
             return None
         path = m.path(robot)
         here = path[0] if path else self.roadmap.nearest_node(*m.node_pos(free[0]))
-        dist = nx.single_source_dijkstra_path_length(self.roadmap.graph, here, weight="length")
+        dist = m.costs_from(here)  # the way the manager will drive it: with the flow
         if first is None:
             return min(free, key=lambda d: (dist.get(d, math.inf), d))
         return min(free, key=lambda d: (round(first.get(d, math.inf), 1), dist.get(d, math.inf), d))
