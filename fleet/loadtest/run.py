@@ -111,6 +111,7 @@ def prepare_config(
             aisles=aisles,
             shelf_len=shelf,
             chargers=chargers,
+            charger_sides=2,  # robots come off every aisle at both ends: charge at both
             seed=seed,
         )
     else:
