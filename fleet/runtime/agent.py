@@ -67,6 +67,10 @@ logger = logging.getLogger(__name__)
 #: Remember this many applied order ids (older ones are forgotten first).
 SEEN_IDS = 256
 
+#: With traffic management the battery guard measures the way to the charger nearest the
+#: robot; the nearest one is looked up once per square cell of this side (m) the robot visits.
+NEAREST_CELL_M = 2.0
+
 
 class Declared(Protocol):
     """Something declared on the bus (a subscription, a liveliness token)."""
@@ -167,8 +171,11 @@ class RobotAgent:
         #: The fleet-side safety stop (see the module docstring); ``watchdog.trips`` counts stops.
         self.watchdog = SafetyWatchdog(self.health)
         #: The config's chargers: until the coordinator names one, the battery guard uses
-        #: the one nearest the robot (so a robot never given work still charges).
+        #: the one nearest the robot (so a robot never given work still charges). With
+        #: traffic management always the one nearest the robot: the coordinator sends a
+        #: robot that must charge to the nearest free charger, whichever it named.
         self.chargers = tuple(chargers)
+        self._nearest: dict[tuple[int, int], Pose2D] = {}
         self.seq = 0
         self.ticks = 0
         self.charges = 0
@@ -257,7 +264,7 @@ class RobotAgent:
             self._seen[tid] = None
             if len(self._seen) > SEEN_IDS:
                 self._seen.pop(next(iter(self._seen)))
-        if msg.charger is not None:
+        if msg.charger is not None and not self.traffic:
             self.bb.charger = _pose(msg.charger)
         bb = self.bb
         kind = msg.kind
@@ -278,11 +285,16 @@ class RobotAgent:
     # -- ticking -----------------------------------------------------------------------
 
     def _default_charger(self, pose: Pose2D | None) -> None:
-        """Set the blackboard ``charger`` to the config charger nearest ``pose`` (the robot's)."""
-        if pose is not None:
-            self.bb.charger = min(
-                self.chargers, key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y)
-            )
+        """Set the blackboard ``charger`` to the config charger nearest ``pose`` (the robot's;
+        remembered per :data:`NEAREST_CELL_M` cell, so that calling it every tick is cheap)."""
+        if pose is None:
+            return
+        cell = (int(pose.x // NEAREST_CELL_M), int(pose.y // NEAREST_CELL_M))
+        c = self._nearest.get(cell)
+        if c is None:
+            c = min(self.chargers, key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y))
+            self._nearest[cell] = c
+        self.bb.charger = c
 
     def tick(self) -> StatusRecord:
         """Apply queued orders, check the safety watchdog, tick the tree once (unless the
@@ -291,7 +303,7 @@ class RobotAgent:
 
         self._apply_orders()
         st = self.backend.robot_state()
-        if self.bb.charger is None and self.chargers:
+        if self.chargers and (self.bb.charger is None or self.traffic):
             self._default_charger(st.pose)
         was = self.watchdog.reason
         reason = self.watchdog.check(st)

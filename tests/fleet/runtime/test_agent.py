@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import pytest
 from ports import free_endpoint
 
@@ -204,3 +205,21 @@ def test_status_and_liveliness_on_the_bus(config: FleetConfig, bus: StatusBus) -
     finally:
         agent.close()
     assert left.wait(WAIT_S)
+
+
+def test_with_traffic_the_battery_guard_measures_to_the_nearest_charger(config: FleetConfig) -> None:
+    """Under traffic management the coordinator sends a robot that must charge to the nearest
+    free charger, so the charge trigger measures the way to the charger nearest the robot,
+    not to the one an order named (on a large floor that one can be far away)."""
+    agent, sim = make_agent(config, None, chargers=[c.pose for c in config.chargers], traffic=True)
+    try:
+        pose = sim.backend(agent.namespace).robot_state().pose
+        assert pose is not None
+        far = max(config.chargers, key=lambda c: abs(c.pose.x - pose.x) + abs(c.pose.y - pose.y)).pose
+        near = min(config.chargers, key=lambda c: abs(c.pose.x - pose.x) + abs(c.pose.y - pose.y)).pose
+        assert far != near
+        assert agent.apply(msgspec.structs.replace(patrol_msg(config, "p-0001"), charger=far))
+        agent.tick()
+        assert agent.bb.charger == near
+    finally:
+        agent.close()
