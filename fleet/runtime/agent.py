@@ -67,13 +67,6 @@ logger = logging.getLogger(__name__)
 #: Remember this many applied order ids (older ones are forgotten first).
 SEEN_IDS = 256
 
-#: With traffic management the chargers nearest the robot are looked up once per square cell
-#: of this side (m) the robot visits.
-NEAREST_CELL_M = 2.0
-
-#: With traffic management a named charger farther than this many others is not measured to.
-NEARER_CHARGERS = 3
-
 
 class Declared(Protocol):
     """Something declared on the bus (a subscription, a liveliness token)."""
@@ -174,15 +167,8 @@ class RobotAgent:
         #: The fleet-side safety stop (see the module docstring); ``watchdog.trips`` counts stops.
         self.watchdog = SafetyWatchdog(self.health)
         #: The config's chargers: until the coordinator names one, the battery guard uses
-        #: the one nearest the robot (so a robot never given work still charges). With
-        #: traffic management the one the coordinator named unless more than
-        #: :data:`NEARER_CHARGERS` chargers are nearer the robot, then the one after them: the
-        #: named charger stands for the robot's share of the chargers (the coordinator sends a
-        #: robot that must charge to the nearest free one), but on a large floor it can be
-        #: hundreds of meters away, and a trigger measured to it fires at once.
+        #: the one nearest the robot (so a robot never given work still charges).
         self.chargers = tuple(chargers)
-        self._nearest: dict[tuple[int, int], Pose2D] = {}
-        self._named: Pose2D | None = None
         self.seq = 0
         self.ticks = 0
         self.charges = 0
@@ -272,9 +258,7 @@ class RobotAgent:
             if len(self._seen) > SEEN_IDS:
                 self._seen.pop(next(iter(self._seen)))
         if msg.charger is not None:
-            self._named = _pose(msg.charger)
-            if not self.traffic:
-                self.bb.charger = self._named
+            self.bb.charger = _pose(msg.charger)
         bb = self.bb
         kind = msg.kind
         bb.route = bb.pick = bb.steps = None
@@ -294,22 +278,11 @@ class RobotAgent:
     # -- ticking -----------------------------------------------------------------------
 
     def _default_charger(self, pose: Pose2D | None) -> None:
-        """Set the blackboard ``charger`` from ``pose`` (the robot's): the config charger nearest
-        it; with traffic management the named one unless more than :data:`NEARER_CHARGERS`
-        are nearer, else the next one (looked up once per :data:`NEAREST_CELL_M` cell)."""
-        if pose is None:
-            return
-        k = NEARER_CHARGERS if self.traffic else 0
-        cell = (int(pose.x // NEAREST_CELL_M), int(pose.y // NEAREST_CELL_M))
-        c = self._nearest.get(cell)
-        if c is None:
-            ranked = sorted(self.chargers, key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y))
-            c = self._nearest[cell] = ranked[min(k, len(ranked) - 1)]
-        named = self._named
-        if k and named is not None:
-            far = abs(c.x - pose.x) + abs(c.y - pose.y)
-            c = named if abs(named.x - pose.x) + abs(named.y - pose.y) <= far else c
-        self.bb.charger = c
+        """Set the blackboard ``charger`` to the config charger nearest ``pose`` (the robot's)."""
+        if pose is not None:
+            self.bb.charger = min(
+                self.chargers, key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y)
+            )
 
     def tick(self) -> StatusRecord:
         """Apply queued orders, check the safety watchdog, tick the tree once (unless the
@@ -318,7 +291,7 @@ class RobotAgent:
 
         self._apply_orders()
         st = self.backend.robot_state()
-        if self.chargers and (self.bb.charger is None or self.traffic):
+        if self.bb.charger is None and self.chargers:
             self._default_charger(st.pose)
         was = self.watchdog.reason
         reason = self.watchdog.check(st)

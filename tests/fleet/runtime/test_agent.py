@@ -11,7 +11,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-import msgspec
 import pytest
 from ports import free_endpoint
 
@@ -205,27 +204,3 @@ def test_status_and_liveliness_on_the_bus(config: FleetConfig, bus: StatusBus) -
     finally:
         agent.close()
     assert left.wait(WAIT_S)
-
-
-def test_with_traffic_the_charge_trigger_measures_to_a_near_charger() -> None:
-    """Under traffic management the coordinator sends a robot that must charge to the nearest
-    free charger: the charge trigger measures to the charger the coordinator named unless more
-    than three chargers are nearer the robot (on a large floor the named one can be far away;
-    a trigger measured to it would fire at once), then to the fourth nearest."""
-    cfg = load_config(PATROL.parent / "warehouse_patrol_30.yaml", robots=2)
-    agent, sim = make_agent(cfg, None, chargers=[c.pose for c in cfg.chargers], traffic=True)
-    try:
-        pose = sim.backend(agent.namespace).robot_state().pose
-        assert pose is not None
-        ranked = sorted(
-            (c.pose for c in cfg.chargers), key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y)
-        )
-        assert len(ranked) > 5
-        assert agent.apply(msgspec.structs.replace(patrol_msg(cfg, "p-0001"), charger=ranked[-1]))
-        agent.tick()
-        assert agent.bb.charger == ranked[3]
-        assert agent.apply(msgspec.structs.replace(patrol_msg(cfg, "p-0002"), charger=ranked[1]))
-        agent.tick()
-        assert agent.bb.charger == ranked[1]
-    finally:
-        agent.close()
