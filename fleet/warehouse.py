@@ -22,9 +22,8 @@ Layout (map frame, meters; ``x`` east, ``y`` north; 0.1 m cells; 0.2 m walls all
     ─────────────────────────────────────────────────────────────
     south wall
 
-Roadmap nodes sit on the aisle center lines (``a<i>_s`` / ``a<i>_n`` at the corridor
-center lines, ``a<i>_<j>`` in between, one per shelf bay of about 5 m) and on the west / east
-corridors (``w_*``, ``e_*``). Every edge keeps at least 1 m from shelves and walls, so robots of
+Roadmap nodes sit on the aisle center lines (``a<i>_s`` / ``a<i>_n`` at the corridor center
+lines, ``a<i>_<j>`` in between, one per shelf bay of about 5 m) and the west / east corridors. Every edge keeps at least 1 m from shelves and walls, so robots of
 radius 0.3 m can use it and two of them can pass in an aisle. Stations are pick poses in the
 aisles (``pick_a<i>_<j>_e`` / ``_w``, 0.4 m off the center line, facing the shelf) and
 drop-off poses (``drop<k>``) at the east wall.
@@ -40,8 +39,7 @@ with an odd aisle count the last aisle loops with the east corridor, ``aisle_<K>
 plus one ``perimeter`` loop: every loop runs clockwise (shared corridors are driven one way).
 
 The default (``n_robots <= 49``) warehouse is 30 m x 20 m with 7 aisles and two parking rows of
-25 spots. Larger fleets get more aisles, longer shelves and more parking rows. Given the same
-arguments the output is byte-for-byte the same.
+25 spots; larger fleets get more aisles, longer shelves and more parking rows. Deterministic.
 
 Command line: ``python -m fleet.warehouse --robots N --out DIR`` (``--help`` for options;
 ``--shipped`` regenerates the configs shipped in ``configs/``).
@@ -52,7 +50,7 @@ from __future__ import annotations
 import argparse
 import math
 import random
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -331,10 +329,10 @@ def roadmap_of(lay: Layout) -> tuple[dict[str, list[float]], list[list[str]]]:
     return nodes, edges
 
 
-def chargers_of(lay: Layout, n_robots: int, chargers: int | None) -> list[Entry]:
+def chargers_of(lay: Layout, n_robots: int, chargers: int | None, sides: int = 1) -> list[Entry]:
     """``chargers`` chargers (default ``max(2, ceil(n / 3))``, at most the sites there are)
-    on :meth:`Layout.charger_sites`: south sites first, spread evenly along the corridor,
-    then north ones. Raises :class:`ConfigError` (field ``chargers``) if they do not fit."""
+    on :meth:`Layout.charger_sites`, spread evenly along the corridor: south sites first, then
+    north ones (``sides=2``: half on each). Raises :class:`ConfigError` (field ``chargers``)."""
     sites = lay.charger_sites()
     cap = len(sites)
     want = max(2, math.ceil(n_robots * CHARGERS_PER_ROBOT))
@@ -345,7 +343,8 @@ def chargers_of(lay: Layout, n_robots: int, chargers: int | None) -> list[Entry]
         )
     half = cap // 2
     south, north = sites[:half], sites[half:]
-    chosen = _spread(south, min(n_ch, half)) + _spread(north, n_ch - min(n_ch, half))
+    n_south = min(n_ch, half) if sides < 2 else max(n_ch - half, (n_ch + 1) // 2)
+    chosen = _spread(south, n_south) + _spread(north, n_ch - n_south)
     return [{"name": f"charger{c + 1}", "pose": _pose(x, y, th)} for c, (x, y, th) in enumerate(chosen)]
 
 
@@ -498,6 +497,7 @@ def generate_warehouse(
     tasks: int | None = None,
     seed: int = 1,
     map_name: str | None = None,
+    charger_sides: int = 1,
 ) -> Path:
     """Write a warehouse world and return the path of its fleet config.
 
@@ -508,14 +508,14 @@ def generate_warehouse(
 
     ``aisles`` (default grows with ``n_robots``, at least 7), ``shelf_len`` (m, default 10 m
     up to 49 robots), ``parking_rows`` (default: enough for ``n_robots``, at least 2) shape
-    the map; ``chargers`` (default ``max(2, ceil(n/5))`` capped by the west wall) and
-    ``tasks`` (picking tasks, default ``max(4, n // 2)``) only change the config. ``seed``
-    picks the task shelves and is written as ``sim.seed``. Deterministic: the same arguments
-    give the same bytes. Raises :class:`ConfigError` naming the argument when the robots or
-    chargers do not fit.
+    the map; ``chargers`` (default ``max(2, ceil(n/3))``, ``charger_sides=2``: half of them on
+    the north corridor) and ``tasks`` (picking tasks, default ``max(4, n // 2)``) only change
+    the config. ``seed`` picks the task shelves and is written as ``sim.seed``. Same arguments,
+    same bytes. Raises :class:`ConfigError` naming the argument when robots or chargers do not fit.
     """
     lay = plan_layout(n_robots, aisles, shelf_len, parking_rows)
     world = build_world(lay, n_robots, chargers, tasks, seed)
+    world = replace(world, chargers=chargers_of(lay, n_robots, chargers, charger_sides))
     out = Path(out_dir)
     (out / "maps").mkdir(parents=True, exist_ok=True)
     map_name = map_name or name

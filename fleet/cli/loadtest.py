@@ -110,8 +110,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=positive_int,
         default=None,
         metavar="K",
-        help="up to K robots patrol each generated route (default: enough for half the fleet, "
-        f"at most one robot per {PATROL_SPACING_M:g} m of the shortest loop)",
+        help="K robots patrol each route of the default floor for N robots (default: every robot "
+        f"patrols: the floor is sized so that its loops hold one robot per {PATROL_SPACING_M:g} m)",
     )
     p.add_argument(
         "--ticking",

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from fleet.config.model import FleetConfig
+from fleet.config.model import FleetConfig, Route
 from fleet.errors import ConfigError
 from fleet.loadtest.sampler import DEFAULT_SAMPLE_S, HEAT_BIN_M, FleetSampler, loadtest_block
 from fleet.viz.display import FleetSnapshot, NullDisplay
@@ -56,8 +56,16 @@ DEFAULT_TICK_HZ = 2.0
 DEFAULT_STATUS_HZ = 1.0
 
 
-#: Automatic route copies keep at least this much loop length per patrolling robot (m).
-PATROL_SPACING_M = 10.0
+#: A load test's generated floor holds every robot on a patrol loop with at least this much
+#: loop length per robot (m); explicit ``--route-copies`` keep it for the shortest loop.
+PATROL_SPACING_M = 8.0
+
+#: Shelf rows of a load test's floor are at most this long (m): a robot in the middle of an
+#: aisle stays within half of it of the chargers beside the corridors.
+WORK_SHELF_MAX_M = 40.0
+
+#: A load test's floor has a charger per this many robots (:func:`work_chargers`).
+ROBOTS_PER_CHARGER = 2
 
 
 def _free_endpoint() -> str:
@@ -80,22 +88,35 @@ def prepare_config(
 
     The config's ``agent.tick_hz``, ``bus.status_hz`` and (if given) ``sim.step_s`` are replaced;
     ``route_copies > 1`` adds ``route_copies - 1`` copies of every patrol route (``<route>_c2``,
-    ...), so that up to ``route_copies`` robots patrol each loop (``None``:
-    :func:`auto_route_copies`). Raises :class:`ConfigError`
+    ...), so that up to ``route_copies`` robots patrol each loop, on the default floor for
+    ``n_robots``. ``None`` (the default): every robot has work: the floor is sized by
+    :func:`work_floor` and each loop gets :func:`work_copies` robots, one route per robot. Raises :class:`ConfigError`
     for values that cannot work (e.g. a tick period shorter than the step).
     """
     from fleet.config.loader import load_config
-    from fleet.warehouse import generate_warehouse
+    from fleet.warehouse import generate_warehouse, plan_layout
 
     src = "fleet loadtest"
     if n_robots < 1:
         raise ConfigError(src, "--robots", f"must be at least 1, got {n_robots}")
-    path = generate_warehouse(out_dir, f"loadtest_{n_robots}", n_robots, seed=seed)
-    cfg = load_config(path)
-    if route_copies is None:
-        route_copies = auto_route_copies(cfg)
-    if route_copies < 1:
+    if route_copies is not None and route_copies < 1:
         raise ConfigError(src, "--route-copies", f"must be at least 1, got {route_copies}")
+    if route_copies is None:
+        aisles, shelf = work_floor(n_robots)
+        chargers = min(plan_layout(n_robots, aisles, shelf).charger_capacity, work_chargers(n_robots))
+        path = generate_warehouse(
+            out_dir,
+            f"loadtest_{n_robots}",
+            n_robots,
+            aisles=aisles,
+            shelf_len=shelf,
+            chargers=chargers,
+            charger_sides=2,  # robots come off every aisle at both ends: charge at both
+            seed=seed,
+        )
+    else:
+        path = generate_warehouse(out_dir, f"loadtest_{n_robots}", n_robots, seed=seed)
+    cfg = load_config(path)
     if step_s is not None:
         cfg.sim = dataclasses.replace(cfg.sim, step_s=float(step_s))
     if 1.0 / tick_hz < cfg.sim.step_s - 1e-12:
@@ -104,25 +125,66 @@ def prepare_config(
         )
     cfg.tick_hz = float(tick_hz)
     cfg.status_hz = float(status_hz)
-    if route_copies > 1:
-        base = list(cfg.routes)
-        for c in range(2, route_copies + 1):
-            cfg.routes.extend(dataclasses.replace(r, name=f"{r.name}_c{c}", robot=None) for r in base)
+    base = list(cfg.routes)
+    copies = work_copies(cfg, n_robots) if route_copies is None else [route_copies] * len(base)
+    for c in range(2, max(copies, default=1) + 1):
+        cfg.routes.extend(
+            dataclasses.replace(r, name=f"{r.name}_c{c}", robot=None)
+            for r, k in zip(base, copies, strict=True)
+            if k >= c
+        )
     return cfg
 
 
-def auto_route_copies(cfg: FleetConfig) -> int:
-    """Robots per patrol loop when ``--route-copies`` is not given: enough for half the fleet,
-    but at most one robot per :data:`PATROL_SPACING_M` of the shortest loop, and at least 1."""
-    n, routes = len(cfg.robots), len(cfg.routes)
-    if routes == 0:
-        return 1
-    laps = []
-    for r in cfg.routes:
-        poses = cfg.route_poses(r)
-        laps.append(sum(poses[i].distance_to(poses[(i + 1) % len(poses)]) for i in range(len(poses))))
-    by_space = int(min(laps) // PATROL_SPACING_M)
-    return max(1, min(math.ceil(n / (2 * routes)), by_space))
+def loop_length(cfg: FleetConfig, route: Route) -> float:
+    """Length (m) of the closed polygon through ``route``'s waypoints (the roadmap loop of a
+    generated route: its waypoints are joined by straight aisles and corridors)."""
+    poses = cfg.route_poses(route)
+    return sum(poses[i].distance_to(poses[(i + 1) % len(poses)]) for i in range(len(poses)))
+
+
+def work_chargers(n_robots: int) -> int:
+    """Chargers of a load test's floor: one per :data:`ROBOTS_PER_CHARGER` robots. A robot
+    that drives all the time drains about 0.0045 of its battery per second at 1 m/s and a
+    charger gives 0.02 per second, so a fleet that always works spends about a fifth of its
+    time on chargers; the rest covers the trips to and from them."""
+    return max(2, math.ceil(n_robots / ROBOTS_PER_CHARGER))
+
+
+def work_floor(n_robots: int, spacing_m: float = PATROL_SPACING_M) -> tuple[int, float]:
+    """``(aisles, shelf_len)`` of a load test's floor on which every one of ``n_robots``
+    robots has a patrol loop with ``spacing_m`` of loop each: shelves of
+    ``10 + sqrt(n)`` m (at least the default, at most :data:`WORK_SHELF_MAX_M`), and the
+    fewest aisles (at least the default) whose loops hold the fleet (:func:`work_copies`)."""
+    from fleet.warehouse import auto_aisles, auto_shelf_len, plan_layout, routes_of
+
+    shelf = float(round(min(WORK_SHELF_MAX_M, max(auto_shelf_len(n_robots), 10.0 + math.sqrt(n_robots)))))
+    k = auto_aisles(n_robots)
+    while True:
+        lay = plan_layout(n_robots, k, shelf)
+        pair = 2 * (lay.y_north - lay.y_south) + 2 * (lay.aisle_x(2) - lay.aisle_x(1))
+        around = 2 * (lay.y_north - lay.y_south) + 2 * (lay.x_east - lay.x_west)
+        east = 2 * (lay.y_north - lay.y_south) + 2 * (lay.x_east - lay.aisle_x(k))
+        loops = [pair] * (k // 2) + ([east] if k % 2 else []) + [around]
+        assert len(loops) == len(routes_of(k))
+        if sum(max(1, int(length // spacing_m)) for length in loops) >= n_robots:
+            return k, shelf
+        k += max(1, k // 20)
+
+
+def work_copies(cfg: FleetConfig, n_robots: int, spacing_m: float = PATROL_SPACING_M) -> list[int]:
+    """Robots per route of ``cfg.routes`` so that ``n_robots`` robots all patrol: each loop
+    holds one robot per ``spacing_m`` of its length (at least one); the copies are trimmed
+    round-robin (highest copy numbers first) to the fleet size when the loops hold more."""
+    cap = [max(1, int(loop_length(cfg, r) // spacing_m)) for r in cfg.routes]
+    copies = [0] * len(cap)
+    left = n_robots
+    for c in range(1, max(cap, default=1) + 1):
+        for i, k in enumerate(cap):
+            if k >= c and left > 0:
+                copies[i] = c
+                left -= 1
+    return [max(1, c) for c in copies]
 
 
 @dataclass

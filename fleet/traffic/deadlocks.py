@@ -6,7 +6,7 @@ waited on the same robots for a while, and its strongly connected components of 
 more robots (networkx). Resolution, lowest priority first: reroute a member around the
 others (a bounded detour), or step it aside to a free node nearby after which it yields;
 if no member can move, a robot that waits on the set and stands next to it makes room.
-Robots blocked by dead or parked robots are rerouted, or the parked robot is nudged."""
+Robots blocked by dead or parked robots: the parked robot is nudged aside, or they are rerouted."""
 
 from __future__ import annotations
 
@@ -58,8 +58,8 @@ def detect_and_resolve(st: TrafficState, now: float) -> None:
 
 
 def unblock(st: TrafficState, now: float, budget: int) -> None:
-    """Reroute robots that waited ``reroute_after_s`` on robots that are all dead or parked
-    (each at most once per ``reroute_after_s``); failing that, nudge a parked one aside."""
+    """Robots that waited ``reroute_after_s`` on robots that are all dead or parked (each at
+    most once per ``reroute_after_s``): nudge a parked one aside; failing that, reroute."""
     p = st.params
     for name in sorted(st.waiting):
         if budget <= 0:
@@ -74,14 +74,14 @@ def unblock(st: TrafficState, now: float, budget: int) -> None:
             continue
         budget -= 1
         r.next_reroute = now + p.reroute_after_s
+        # a parked robot costs nobody anything to move: nudge it first; a detour costs the
+        # waiting robot time and energy (a robot on its way to a charger can run flat on one)
+        if any(b.parked and sidestep(st, b, {name}, now, back=False) for b in stuck_on):
+            st.metrics.nudges += 1
+            continue
         avoid = {x for b in stuck_on for x in st.table.held(b.name) if isinstance(x, str)}
         if reroute(st, r, avoid, now, bounded=False):
             st.metrics.dead_reroutes += 1
-            continue
-        for b in stuck_on:
-            if b.parked and sidestep(st, b, {name}, now, back=False):
-                st.metrics.nudges += 1
-                break
 
 
 def _held_nodes(st: TrafficState, robots: list[TrackedRobot]) -> set[str]:

@@ -7,8 +7,10 @@
 * A robot idle (no route, mode ``idle``) for ``park_idle_s`` that does not stand on a
   parking or charger dock is sent to the nearest free parking dock, so idle robots do not
   stand in aisles; one below :data:`TOP_UP_BELOW` battery goes to a free charger instead
-  (while more than :data:`SPARE_CHARGERS` of them are free), parked robots too. A robot on a charger dock that has finished charging is moved to
-  parking only when another robot waits for a charger.
+  (while more than :data:`SPARE_CHARGERS` of them are free), parked robots too. A robot on
+  a charger dock is moved to parking when another robot waits for a charger, or when it
+  has charged above :data:`VACATE_ABOVE` and an idle robot below :data:`TOP_UP_BELOW` found
+  no free charger (so chargers do not fill up with full robots while others drain).
 * A robot whose target dock another robot stepped onto picks another dock."""
 
 from __future__ import annotations
@@ -31,7 +33,10 @@ if TYPE_CHECKING:
 #: (it charges while it waits for work), so idle robots do not all run low together.
 TOP_UP_BELOW = 0.6
 #: ... but only while more than this share of the chargers is free (kept for robots in need).
-SPARE_CHARGERS = 0.34
+SPARE_CHARGERS = 0.1
+#: An idle robot on a charger above this battery fraction leaves it to an idle robot that
+#: wants to top up and found no free charger.
+VACATE_ABOVE = 0.9
 
 #: Sends a robot along a node path for a purpose: ``drive(robot, nodes, purpose)``.
 Drive = Callable[[str, list[str], Purpose], None]
@@ -69,6 +74,9 @@ class Errands:
         self._idle_since: dict[str, float] = {}
         self._charge_wait: set[str] = set()
         self._charger_dist: dict[str, float] | None = None
+        # idle robots that wanted to top up and found no free charger: this cycle, last cycle
+        self._wanting = 0
+        self._wanted = 0
 
     def forget(self, robot: str) -> None:
         """``robot`` got a patrol: drop its dock target and its place in the charger queue."""
@@ -116,7 +124,9 @@ class Errands:
         if purpose is Purpose.PARK and here != self._target.get(name):
             return  # on its way to park
         if here in self._charger_set:
-            if not self._charge_wait:
+            assert obs is not None
+            full = float(obs.battery) >= VACATE_ABOVE
+            if not self._charge_wait and not (self._wanted and full):
                 return  # idle on a charger: it charges there until a robot needs it
         else:
             assert obs is not None
@@ -133,7 +143,8 @@ class Errands:
         m = self.manager
         taken = set(self._target.values())
         free = sum(1 for c in self.chargers if m.holder(c) is None and c not in taken)
-        if free <= SPARE_CHARGERS * len(self.chargers):
+        if free < 1 or free <= SPARE_CHARGERS * len(self.chargers):
+            self._wanting += 1
             return False
         node = self._free_dock(name, self.chargers)
         if node is None:
@@ -143,7 +154,9 @@ class Errands:
 
     def serve_chargers(self, requests: list[tuple[float, str]]) -> None:
         """Free chargers go to the robots with the lowest battery first; the others wait on a
-        free parking dock near the chargers (once; they stay there until a charger frees)."""
+        free parking dock near the chargers (once; they stay there until a charger frees).
+        Called once per cycle, after :meth:`step` of every robot."""
+        self._wanted, self._wanting = self._wanting, 0
         if not requests:
             return
         for battery, name in sorted(requests):
@@ -183,7 +196,8 @@ class Errands:
     def _free_dock(
         self, robot: str, docks: Sequence[str], first: Mapping[str, float] | None = None
     ) -> str | None:
-        """The dock nearest ``robot`` (roadmap distance; with ``first``, the dock of least
+        """The dock nearest ``robot`` (roadmap distance, driving with the fleet's flow:
+        :meth:`TrafficManager.costs_from`; with ``first``, the dock of least
         ``first[dock]``, then nearest) that nobody else holds or heads for."""
         m = self.manager
         taken = {n for r, n in self._target.items() if r != robot}
@@ -192,7 +206,7 @@ class Errands:
             return None
         path = m.path(robot)
         here = path[0] if path else self.roadmap.nearest_node(*m.node_pos(free[0]))
-        dist = nx.single_source_dijkstra_path_length(self.roadmap.graph, here, weight="length")
+        dist = m.costs_from(here)  # the way the manager will drive it: with the flow
         if first is None:
             return min(free, key=lambda d: (dist.get(d, math.inf), d))
         return min(free, key=lambda d: (round(first.get(d, math.inf), 1), dist.get(d, math.inf), d))

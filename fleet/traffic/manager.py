@@ -143,6 +143,17 @@ class TrafficManager:
         if not r.alive and math.hypot(r.x - r.prog_x, r.y - r.prog_y) > 2.0 * self.params.clearance:
             revive(self._st, r, now)
 
+    def set_flow(self, moves: Iterable[tuple[str, str]]) -> None:
+        """The directed edges the fleet drives (e.g. the steps of its patrol loops): paths the
+        manager plans from now on avoid driving against them
+        (``TrafficParams.flow_penalty``, :meth:`RoadIndex.set_flow`)."""
+        self._st.roads.set_flow(moves, self._st.params.flow_penalty)
+
+    def costs_from(self, node: str) -> dict[str, float]:
+        """Cost (m, against-the-flow edges weighted) of the cheapest path from ``node`` to every
+        node, as the manager plans its own paths (:meth:`RoadIndex.costs_from`)."""
+        return self._st.roads.costs_from(node)
+
     def set_priority(self, robot: str, priority: float) -> None:
         """Base priority of ``robot`` (higher goes first and yields last; default 0)."""
         self._st.get(robot).base_priority = float(priority)

@@ -39,7 +39,10 @@ class TrafficParams:
     strict rule applies, so robots meeting at a corridor's end stay rare while crossing
     traffic is not held up at every aisle end. ``follow``: a robot may enter a corridor
     behind robots that drive it the same way, node by node, instead of waiting for the
-    whole corridor (:func:`fleet.traffic.grants.following`).
+    whole corridor (:func:`fleet.traffic.grants.following`). ``flow_penalty``: the paths the
+    manager plans itself (to a charger or parking dock, detours) cost an edge driven against
+    the fleet's patrol loops ``1 + flow_penalty`` times its length
+    (:meth:`fleet.traffic.roads.RoadIndex.set_flow`), so errands drive with the traffic.
     """
 
     robot_radius: float = 0.3
@@ -63,6 +66,7 @@ class TrafficParams:
     max_resolutions: int = 8
     hold_far_end: bool = False
     follow: bool = True
+    flow_penalty: float = 3.0
 
     @property
     def clearance(self) -> float:

@@ -273,7 +273,8 @@ class ReservationTraffic:
 def traffic_from_config(config: FleetConfig, deliver: Deliver | None = None) -> ReservationTraffic:
     """The :class:`ReservationTraffic` of a fleet config: its roadmap with the chargers,
     parking spots and robot start poses joined as docks (:func:`fleet.roadmap.docks.add_docks`),
-    :class:`TrafficParams` from ``robot_model.radius`` and the ``traffic`` section. Raises
+    :class:`TrafficParams` from ``robot_model.radius`` and the ``traffic`` section, the
+    direction of its patrol loops as the fleet's flow (:meth:`TrafficManager.set_flow`). Raises
     :class:`~fleet.errors.ConfigError` (field ``traffic``) if a dock cannot be joined."""
     ts = config.traffic
     params = TrafficParams(
@@ -297,8 +298,9 @@ def traffic_from_config(config: FleetConfig, deliver: Deliver | None = None) -> 
         for label, _ in docks
         if not label.startswith("charger:") and g.nodes[node_of[label]].get("dock")
     ]
-    return ReservationTraffic(
-        Roadmap.from_graph(g),
+    roadmap = Roadmap.from_graph(g)
+    policy = ReservationTraffic(
+        roadmap,
         params,
         deliver,
         chargers=chargers,
@@ -307,3 +309,20 @@ def traffic_from_config(config: FleetConfig, deliver: Deliver | None = None) -> 
         park_idle_s=ts.park_idle_s,
         dead_release_s=ts.dead_release_s,
     )
+    policy.manager.set_flow(_loop_moves(roadmap, config))
+    return policy
+
+
+def _loop_moves(roadmap: Roadmap, config: FleetConfig) -> list[tuple[str, str]]:
+    """The directed edges of the config's patrol loops (routes through roadmap nodes)."""
+    moves: list[tuple[str, str]] = []
+    for route in config.routes:
+        nodes = [n for n in route.node_names if n is not None]
+        if len(nodes) < 2 or len(nodes) < len(route.node_names):
+            continue
+        try:
+            loop = roadmap.expand_route(nodes, closed=True)
+        except (KeyError, ValueError):
+            continue
+        moves += list(zip(loop, loop[1:] + loop[:1], strict=True))
+    return moves

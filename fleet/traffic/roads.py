@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import heapq
 import math
+from collections.abc import Iterable
 
 import networkx as nx
 import numpy as np
@@ -20,6 +21,8 @@ class RoadIndex:
 
     ``pos[node]``: ``(x, y)``; ``adj[node]``: neighbour nodes; ``deg[node]``: their number;
     ``length[edge_key(a, b)]``: the edge's length (m). Node names are strings.
+    ``against[(a, b)]``: extra cost factor of driving edge ``a -> b`` against the fleet's
+    flow (see :meth:`set_flow`; empty: no direction is preferred).
     """
 
     def __init__(self, graph: nx.Graph[str]) -> None:
@@ -35,6 +38,16 @@ class RoadIndex:
         for a, b, d in graph.edges(data=True):
             pa, pb = self.pos[str(a)], self.pos[str(b)]
             self.length[edge_key(str(a), str(b))] = float(d.get("length", math.dist(pa, pb)))
+        self.against: dict[tuple[str, str], float] = {}
+
+    def set_flow(self, moves: Iterable[tuple[str, str]], penalty: float) -> None:
+        """Prefer the fleet's driving direction: ``moves`` are the directed edges robots
+        drive (e.g. every step of every patrol loop); from now on :meth:`shortest` costs an
+        edge driven against them (its reverse is a move, itself is not) ``1 + penalty``
+        times its length. Edges driven both ways, or not at all, keep their length.
+        ``penalty`` 0 clears the preference."""
+        fwd = {(str(a), str(b)) for a, b in moves if edge_key(str(a), str(b)) in self.length}
+        self.against = {(b, a): float(penalty) for a, b in fwd if (b, a) not in fwd and penalty > 0}
 
     def nearest_node(self, x: float, y: float) -> str:
         """The node nearest ``(x, y)``; raises :class:`TrafficError` on an empty roadmap."""
@@ -43,11 +56,31 @@ class RoadIndex:
         d = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
         return self._names[int(np.argmin(d))]
 
+    def costs_from(self, a: str) -> dict[str, float]:
+        """Cost (m, edges against the flow weighted as in :meth:`shortest`) of the cheapest
+        path from ``a`` to every node it reaches (Dijkstra)."""
+        adj, lens, against = self.adj, self.length, self.against
+        dist = {a: 0.0}
+        heap = [(0.0, a)]
+        done: set[str] = set()
+        while heap:
+            d, u = heapq.heappop(heap)
+            if u in done:
+                continue
+            done.add(u)
+            for v in adj[u]:
+                nd = d + lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0))
+                if nd < dist.get(v, math.inf):
+                    dist[v] = nd
+                    heapq.heappush(heap, (nd, v))
+        return dist
+
     def shortest(
         self, a: str, b: str, avoid: frozenset[str] | set[str], limit: float = math.inf
     ) -> list[str] | None:
         """A* from ``a`` to ``b`` by edge length (straight-line heuristic), not entering nodes
-        in ``avoid``; ``None`` if there is no such path of length at most ``limit`` (m)."""
+        in ``avoid``; ``None`` if there is no such path of cost at most ``limit`` (m). An
+        edge driven against the flow (:meth:`set_flow`) costs ``1 + penalty`` times its length."""
         if a == b:
             return [a]
         if b in avoid:
@@ -57,7 +90,7 @@ class RoadIndex:
         dist = {a: 0.0}
         prev: dict[str, str] = {}
         heap = [(math.dist(pos[a], (bx, by)), 0.0, a)]
-        adj, lens = self.adj, self.length
+        adj, lens, against = self.adj, self.length, self.against
         closed: set[str] = set()
         while heap:
             f, d, u = heapq.heappop(heap)
@@ -74,7 +107,7 @@ class RoadIndex:
             for v in adj[u]:
                 if v in avoid or v in closed:
                     continue
-                nd = d + lens[edge_key(u, v)]
+                nd = d + lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0))
                 if nd < dist.get(v, math.inf):
                     dist[v] = nd
                     prev[v] = u

@@ -143,3 +143,16 @@ def test_cli_writes_a_loadable_config(tmp_path: Path, capsys: pytest.CaptureFixt
     assert len(load_config(tmp_path / "cli.yaml").robots) == 12
     assert main(["--robots", "500", "--aisles", "1", "--parking-rows", "1", "--out", str(tmp_path)]) == 2
     assert "do not fit" in capsys.readouterr().out
+
+
+def test_chargers_on_both_corridors_when_asked() -> None:
+    from fleet.warehouse import chargers_of, plan_layout
+
+    lay = plan_layout(100, 25, 20.0)
+    mid = (lay.y_south + lay.y_north) / 2
+    one = chargers_of(lay, 100, 50)
+    two = chargers_of(lay, 100, 51, sides=2)
+    assert all(c["pose"][1] < mid for c in one)  # 50 fit on the south corridor
+    south = sum(1 for c in two if c["pose"][1] < mid)
+    assert (south, len(two) - south) == (26, 25)
+    assert len({tuple(c["pose"][:2]) for c in two}) == 51

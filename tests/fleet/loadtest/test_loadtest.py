@@ -192,3 +192,19 @@ def test_status_hz_is_the_configs_bus_rate_honoured_by_the_agents(tmp_path: Path
     runner.run()
     assert [a.ticks for a in runner.agents] == [40] * 4
     assert [a.published for a in runner.agents] == [10] * 4
+
+
+@pytest.mark.parametrize("n", [4, 20, 100])
+def test_every_robot_of_a_load_test_has_a_patrol_loop_with_room(tmp_path: Path, n: int) -> None:
+    """The generated floor holds the whole fleet on patrol loops: one route per robot, and no
+    loop carries more than one robot per ``PATROL_SPACING_M`` of its length."""
+    from collections import Counter
+
+    from fleet.loadtest.run import PATROL_SPACING_M, loop_length, prepare_config
+
+    cfg = prepare_config(n, tmp_path / "w")
+    assert len(cfg.robots) == n and len(cfg.routes) >= n
+    per_loop = Counter(r.name.split("_c")[0] for r in cfg.routes)
+    for r in cfg.routes:
+        if "_c" not in r.name:
+            assert per_loop[r.name] * PATROL_SPACING_M <= max(loop_length(cfg, r), PATROL_SPACING_M)
