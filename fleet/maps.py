@@ -40,6 +40,7 @@ import yaml
 from PIL import Image
 
 from fleet.errors import MapError
+from fleet.yamlfile import YamlProblem, parse_yaml
 
 logger = logging.getLogger(__name__)
 
@@ -154,7 +155,9 @@ def _read_yaml(yaml_path: Path) -> dict[object, object]:
     except OSError as e:
         raise MapError(src, "", f"cannot read the map file ({e})") from None
     try:
-        meta = yaml.safe_load(text)
+        meta = parse_yaml(text)
+    except YamlProblem as e:
+        raise MapError(src, e.field, e.reason) from None
     except yaml.YAMLError as e:
         raise MapError(src, "", f"not valid YAML ({e})") from None
     if not isinstance(meta, dict):
@@ -190,7 +193,7 @@ def read_map_yaml(yaml_path: str | Path) -> MapMetadata:
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         raise MapError(src, "mode", f"must be trinary, scale or raw, got {mode!r}{hint}")
     negate = meta.get("negate", 0)
-    if negate not in (0, 1) or isinstance(negate, float):
+    if not (isinstance(negate, int) and not isinstance(negate, bool) and negate in (0, 1)):
         raise MapError(src, "negate", f"must be 0 or 1, got {negate!r}")
     thresholds = []
     for key, default in (("occupied_thresh", 0.65), ("free_thresh", 0.25)):

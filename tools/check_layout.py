@@ -28,6 +28,7 @@ CORE = (
     "fleet.clock",
     "fleet.robots",
     "fleet.maps",
+    "fleet.yamlfile",
     "fleet.messages",
     "fleet.diagnostics",
 )
@@ -40,6 +41,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "fleet.clock": (),
     "fleet.robots": (),
     "fleet.maps": (),
+    "fleet.yamlfile": (),
     "fleet.messages": (),
     "fleet.diagnostics": (),
     "fleet.roadmap": (),

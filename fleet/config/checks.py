@@ -98,16 +98,18 @@ class NearIndex:
         return None if best is None else best[1]
 
 
-def check_roadmap(place: Placer, roadmap: Roadmap) -> None:
+def check_roadmap(place: Placer, roadmap: Roadmap, listed: Sequence[tuple[str, str]] = ()) -> None:
     """Every node and (straight) edge clear of obstacles, and the roadmap connected.
 
-    Fields: ``roadmap.nodes.<name>`` / ``roadmap.edges[i]``, or for a roadmap read from a SUMO
-    network ``roadmap.net.junctions.<id>`` / ``roadmap.net.edges[a, b]``; ``roadmap``.
+    ``listed`` are the edges as the file lists them, so that ``roadmap.edges[i]`` names the
+    entry ``i`` of the file (the roadmap keeps its edges in its own order). Fields:
+    ``roadmap.nodes.<name>`` / ``roadmap.edges[i]``, or for a roadmap read from a SUMO network
+    ``roadmap.net.junctions.<id>`` / ``roadmap.net.edges[a, b]``; ``roadmap``.
     """
     net = roadmap.source_net is not None
     for n in roadmap.nodes:
         place.check(Pose2D(*roadmap.pos(n)), f"roadmap.net.junctions.{n}" if net else f"roadmap.nodes.{n}")
-    for i, (a, b) in enumerate(roadmap.edges):
+    for i, (a, b) in enumerate(list(listed) if listed and not net else roadmap.edges):
         f = f"roadmap.net.edges[{a}, {b}]" if net else f"roadmap.edges[{i}]"
         place.segment(roadmap.pos(a), roadmap.pos(b), f, f"edge {a} - {b}")
     if not roadmap.is_connected():

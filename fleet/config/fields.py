@@ -31,6 +31,10 @@ NAMESPACE_PATTERN = r"^/[A-Za-z][A-Za-z0-9_]*$"
 #: A Zenoh endpoint ``<protocol>/<address>``.
 ENDPOINT_PATTERN = r"^[a-z][a-z0-9-]*/\S+$"
 
+#: Key chunks the status bus uses itself (``fleet/sim/clock``, ``fleet/control/state``,
+#: ``fleet/service/...``; :data:`fleet.bus.keys.RESERVED_CHUNKS`): no robot may be named so.
+RESERVED_NAMES = frozenset({"sim", "control", "service"})
+
 _T = TypeVar("_T")
 
 #: The pydantic error type of every problem raised here.
@@ -179,7 +183,7 @@ class Text:
         def check(v: object) -> str:
             if not isinstance(v, str) or not v:
                 raise problem(f"must be {self.what}, got {v!r}")
-            if compiled is not None and not compiled.match(v):
+            if compiled is not None and not compiled.fullmatch(v):
                 raise problem(f"must {self.expect}, got {v!r}")
             return v
 
@@ -275,3 +279,24 @@ def unique_by(items: Sequence[_T], key: Callable[[_T], str], field: str, reason:
         if k in seen:
             raise problem(reason.format(name=repr(k)), i, field)
         seen.add(k)
+
+
+def not_reserved(v: str) -> str:
+    """``v`` (a robot name or namespace) unless its last token is a key chunk of the bus."""
+    if v.strip("/") in RESERVED_NAMES:
+        raise problem(
+            f"{v!r} is a key the fleet's bus uses itself ({', '.join(sorted(RESERVED_NAMES))}); "
+            "choose another name"
+        )
+    return v
+
+
+def valid_port(endpoint: str) -> str:
+    """``endpoint`` unless it ends in ``:<port>`` with a port outside 1..65535."""
+    address = endpoint.split("/", 1)[1].split("#", 1)[0]
+    head, sep, port = address.rpartition(":")
+    if sep and head and port.isdigit() and not 1 <= int(port) <= 65535:
+        raise problem(f"port {port} is not a TCP/UDP port (1..65535), got {endpoint!r}")
+    if sep and head and not port.isdigit() and not head.startswith("["):
+        raise problem(f"port {port!r} is not a number, got {endpoint!r}")
+    return endpoint

@@ -28,12 +28,10 @@ from fleet.config.checks import (
 from fleet.config.model import FleetConfig
 from fleet.config.placement import resize_fleet
 from fleet.config.schema import ConfigFile, validate_document
-from fleet.errors import ConfigError
+from fleet.errors import ConfigError, MapError
 from fleet.maps import load_map
 from fleet.roadmap.graph import Roadmap
-
-#: libyaml when available: the same documents, faster.
-YAML_LOADER: type[yaml.SafeLoader] = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+from fleet.yamlfile import YamlProblem, parse_yaml
 
 
 def load_config(path: str | Path, *, robots: int | None = None) -> FleetConfig:
@@ -61,7 +59,9 @@ def read_document(p: Path, file: str) -> object:
     except (IsADirectoryError, UnicodeDecodeError, PermissionError) as e:
         raise ConfigError(file, "", f"cannot read config file ({e})") from None
     try:
-        return yaml.load(text, Loader=YAML_LOADER)  # noqa: S506 - a safe loader
+        return parse_yaml(text)
+    except YamlProblem as e:
+        raise ConfigError(file, e.field, e.reason) from None
     except yaml.YAMLError as e:
         raise ConfigError(file, "", f"not valid YAML ({_yaml_problem(e)})") from None
 
@@ -79,10 +79,15 @@ def _build(p: Path, file: str, spec: ConfigFile, n_robots: int | None) -> FleetC
     map_path = (p.parent / spec.map).resolve()
     if not map_path.is_file():
         raise ConfigError(file, "map", f"map file {spec.map!r} does not exist (looked for {map_path})")
-    grid = load_map(map_path)
+    try:
+        grid = load_map(map_path)
+    except MapError as e:
+        if e.file != str(map_path) or e.field:
+            raise
+        raise MapError(file, "map", f"{spec.map!r}: {e.reason}") from None
     place = Placer(file, grid, spec.robot_model.radius)
     roadmap = Roadmap.from_config_dict(spec.roadmap.to_dict(), file, base_dir=p.parent)
-    check_roadmap(place, roadmap)
+    check_roadmap(place, roadmap, spec.roadmap.edges)
     chargers = named_poses(place, spec.chargers, "chargers")
     stations = {s.name: s for s in named_poses(place, spec.stations, "stations")}
     check_station_names(file, stations, roadmap)

@@ -14,6 +14,7 @@ robots, robots apart) is the second stage, :mod:`fleet.config.checks`.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Sequence
 from typing import Annotated, ClassVar
 
@@ -38,10 +39,12 @@ from fleet.config.fields import (
     Items,
     Numbers,
     Text,
+    not_reserved,
     problem,
     suggest,
     tname,
     unique_by,
+    valid_port,
 )
 from fleet.config.model import DEFAULT_LINK_TIMEOUT_S, DEFAULT_RECONNECT_S, CoordinatorParams, TrafficSettings
 from fleet.errors import ConfigError
@@ -54,12 +57,15 @@ _COORDINATOR, _TRAFFIC = CoordinatorParams(), TrafficSettings()
 
 POSE = "a pose [x, y, theta] of numbers (m, m, rad)"
 
-Positive = Annotated[float, Bounds(gt=0)]
-NonNegative = Annotated[float, Bounds(ge=0)]
 Fraction = Annotated[float, Bounds("a fraction in [0, 1]", ge=0, le=1)]
-Whole = Annotated[int, Bounds()]
 Name = Annotated[str, Text(NAME_PATTERN, "be a letter then letters, digits or _")]
-Namespace = Annotated[str, Text(NAMESPACE_PATTERN, f"look like /robot1 ({NAMESPACE_PATTERN[1:-1]})")]
+#: A robot's name: also a ROS name token and a bus key chunk, so not one the bus uses itself.
+RobotName = Annotated[Name, AfterValidator(not_reserved)]
+Namespace = Annotated[
+    str,
+    Text(NAMESPACE_PATTERN, f"look like /robot1 ({NAMESPACE_PATTERN[1:-1]})"),
+    AfterValidator(not_reserved),
+]
 Reference = Annotated[str, Text()]
 Pose = Annotated[tuple[float, float, float], Numbers(3, POSE)]
 XY = Annotated[tuple[float, float], Numbers(2, "[x, y] in meters")]
@@ -105,13 +111,21 @@ class Section(BaseModel):
 class RobotModelSection(Section):
     """robot_model: the shape and limits every robot shares."""
 
-    radius: Positive = Field(
+    radius: Annotated[float, Bounds(gt=0, le=5)] = Field(
         default=_MODEL.radius, description="robot radius (m); poses and edges keep this clear"
     )
-    max_linear_speed: Positive = Field(default=_MODEL.max_linear_speed, description="m/s")
-    max_angular_speed: Positive = Field(default=_MODEL.max_angular_speed, description="rad/s")
-    max_linear_accel: Positive = Field(default=_MODEL.max_linear_accel, description="m/s^2")
-    max_angular_accel: Positive = Field(default=_MODEL.max_angular_accel, description="rad/s^2")
+    max_linear_speed: Annotated[float, Bounds(gt=0, le=10)] = Field(
+        default=_MODEL.max_linear_speed, description="m/s"
+    )
+    max_angular_speed: Annotated[float, Bounds(gt=0, le=10)] = Field(
+        default=_MODEL.max_angular_speed, description="rad/s"
+    )
+    max_linear_accel: Annotated[float, Bounds(gt=0, le=20)] = Field(
+        default=_MODEL.max_linear_accel, description="m/s^2"
+    )
+    max_angular_accel: Annotated[float, Bounds(gt=0, le=40)] = Field(
+        default=_MODEL.max_angular_accel, description="rad/s^2"
+    )
 
     def to_model(self) -> RobotModel:
         return RobotModel(**self.model_dump())
@@ -120,9 +134,13 @@ class RobotModelSection(Section):
 class BatterySection(Section):
     """battery: levels are fractions of a full battery."""
 
-    drain_per_m: NonNegative = Field(default=_BATTERY.drain_per_m, description="fraction per meter driven")
-    drain_per_s: NonNegative = Field(default=_BATTERY.drain_per_s, description="fraction per second, always")
-    charge_per_s: Positive = Field(
+    drain_per_m: Annotated[float, Bounds(ge=0, le=0.1)] = Field(
+        default=_BATTERY.drain_per_m, description="fraction per meter driven"
+    )
+    drain_per_s: Annotated[float, Bounds(ge=0, le=0.01)] = Field(
+        default=_BATTERY.drain_per_s, description="fraction per second, always"
+    )
+    charge_per_s: Annotated[float, Bounds(gt=0, le=1)] = Field(
         default=_BATTERY.charge_per_s, description="fraction per second on a charger"
     )
     low: Fraction = Field(
@@ -134,12 +152,16 @@ class BatterySection(Section):
         default=_BATTERY.initial, description="start level (per robot: robots[i].battery)"
     )
     reserve: Fraction = Field(default=_BATTERY.reserve, description="kept on arrival at a charger")
-    margin: NonNegative = Field(
+    margin: Annotated[float, Bounds(ge=0, le=10)] = Field(
         default=_BATTERY.margin, description="extra on the energy a trip to a charger needs (0.5 = 50 %)"
     )
-    wait_s: NonNegative = Field(default=_BATTERY.wait_s, description="s of waiting for a charger budgeted")
-    detour: Positive = Field(default=_BATTERY.detour, description="roadmap length per meter of map distance")
-    cruise_mps: Positive = Field(
+    wait_s: Annotated[float, Bounds(ge=0, le=3600)] = Field(
+        default=_BATTERY.wait_s, description="s of waiting for a charger budgeted"
+    )
+    detour: Annotated[float, Bounds(ge=1, le=10)] = Field(
+        default=_BATTERY.detour, description="roadmap length per meter of map distance"
+    )
+    cruise_mps: Annotated[float, Bounds(gt=0, le=10)] = Field(
         default=_BATTERY.cruise_mps, description="m/s assumed on the way to a charger"
     )
 
@@ -156,34 +178,44 @@ class BatterySection(Section):
 class SimSection(Section):
     """sim: the simulator's fixed step, tolerances and seed."""
 
-    step_s: Positive = Field(default=_SIM.step_s, description="fixed simulation step (s)")
-    stuck_time_s: Positive = Field(
+    step_s: Annotated[float, Bounds(ge=0.001, le=1)] = Field(
+        default=_SIM.step_s, description="fixed simulation step (s)"
+    )
+    stuck_time_s: Annotated[float, Bounds(gt=0, le=3600)] = Field(
         default=_SIM.stuck_time_s, description="no progress this long while driving = stuck (s)"
     )
-    seed: Whole = Field(default=_SIM.seed, description="random seed: the same seed gives the same run")
-    charger_radius: Positive = Field(
+    seed: Annotated[int, Bounds("an integer in [0, 2**32 - 1]", ge=0, le=2**32 - 1)] = Field(
+        default=_SIM.seed, description="random seed: the same seed gives the same run"
+    )
+    charger_radius: Annotated[float, Bounds(gt=0, le=10)] = Field(
         default=_SIM.charger_radius, description="how close to a charger a robot charges (m)"
     )
-    goal_tolerance: Positive = Field(default=_SIM.goal_tolerance, description="m")
-    yaw_tolerance: Positive = Field(default=_SIM.yaw_tolerance, description="rad")
+    goal_tolerance: Annotated[float, Bounds(gt=0, le=10)] = Field(
+        default=_SIM.goal_tolerance, description="m"
+    )
+    yaw_tolerance: Annotated[float, Bounds(gt=0, le=math.pi)] = Field(
+        default=_SIM.yaw_tolerance, description="rad"
+    )
 
 
 class AgentSection(Section):
     """agent: the robots' behavior trees."""
 
-    tick_hz: Positive = Field(default=10.0, description="behavior-tree ticks per simulated second (Hz)")
+    tick_hz: Annotated[float, Bounds(gt=0, le=1000)] = Field(
+        default=10.0, description="behavior-tree ticks per simulated second (Hz)"
+    )
 
 
 class CoordinatorSection(Section):
     """coordinator: when work moves to another robot."""
 
-    stuck_reassign_s: Positive = Field(
+    stuck_reassign_s: Annotated[float, Bounds(gt=0, le=86400)] = Field(
         default=_COORDINATOR.stuck_reassign_s, description="a robot stuck this long loses its patrol (s)"
     )
-    status_timeout_s: Positive = Field(
+    status_timeout_s: Annotated[float, Bounds(gt=0, le=86400)] = Field(
         default=_COORDINATOR.status_timeout_s, description="a robot silent this long is considered dead (s)"
     )
-    ack_timeout_s: Positive = Field(
+    ack_timeout_s: Annotated[float, Bounds(gt=0, le=86400)] = Field(
         default=_COORDINATOR.ack_timeout_s,
         description="an order the robot has not acknowledged this long is re-issued under a new id (s)",
     )
@@ -198,17 +230,19 @@ class TrafficSection(Section):
     enabled: Annotated[bool, Flag()] = Field(
         default=_TRAFFIC.enabled, description="on by default; `fleet run --no-traffic` turns it off"
     )
-    deadlock_s: Positive = Field(
+    deadlock_s: Annotated[float, Bounds(gt=0, le=3600)] = Field(
         default=_TRAFFIC.deadlock_s, description="robots waiting on each other this long (s)"
     )
-    park_idle_s: NonNegative = Field(
+    park_idle_s: Annotated[float, Bounds(ge=0, le=86400)] = Field(
         default=_TRAFFIC.park_idle_s, description="an idle robot off its spot parks after (s)"
     )
-    horizon_m: Positive = Field(default=_TRAFFIC.horizon_m, description="path granted ahead of a robot (m)")
-    stall_timeout_s: Positive = Field(
+    horizon_m: Annotated[float, Bounds(gt=0, le=1000)] = Field(
+        default=_TRAFFIC.horizon_m, description="path granted ahead of a robot (m)"
+    )
+    stall_timeout_s: Annotated[float, Bounds(gt=0, le=3600)] = Field(
         default=_TRAFFIC.stall_timeout_s, description="no progress with a grant ahead = stopped robot (s)"
     )
-    dead_release_s: NonNegative = Field(
+    dead_release_s: Annotated[float, Bounds(ge=0, le=3600)] = Field(
         default=_TRAFFIC.dead_release_s,
         description="a robot whose agent died keeps its grant this long, then only its node (s)",
     )
@@ -220,10 +254,12 @@ class TrafficSection(Section):
 class BusSection(Section):
     """bus: the Zenoh status bus."""
 
-    endpoint: Annotated[str, Text(ENDPOINT_PATTERN, f"be a Zenoh endpoint like {DEFAULT_ENDPOINT}")] = Field(
-        default=DEFAULT_ENDPOINT, description="Zenoh endpoint <protocol>/<address>"
-    )
-    status_hz: Positive | None = Field(
+    endpoint: Annotated[
+        str,
+        Text(ENDPOINT_PATTERN, f"be a Zenoh endpoint like {DEFAULT_ENDPOINT}"),
+        AfterValidator(valid_port),
+    ] = Field(default=DEFAULT_ENDPOINT, description="Zenoh endpoint <protocol>/<address>")
+    status_hz: Annotated[float, Bounds(gt=0, le=1000)] | None = Field(
         default=None, description="status messages per second (Hz); unset: every tick"
     )
     secure: str | None = Field(
@@ -232,11 +268,11 @@ class BusSection(Section):
         description="key directory of a secured bus (`fleet keys init`), relative to this file; "
         "unset: an open bus (or --secure DIR)",
     )
-    link_timeout_s: Positive = Field(
+    link_timeout_s: Annotated[float, Bounds(gt=0, le=3600)] = Field(
         default=DEFAULT_LINK_TIMEOUT_S,
         description="an agent whose bus link (its Zenoh router) is gone this long stops its robots (wall s)",
     )
-    reconnect_s: Positive | None = Field(
+    reconnect_s: Annotated[float, Bounds(gt=0, le=86400)] | None = Field(
         default=DEFAULT_RECONNECT_S,
         description="a process of a split fleet waits this long for a lost simulator to come back "
         "before it ends its run (wall s); unset (null): forever",
@@ -320,14 +356,14 @@ class TaskEntry(Section):
     name: Name
     shelf: Place
     drop: Place
-    dwell_s: NonNegative = Field(default=5.0, description="s")
+    dwell_s: Annotated[float, Bounds(ge=0, le=3600)] = Field(default=5.0, description="s")
     robot: Reference | None = Field(default=None, description="preferred robot")
 
 
 class RobotEntry(Section):
     """A robot of the fleet."""
 
-    name: Name
+    name: RobotName
     start: Pose
     namespace: Namespace | None = Field(default=None, description="ROS namespace (default /<name>)")
     battery: Fraction | None = Field(default=None, description="start level (default battery.initial)")
@@ -340,6 +376,16 @@ class RobotEntry(Section):
 
 def _unique_namespaces(robots: Sequence[RobotEntry]) -> Sequence[RobotEntry]:
     unique_by(robots, lambda r: r.ns, "namespace", "duplicate namespace {name}")
+    names = {r.name for r in robots}
+    for i, r in enumerate(robots):
+        other = r.ns.strip("/")
+        if other != r.name and other in names:
+            raise problem(
+                f"{r.ns!r} is the namespace of robot {other!r}: robot {r.name!r} would speak for it "
+                f"on the bus (use /{r.name} or a namespace no other robot is named after)",
+                i,
+                "namespace",
+            )
     return robots
 
 
