@@ -98,6 +98,9 @@ class Bounds:
             else None
         )
         if low and high:
+            if low[1] == ">" and low[2] == 0:
+                positive = "a positive integer" if integer else "a positive number"
+                return f"{positive} {'up to' if high[1] == '<=' else 'below'} {high[2]:g}"
             return f"{kind} in {low[0]}{low[2]:g}, {high[2]:g}{high[0]}"
         if low:
             if low[1] == ">" and low[2] == 0:

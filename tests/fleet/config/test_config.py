@@ -186,7 +186,7 @@ BAD: list[tuple[str, Mutator, str, str]] = [
         "speed_negative",
         _set("robot_model.max_linear_speed", -1.0),
         "robot_model.max_linear_speed",
-        "must be a positive number, got -1.0",
+        "must be a positive number up to 10, got -1.0",
     ),
     (
         "speed_not_number",
@@ -201,7 +201,7 @@ BAD: list[tuple[str, Mutator, str, str]] = [
         "robot_model.max_angular_accel",
         "positive",
     ),
-    ("step_zero", _set("sim.step_s", 0.0), "sim.step_s", "positive"),
+    ("step_zero", _set("sim.step_s", 0.0), "sim.step_s", "in [0.001, 1]"),
     ("seed_float", _set("sim.seed", 1.5), "sim.seed", "integer"),
     ("tick_faster_than_step", _set("agent.tick_hz", 100.0), "agent.tick_hz", "shorter than sim.step_s"),
     (
@@ -213,7 +213,7 @@ BAD: list[tuple[str, Mutator, str, str]] = [
     ("bad_endpoint", _set("bus.endpoint", "localhost"), "bus.endpoint", "Zenoh endpoint"),
     ("battery_fraction", _set("battery.low", 1.5), "battery.low", "[0, 1]"),
     ("battery_low_above_resume", _set("battery.low", 0.96), "battery.low", "below battery.resume"),
-    ("battery_drain_negative", _set("battery.drain_per_m", -0.1), "battery.drain_per_m", ">= 0"),
+    ("battery_drain_negative", _set("battery.drain_per_m", -0.1), "battery.drain_per_m", "in [0, 0.1]"),
     ("robot_battery", _set("robots.1.battery", 2), "robots[1].battery", "[0, 1]"),
     ("pose_two_numbers", _set("robots.0.start", [1.0, 2.0]), "robots[0].start", "[x, y, theta]"),
     ("pose_strings", _set("chargers.0.pose", ["a", "b", "c"]), "chargers[0].pose", "[x, y, theta]"),
@@ -248,7 +248,7 @@ BAD: list[tuple[str, Mutator, str, str]] = [
     ("route_unknown_robot", _set("routes.0.robot", "robot9"), "routes[0].robot", "unknown robot 'robot9'"),
     ("task_unknown_robot", _set("tasks.0.robot", "robotx"), "tasks[0].robot", "unknown robot"),
     ("task_unknown_station", _set("tasks.0.shelf", "pick_a9_9_e"), "tasks[0].shelf", "unknown station"),
-    ("task_negative_dwell", _set("tasks.0.dwell_s", -1), "tasks[0].dwell_s", ">= 0"),
+    ("task_negative_dwell", _set("tasks.0.dwell_s", -1), "tasks[0].dwell_s", "in [0, 3600]"),
     ("no_chargers", _set("chargers", []), "chargers", "at least one"),
     ("no_robots", _set("robots", []), "robots", "at least one"),
     ("duplicate_charger", _set("chargers.1.name", "charger1"), "chargers[1].name", "duplicate"),
@@ -341,15 +341,16 @@ def test_a_png_map_loads_like_the_pgm(tmp_path: Path, base: dict[str, Any]) -> N
     assert cfg.robots == shipped.robots and cfg.routes == shipped.routes
 
 
-def test_a_map_naming_the_image_instead_of_the_yaml_names_the_map_file(
+def test_a_map_naming_the_image_instead_of_the_yaml_is_blamed_on_map(
     tmp_path: Path, base: dict[str, Any]
 ) -> None:
     doc = copy.deepcopy(base)
     doc["map"] = str(CONFIGS / "maps" / "warehouse.pgm")
+    path = write(tmp_path, doc)
     with pytest.raises(MapError) as ei:
-        load_config(write(tmp_path, doc))
-    assert ei.value.file == str(CONFIGS / "maps" / "warehouse.pgm")
-    assert "name the map's YAML file" in ei.value.reason
+        load_config(path)
+    assert (ei.value.file, ei.value.field) == (str(path), "map")
+    assert "warehouse.pgm" in ei.value.reason and "name the map's YAML file" in ei.value.reason
 
 
 def test_an_empty_file(tmp_path: Path) -> None:
