@@ -15,9 +15,11 @@ counting the depth and the keys on the way.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 from yaml.composer import Composer
 from yaml.constructor import SafeConstructor
-from yaml.events import MappingEndEvent, MappingStartEvent, SequenceEndEvent, SequenceStartEvent
+from yaml.events import Event, MappingEndEvent, MappingStartEvent, SequenceEndEvent, SequenceStartEvent
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 from yaml.parser import Parser
 from yaml.reader import Reader
@@ -27,15 +29,23 @@ from yaml.scanner import Scanner
 #: The deepest nesting of mappings and lists accepted (a fleet config needs 5).
 MAX_DEPTH = 64
 
-try:
-    from yaml.cyaml import CParser as _Parser
-except ImportError:  # no libyaml: the pure-Python scanner and parser
 
-    class _Parser(Reader, Scanner, Parser):  # type: ignore[no-redef]
-        def __init__(self, stream: str) -> None:
-            Reader.__init__(self, stream)
-            Scanner.__init__(self)
-            Parser.__init__(self)
+class _PyParser(Reader, Scanner, Parser):
+    """The pure-Python scanner and parser, used without libyaml."""
+
+    def __init__(self, stream: str) -> None:
+        Reader.__init__(self, stream)
+        Scanner.__init__(self)
+        Parser.__init__(self)
+
+
+if TYPE_CHECKING:
+    _Parser = _PyParser
+else:
+    try:  # libyaml's scanner and parser when installed: the same events, faster
+        from yaml.cyaml import CParser as _Parser
+    except ImportError:
+        _Parser = _PyParser
 
 
 class YamlProblem(Exception):
@@ -47,7 +57,20 @@ class YamlProblem(Exception):
         super().__init__(f"{field}: {reason}" if field else reason)
 
 
-class _Composer(Composer):
+if TYPE_CHECKING:
+
+    class _Events(Parser, Resolver):
+        """What the composer uses of the parser and the resolver the loader is made of."""
+
+        def peek_event(self) -> Event: ...
+        def get_event(self) -> Any: ...
+        def resolve(self, kind: type[Node], value: str | None, implicit: object) -> str: ...
+
+else:
+    _Events = object
+
+
+class _Composer(Composer, _Events):
     """Composes nodes from parser events, tracking the path of the node being composed."""
 
     _path: list[str | int]
@@ -55,13 +78,12 @@ class _Composer(Composer):
     def compose_node(self, parent: Node | None, index: object) -> Node | None:
         if self.check_event(MappingStartEvent, SequenceStartEvent) and len(self._path) >= MAX_DEPTH:
             mark = self.peek_event().start_mark
-            raise YamlProblem(
-                _field(self._path[:1]), f"nested more than {MAX_DEPTH} levels deep (line {mark.line + 1})"
-            )
-        node: Node | None = super().compose_node(parent, index)
+            line = f" (line {mark.line + 1})" if mark is not None else ""
+            raise YamlProblem(_field(self._path[:1]), f"nested more than {MAX_DEPTH} levels deep{line}")
+        node: Node | None = super().compose_node(parent, index)  # type: ignore[arg-type]  # stub: int
         return node
 
-    def compose_sequence_node(self, anchor: str | None) -> SequenceNode:
+    def compose_sequence_node(self, anchor: str | None) -> SequenceNode:  # type: ignore[override]
         start = self.get_event()
         tag = (
             start.tag
@@ -78,7 +100,7 @@ class _Composer(Composer):
         node.end_mark = self.get_event().end_mark
         return node
 
-    def compose_mapping_node(self, anchor: str | None) -> MappingNode:
+    def compose_mapping_node(self, anchor: str | None) -> MappingNode:  # type: ignore[override]
         start = self.get_event()
         tag = (
             start.tag
@@ -93,8 +115,9 @@ class _Composer(Composer):
             key = self.compose_node(node, None)
             if isinstance(key, ScalarNode) and key.tag != "tag:yaml.org,2002:merge":
                 line = key.start_mark.line + 1
+                known = len(seen)
                 first = seen.setdefault((key.tag, key.value), line)
-                if len(seen) <= len(node.value):
+                if len(seen) == known:
                     raise YamlProblem(
                         _field([*self._path, key.value]),
                         f"key {key.value!r} appears twice ({_lines(first, line)}): "
@@ -108,7 +131,7 @@ class _Composer(Composer):
         return node
 
 
-class _Loader(_Composer, _Parser, SafeConstructor, Resolver):  # type: ignore[misc]
+class _Loader(_Composer, _Parser, SafeConstructor, Resolver):
     def __init__(self, text: str) -> None:
         _Parser.__init__(self, text)
         Composer.__init__(self)
