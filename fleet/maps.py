@@ -55,6 +55,11 @@ FREE_PIXEL, OCCUPIED_PIXEL, UNKNOWN_PIXEL = 254, 0, 128
 
 Cells = npt.NDArray[np.int8]
 
+#: The coarsest map accepted (m per cell) and the farthest origin from 0 (m): far beyond any
+#: real map, near enough to refuse a typo before it turns into a grid nobody can drive on.
+MAX_RESOLUTION = 100.0
+MAX_ORIGIN = 1e6
+
 
 @dataclass
 class OccupancyGrid:
@@ -182,11 +187,19 @@ def read_map_yaml(yaml_path: str | Path) -> MapMetadata:
     if not isinstance(image, str) or not image:
         raise MapError(src, "image", f"must be the path of an image file, got {image!r}")
     resolution = _number(res)
-    if resolution is None or resolution <= 0:
-        raise MapError(src, "resolution", f"must be a positive number of meters per cell, got {res!r}")
+    if resolution is None or not 0 < resolution <= MAX_RESOLUTION:
+        raise MapError(
+            src,
+            "resolution",
+            f"must be a positive number of meters per cell up to {MAX_RESOLUTION:g}, got {res!r}",
+        )
     xyz = [_number(v) for v in origin] if isinstance(origin, list) else []
-    if len(xyz) != 3 or None in xyz:
-        raise MapError(src, "origin", f"must be [x, y, yaw] of numbers (m, m, rad), got {origin!r}")
+    if len(xyz) != 3 or None in xyz or any(abs(v or 0.0) > MAX_ORIGIN for v in xyz[:2]):
+        raise MapError(
+            src,
+            "origin",
+            f"must be [x, y, yaw] of numbers (m, m, rad), x and y within +-{MAX_ORIGIN:g}, got {origin!r}",
+        )
     mode = meta.get("mode", MapMode.TRINARY.value)
     if not isinstance(mode, str) or mode not in {m.value for m in MapMode}:
         close = difflib.get_close_matches(str(mode), [m.value for m in MapMode], n=1)
