@@ -14,6 +14,16 @@ STATUS_KEYS = "fleet/*/status"
 ALIVE_KEYS = "fleet/*/alive"
 
 
+#: Status batches of every process (:mod:`fleet.messages.status_batch`); four chunks, so
+#: ``fleet/*/status`` never matches them.
+STATUS_BATCH_KEYS = "fleet/batch/*/status"
+
+
+def status_batch_key(source: str) -> str:
+    """``fleet/batch/<source>/status``: the status batches of the process named ``source``."""
+    return f"fleet/batch/{check_robot_name(source)}/status"
+
+
 def status_key(robot: str) -> str:
     return f"fleet/{check_robot_name(robot)}/status"
 

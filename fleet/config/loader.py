@@ -117,6 +117,8 @@ def _build(p: Path, file: str, spec: ConfigFile, n_robots: int | None) -> FleetC
         coordinator=spec.coordinator.to_params(),
         endpoint=spec.bus.endpoint,
         status_hz=spec.bus.status_hz,
+        status_max_period_s=spec.bus.status_max_period_s,
+        status_batch=spec.bus.status_batch,
         parking=parking,
         traffic=spec.traffic.to_settings(),
     )

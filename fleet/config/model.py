@@ -100,6 +100,10 @@ class FleetConfig:
     coordinator: CoordinatorParams = field(default_factory=CoordinatorParams)
     endpoint: str = DEFAULT_ENDPOINT
     status_hz: float | None = None
+    #: Publish statuses on change, at least this often (s); None: at every status period.
+    status_max_period_s: float | None = None
+    #: A process with several agents sends their statuses as batches (one put per tick).
+    status_batch: bool = True
     parking: list[Pose2D] = field(default_factory=list)
     traffic: TrafficSettings = field(default_factory=TrafficSettings)
 

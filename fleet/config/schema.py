@@ -222,6 +222,16 @@ class BusSection(Section):
     status_hz: Positive | None = Field(
         default=None, description="status messages per second (Hz); unset: every tick"
     )
+    status_max_period_s: Positive | None = Field(
+        default=None,
+        description="publish a robot's status only when it changed, and at least this often (s; keep it "
+        "below coordinator.status_timeout_s); unset: at every status period",
+    )
+    status_batch: bool = Field(
+        default=True,
+        description="a process running several agents sends their statuses in batches on "
+        "fleet/batch/<process>/status (one message per tick) instead of one per robot",
+    )
 
 
 def _nodes(v: object) -> object:

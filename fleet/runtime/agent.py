@@ -26,7 +26,11 @@ carries the robot's diagnostics (``health``, ``diag``: :func:`fleet.diagnostics.
 Status rate: with ``status_hz`` (the config's ``bus.status_hz``) the agent publishes its status
 on the bus at most that often (simulated time, from the records' ``t``): a record is published
 when at least ``1 / status_hz`` s passed since the last one published; ``None`` publishes every
-tick. ``on_status`` (an in-process coordinator) still gets every tick's record.
+tick. With ``status_max_period_s`` (the config's ``bus.status_max_period_s``) it publishes *on
+change* instead: a record goes out (still at most at ``status_hz``) only if it differs from the
+last one published (:func:`status_changed`: anything but ``t``, ``seq`` and small moves of the
+pose, battery, progress and odometry), and at least every ``status_max_period_s`` s whatever
+changed. ``on_status`` (an in-process coordinator) still gets every tick's record.
 
 Pause and emergency stop (``fleet/control/state``, :class:`~fleet.messages.FleetControl`,
 or :meth:`RobotAgent.set_control` in-process): while the fleet is paused or its e-stop is
@@ -118,6 +122,8 @@ class RobotAgent:
             what its traffic grants (``fleet/<robot>/grant``, or :meth:`deliver_grant`) allow.
         status_hz: publish the status on the bus at most this often (simulated Hz, > 0);
             ``None``: every tick. See the module docstring.
+        status_max_period_s: publish on change, and at least this often (simulated s, > 0);
+            ``None``: publish at every ``status_hz`` period whether or not anything changed.
 
     ``published`` counts the records published on the bus.
     """
@@ -137,6 +143,7 @@ class RobotAgent:
         tree_file: str | None = None,
         health: HealthParams | None = None,
         chargers: Sequence[Pose2D] = (),
+        status_max_period_s: float | None = None,
     ) -> None:
         from fleet.robots import BatteryModel
         from nodes.blackboard import clear_robot_blackboard, robot_blackboard
@@ -149,11 +156,14 @@ class RobotAgent:
         self.tick_hz = float(tick_hz)
         self.tree_kind = tree_kind
         self.on_status = on_status
-        if status_hz is not None and not (math.isfinite(status_hz) and status_hz > 0):
-            raise ValueError(f"status_hz must be a positive number of Hz or None, got {status_hz}")
+        _check_rate("status_hz", status_hz, "Hz")
+        _check_rate("status_max_period_s", status_max_period_s, "s")
         #: Least simulated time between two records published on the bus (None: every tick).
         self.status_period_s = None if status_hz is None else 1.0 / status_hz
+        #: Publish on change, and at least this often (None: every status period).
+        self.status_max_period_s = status_max_period_s
         self._last_published: float | None = None
+        self._last_sent: StatusRecord | None = None
         self.published = 0
         # py_trees' blackboard is process-global: start from the defaults, not from what an
         # earlier agent of the same namespace in this process left behind
@@ -339,7 +349,17 @@ class RobotAgent:
         last, period = self._last_published, self.status_period_s
         if period is not None and last is not None and rec.t < last + period - 1e-9:
             return
+        longest, sent = self.status_max_period_s, self._last_sent
+        if (
+            longest is not None
+            and last is not None
+            and sent is not None
+            and rec.t < last + longest - 1e-9
+            and not status_changed(sent, rec)
+        ):
+            return
         self._last_published = rec.t
+        self._last_sent = rec
         self.published += 1
         self.bus.publish_status(rec)
 
@@ -419,6 +439,52 @@ class RobotAgent:
                 except Exception as e:  # noqa: BLE001 - keep releasing the rest
                     logger.debug("robot %s: undeclare failed: %s", self.name, e)
         self._token = self._sub = self._grant_sub = self._control_sub = None
+
+
+def _check_rate(name: str, value: float | None, unit: str) -> None:
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive number of {unit} or None, got {value}")
+
+
+#: Moves smaller than these do not count as a change of the status (m, rad, fraction, m).
+POSE_EPS_M = 0.05
+THETA_EPS_RAD = 0.05
+BATTERY_EPS = 0.005
+PROGRESS_EPS = 0.01
+
+
+def status_changed(old: StatusRecord, new: StatusRecord) -> bool:
+    """Whether ``new`` says something ``old`` did not: any field but ``t`` and ``seq`` differs,
+    except that the pose must move by :data:`POSE_EPS_M` / :data:`THETA_EPS_RAD`, the battery by
+    :data:`BATTERY_EPS`, the lap progress by :data:`PROGRESS_EPS` and the odometer by
+    :data:`POSE_EPS_M` to count."""
+    p, q = old.pose, new.pose
+    if (p is None) != (q is None):
+        return True
+    if p is not None and q is not None:
+        if abs(p[0] - q[0]) > POSE_EPS_M or abs(p[1] - q[1]) > POSE_EPS_M:
+            return True
+        if abs(math.remainder(p[2] - q[2], math.tau)) > THETA_EPS_RAD:
+            return True
+    return (
+        abs(old.battery - new.battery) > BATTERY_EPS
+        or abs(old.progress - new.progress) > PROGRESS_EPS
+        or abs(old.distance_m - new.distance_m) > POSE_EPS_M
+        or old.mode != new.mode
+        or old.task_id != new.task_id
+        or old.bt != new.bt
+        or old.leaf != new.leaf
+        or old.charging != new.charging
+        or old.stuck != new.stuck
+        or old.laps != new.laps
+        or old.collisions != new.collisions
+        or old.picks_done != new.picks_done
+        or old.health != new.health
+        or old.diag != new.diag
+        or old.result_id != new.result_id
+        or old.result != new.result
+        or old.steps_done != new.steps_done
+    )
 
 
 def _build_root(

@@ -27,6 +27,9 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import re
+import socket
 import sys
 import threading
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -248,9 +251,10 @@ class FleetRunner:
         """The bus, the world, the coordinator and the agents, on ``session``."""
         from fleet.bus.status_bus import StatusBus
 
-        self.bus = StatusBus(session)
-        self.bus.subscribe_statuses(self.bus_view.see)
         specs = [self.config.robot(n) for n in self.agent_names]
+        batch = self.config.status_batch and len(specs) > 1
+        self.bus = StatusBus(session, batch_source=batch_source() if batch else None)
+        self.bus.subscribe_statuses(self.bus_view.see)
         self.world = world = factory(self.config, specs, session)
         sim = getattr(world, "sim", None)
         self._world_latch = (
@@ -342,6 +346,7 @@ class FleetRunner:
             on_status=self.coordinator.feed_local if self.coordinator is not None else None,
             traffic=self.traffic,
             status_hz=self.config.status_hz,
+            status_max_period_s=self.config.status_max_period_s,
             tree_file=self.tree_file,
             chargers=[c.pose for c in self.config.chargers],
         )
@@ -398,11 +403,15 @@ class FleetRunner:
         for a in self.agents:
             if a.pending():
                 a.tick()
+        if self.bus is not None:
+            self.bus.flush_statuses()
 
     def _tick(self, now: float) -> None:
         """One agent tick: every local agent, then the coordinator cycle, then the observers."""
         for a in self.agents:
             a.tick()
+        if self.bus is not None:
+            self.bus.flush_statuses()  # the statuses of this round, in batches when batching
         if self.coordinator is not None:
             self.coordinator.cycle()
         if self.host is not None:
@@ -478,6 +487,12 @@ class FleetRunner:
             session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves Session.close unannotated
         except Exception as e:  # noqa: BLE001 - already closed by the bus
             logger.debug("closing the session: %s", e)
+
+
+def batch_source() -> str:
+    """This process's name on the bus for status batches: ``<host>-<pid>`` (one key chunk)."""
+    host = re.sub(r"[^A-Za-z0-9_.-]", "_", socket.gethostname()) or "host"
+    return f"{host}-{os.getpid()}"
 
 
 def _sum_counts(counts: Iterable[Mapping[str, int]]) -> dict[str, int]:
