@@ -187,6 +187,8 @@ class StatusBus:
         record's types are not checked again here (receivers do)."""
         if self._batch_key is not None:
             self._queued.append(check_status(rec))
+            if len(self._queued) >= MAX_BATCH_RECORDS:  # a full batch waits for nothing
+                self.flush_statuses()
             return
         pub = self._status_pubs.get(rec.robot)
         if pub is None:
@@ -195,12 +197,15 @@ class StatusBus:
         self.status_puts += 1
 
     def flush_statuses(self) -> int:
-        """Send the queued records as batches (congestion: drop); returns how many records
-        went out. Does nothing without ``batch_source``."""
+        """Send the queued records as batches (congestion: block); returns how many records
+        went out. Does nothing without ``batch_source``. (A batch is also sent as soon as
+        :data:`MAX_BATCH_RECORDS` records are queued, so none waits for more than that.)"""
         queued, self._queued = self._queued, []
         if self._batch_key is None or not queued or self.batch_source is None:
             return 0
-        pub = self._publisher(self._batch_key, False, zenoh.Encoding("application/msgpack"))
+        # congestion: block. A lost batch would lose hundreds of robots' records at once, and
+        # a sender that outruns the router should slow down rather than lose them
+        pub = self._publisher(self._batch_key, True, zenoh.Encoding("application/msgpack"))
         for i in range(0, len(queued), MAX_BATCH_RECORDS):
             pub.put(encode_batch(self.batch_source, queued[i : i + MAX_BATCH_RECORDS]))
             self.status_puts += 1

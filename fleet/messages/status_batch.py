@@ -55,12 +55,18 @@ class _BatchIn(Struct, frozen=True, tag_field="v", tag=BUS_VERSION):
     records: Annotated[list[msgspec.Raw], Meta(max_length=MAX_BATCH_RECORDS * 2)]
 
 
+class _BatchWhole(Struct, frozen=True, tag_field="v", tag=BUS_VERSION):
+    source: Text
+    records: Annotated[list[StatusRecord], Meta(max_length=MAX_BATCH_RECORDS * 2)]
+
+
 class _Unversioned(Struct, frozen=True, tag_field="v", tag=0):
     """Matched when ``v`` is 0 (an unsupported version); makes ``v`` required."""
 
 
 _ENCODER: Final = msgspec.msgpack.Encoder()
 _BATCH_DECODER: Final = msgspec.msgpack.Decoder(Union[_BatchIn, _Unversioned])  # noqa: UP007 - runtime union
+_WHOLE_DECODER: Final = msgspec.msgpack.Decoder(_BatchWhole)
 _RECORD_DECODER: Final = msgspec.msgpack.Decoder(Union[StatusRecord, _Unversioned])  # noqa: UP007
 
 
@@ -116,6 +122,11 @@ def decode_batch(data: Buffer) -> DecodedBatch:
         raise ValueError(f"payload: not a MessagePack status batch ({str(e)[:80]})") from None
     if not isinstance(batch, _BatchIn):
         raise ValueError(f"batch.v: unsupported version 0 (expected {BUS_VERSION})")
+    try:  # the common case, every record valid: one decoder call for the whole batch
+        whole = _WHOLE_DECODER.decode(data)
+        return DecodedBatch(whole.source, list(whole.records), [])
+    except (msgspec.ValidationError, msgspec.DecodeError):
+        pass  # find the bad records one by one
     good: list[StatusRecord] = []
     errors: list[str] = []
     for i, raw in enumerate(batch.records):
