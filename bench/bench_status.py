@@ -14,7 +14,10 @@ publish all their robots' records once per ``1 / --hz`` s:
 * ``--mode both`` runs the two one after the other (ratios in one run).
 
 The workers' rounds are spread over the period (worker ``i`` starts ``i / workers`` of a
-period later), as independent processes' ticks are. Each record is stamped (its ``t``) with
+period later), as independent processes' ticks are; with ``--spread`` each worker also sends its
+batches spread over its period, as a worker ticking its agents one after another does (without
+it, all of a worker's records are built and sent at once: the worst case for latency, since
+the subscriber decodes the whole burst in turn). Each record is stamped (its ``t``) with
 the wall time at which it was *built*, so the latency includes the wait for the rest of its
 batch, the put, the router and the subscriber's decoding: receive time minus ``t`` (one
 machine, one clock). The first worker also sends ``--malformed`` bad batches, which the
@@ -23,7 +26,7 @@ workers' lag behind schedule and CPU per record, the subscriber's CPU. Exit 1 if
 was lost or malformed messages were not counted.
 
     python bench/bench_status.py                                   # 10,000 robots at 1 Hz, both modes
-    python bench/bench_status.py --robots 10000 --hz 10 --mode batch
+    python bench/bench_status.py --robots 10000 --hz 10 --mode batch --spread
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ from fleet.bus.keys import status_batch_key
 from fleet.bus.session import open_session
 from fleet.bus.status_bus import StatusBus
 from fleet.messages import StatusRecord
+from fleet.messages.status_batch import MAX_BATCH_RECORDS
 
 #: Wall seconds the workers get to connect before publishing starts.
 WARMUP_S = 3.0
@@ -86,6 +90,7 @@ def worker(
     start: float,
     mode: str,
     bad: int,
+    spread: bool = False,
 ) -> int:
     """Child process: publish robots ``robot<first>``.. every ``1/hz`` s from ``start`` (shifted
     by this worker's share of the period). Prints one JSON line of counts."""
@@ -93,6 +98,7 @@ def worker(
     source = f"bench-w{index}"
     bus = StatusBus(session, batch_source=source if mode == "batch" else None)
     names = [f"robot{first + i}" for i in range(count)]
+    chunk = MAX_BATCH_RECORDS
     sent, max_lag, cpu = 0, 0.0, 0.0
     try:
         for i in range(bad):
@@ -113,9 +119,14 @@ def worker(
                 time.sleep(-lag)
             else:
                 max_lag = max(max_lag, lag)
-            for n in names:
-                bus.publish_status(record(n, k + 1, time.time()))
-            bus.flush_statuses()
+            for j in range(0, count, chunk):
+                if spread and j:  # as agents ticking one after another would: over the period
+                    wait = due + (j / count) / hz - time.time()
+                    if wait > 0:
+                        time.sleep(wait)
+                for n in names[j : j + chunk]:
+                    bus.publish_status(record(n, k + 1, time.time()))
+                bus.flush_statuses()
             sent += count
         cpu = time.process_time() - cpu0
         puts = bus.status_puts
@@ -133,7 +144,9 @@ def _pct(vals: list[float], q: float) -> float:
     return vals[min(len(vals) - 1, int(q * len(vals)))] * 1e3 if vals else float("nan")
 
 
-def run(mode: str, robots: int, hz: float, seconds: float, workers: int, malformed: int) -> StatusBenchResult:
+def run(
+    mode: str, robots: int, hz: float, seconds: float, workers: int, malformed: int, spread: bool = False
+) -> StatusBenchResult:
     """One mode: start the workers, collect every record, stop and clean up."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     session = open_session(endpoint, "router")
@@ -158,7 +171,7 @@ def run(mode: str, robots: int, hz: float, seconds: float, workers: int, malform
         first = 1
         for i in range(workers):
             n = robots // workers + (1 if i < robots % workers else 0)
-            spec = f"{endpoint},{i},{first},{n},{hz},{seconds},{start},{mode},{malformed if i == 0 else 0}"
+            spec = f"{endpoint},{i},{first},{n},{hz},{seconds},{start},{mode},{malformed if i == 0 else 0},{int(spread)}"
             cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", spec]
             procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env))
             first += n
@@ -214,18 +227,38 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=10.0, help="publishing time, wall s (default 10)")
     ap.add_argument("--workers", type=int, default=4, help="publishing processes (default 4)")
     ap.add_argument("--mode", choices=("batch", "single", "both"), default="both")
+    ap.add_argument(
+        "--spread",
+        action="store_true",
+        help="each worker sends its batches spread over the period, as agents ticking one after "
+        "another do (default: all of a worker's records at once, the worst case)",
+    )
     ap.add_argument("--malformed", type=int, default=4, help="bad batches injected by worker 0 (default 4)")
     ap.add_argument("--json", action="store_true", help="also print each result as a JSON line")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.worker:
-        ep, i, first, n, hz, secs, start, mode, bad = a.worker.split(",")
-        return worker(ep, int(i), int(first), int(n), float(hz), float(secs), float(start), mode, int(bad))
+        ep, i, first, n, hz, secs, start, mode, bad, spread = a.worker.split(",")
+        return worker(
+            ep,
+            int(i),
+            int(first),
+            int(n),
+            float(hz),
+            float(secs),
+            float(start),
+            mode,
+            int(bad),
+            spread == "1",
+        )
     if a.robots < 1 or a.hz <= 0 or a.seconds <= 0 or a.workers < 1 or a.malformed < 0:
         ap.error("--robots, --hz, --seconds, --workers must be positive, --malformed >= 0")
+    print(
+        f"bench_status: publishing {'spread over each period' if a.spread else 'in one burst per period and worker'}"
+    )
     ok = True
     for mode in ("batch", "single") if a.mode == "both" else (a.mode,):
-        r = run(mode, a.robots, a.hz, a.seconds, a.workers, a.malformed if mode == "batch" else 0)
+        r = run(mode, a.robots, a.hz, a.seconds, a.workers, a.malformed if mode == "batch" else 0, a.spread)
         print(
             f"bench_status [{mode}]: {r.robots} robots x {r.hz:g} Hz for {r.seconds:g} s from {r.workers} worker "
             f"processes -> router + StatusBus subscriber ({r.puts} puts)\n"

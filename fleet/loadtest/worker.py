@@ -127,11 +127,16 @@ def run_worker(endpoint: str, index: int, *, run: str = "main", out_dir: str | P
     )
     bus = StatusBus(session, batch_source=f"{_host()}-{os.getpid()}-w{index}")
     agents: list[RobotAgent] = []
+    tmp: tempfile.TemporaryDirectory[str] | None = None
     try:
         spec = fetch_spec(session, run)
         if not 0 <= index < len(spec.assignment):
             raise BusError(f"worker index {index} out of range: the run has {len(spec.assignment)} workers")
-        out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix=f"fleet-worker{index}-"))
+        if out_dir is None:
+            tmp = tempfile.TemporaryDirectory(prefix=f"fleet-worker{index}-")
+            out = Path(tmp.name)
+        else:
+            out = Path(out_dir)
         cfg = prepare_config(
             spec.robots,
             out,
@@ -217,6 +222,8 @@ def run_worker(endpoint: str, index: int, *, run: str = "main", out_dir: str | P
                 logger.debug("closing %s: %s", a.name, e)
         undeclare_all([sub])
         bus.shutdown()
+        if tmp is not None:
+            tmp.cleanup()
 
 
 def _host() -> str:
