@@ -27,6 +27,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO, cast
 
+from fleet.bus.session import Declaration, undeclare_all
 from fleet.config.model import FleetConfig
 from fleet.errors import BackendError
 from fleet.loadtest.lockstep import (
@@ -132,7 +133,8 @@ class DistributedRunner(FleetRunner):
         self.progress = progress or (lambda line: None)
         self.procs: list[subprocess.Popen[bytes]] = []
         self._logs: list[TextIO] = []
-        self._decls: list[object] = []
+        self._decls: list[Declaration] = []
+        self._pubs: list[zenoh.Publisher] = []
         self._backends: dict[str, NavigationBackend] = {}
         self._remote: dict[str, RemoteAgent] = {}
         self._orders: dict[str, list[bytes]] = {}
@@ -180,7 +182,7 @@ class DistributedRunner(FleetRunner):
         self._decls += [
             session.declare_subscriber(done_key(self.run_id, i), self._on_done) for i in range(self.workers)
         ]
-        self._pubs = [session.declare_publisher(tick_key(self.run_id, i)) for i in range(self.workers)]
+        self._pubs += [session.declare_publisher(tick_key(self.run_id, i)) for i in range(self.workers)]
         self._start_workers()
         self._wait_ready()
         return world
@@ -364,11 +366,7 @@ class DistributedRunner(FleetRunner):
         try:
             self._stop_workers()
         finally:
-            for d in self._decls + getattr(self, "_pubs", []):
-                try:
-                    d.undeclare()  # type: ignore[attr-defined]
-                except Exception:  # noqa: BLE001, S110 - the session may be closing
-                    pass
+            undeclare_all([*self._decls, *self._pubs])
             super()._close(session)
 
     def _stop_workers(self) -> None:
