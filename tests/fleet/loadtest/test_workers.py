@@ -13,8 +13,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pytest
 from ports import free_endpoint
 
+from fleet.errors import ConfigError
 from fleet.loadtest.distributed import DistributedRunner, assign
 from fleet.loadtest.lockstep import RunSpec
 from fleet.loadtest.run import prepare_config, run_loadtest
@@ -133,3 +135,12 @@ def test_ctrl_c_stops_the_run_and_every_worker(tmp_path: Path) -> None:
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
             p.wait()
+
+
+def test_bad_worker_counts_are_clear_errors(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"--workers.*more workers \(5\) than robots \(3\)"):
+        run_loadtest(3, 10, out_dir=tmp_path / "a", workers=5)
+    with pytest.raises(ConfigError, match="--workers.*sim backend"):
+        run_loadtest(3, 10, out_dir=tmp_path / "b", workers=2, backend="sumo")
+    with pytest.raises(ConfigError, match="--workers"):
+        run_loadtest(3, 10, out_dir=tmp_path / "c", workers=2, local_workers=3)
