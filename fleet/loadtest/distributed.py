@@ -27,6 +27,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO, cast
 
+import zenoh
+
 from fleet.bus.session import Declaration, undeclare_all
 from fleet.config.model import FleetConfig
 from fleet.errors import BackendError
@@ -49,8 +51,6 @@ from fleet.messages.nav import goal_of
 from fleet.runtime.runner import FleetRunner
 
 if TYPE_CHECKING:
-    import zenoh
-
     from fleet.navigation import NavigationBackend
     from fleet.runtime.agent import RobotAgent
     from fleet.runtime.report import RunReport
@@ -182,7 +182,12 @@ class DistributedRunner(FleetRunner):
         self._decls += [
             session.declare_subscriber(done_key(self.run_id, i), self._on_done) for i in range(self.workers)
         ]
-        self._pubs += [session.declare_publisher(tick_key(self.run_id, i)) for i in range(self.workers)]
+        # block, never drop: a tick of 1000 robots is a 150 KB message, and a lost tick stalls the run
+        block = zenoh.CongestionControl.BLOCK
+        self._pubs += [
+            session.declare_publisher(tick_key(self.run_id, i), congestion_control=block)
+            for i in range(self.workers)
+        ]
         self._start_workers()
         self._wait_ready()
         return world
@@ -383,6 +388,7 @@ class DistributedRunner(FleetRunner):
                         self._remote[st.robot].take(st)
             except (BackendError, KeyboardInterrupt) as e:
                 logger.warning("the load-test workers did not end cleanly: %s", e)
+        self.progress(f"workers stopped after {self._k} ticks; {self.calls} goal calls served")
         for p in self.procs:
             try:
                 p.wait(timeout=10.0)
