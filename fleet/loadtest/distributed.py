@@ -136,6 +136,7 @@ class DistributedRunner(FleetRunner):
         self._decls: list[Declaration] = []
         self._pubs: list[zenoh.Publisher] = []
         self._backends: dict[str, NavigationBackend] = {}
+        self._ns: dict[str, str] = {}
         self._remote: dict[str, RemoteAgent] = {}
         self._orders: dict[str, list[bytes]] = {}
         self._grants: dict[str, list[bytes]] = {}
@@ -157,7 +158,7 @@ class DistributedRunner(FleetRunner):
 
         names = [n for part in self.spec.assignment for n in part]
         for name in names:
-            ns = self.config.robot(name).namespace
+            ns = self._ns[name] = self.config.robot(name).namespace
             log = GoalLog(
                 world.backend(ns), world.clock, self.config.sim.model.max_linear_speed, self.config.roadmap
             )
@@ -272,8 +273,9 @@ class DistributedRunner(FleetRunner):
             backend = self._backends[call.namespace]
             with self._nav_lock:
                 reply = self._serve(call, backend)
-        except Exception as e:  # noqa: BLE001 - answer, never raise into Zenoh
-            logger.warning("load-test goal call failed: %s", e)
+        except Exception as e:  # noqa: BLE001 - answer with the reason, never raise into Zenoh
+            logger.warning("load-test goal call failed: %r", e)
+            query.reply_err(f"the main process could not serve the call: {e!r}".encode())
             return
         query.reply(query.key_expr, encode(reply))
 
@@ -317,22 +319,9 @@ class DistributedRunner(FleetRunner):
         """Send every worker its tick, wait for every answer (in ``self._answers``)."""
         with self._cv:
             self._answers.clear()
-        for i, names in enumerate(self.spec.assignment):
-            if base.end:
-                msg = base
-            else:
-                msg = TickMsg(
-                    base.k,
-                    base.t,
-                    [self._backends[self.config.robot(n).namespace].robot_state() for n in names],
-                    self._goal_states(i),
-                    [o for n in names for o in self._orders[n]],
-                    [g for n in names for g in self._grants[n]],
-                )
-                for n in names:
-                    self._orders[n].clear()
-                    self._grants[n].clear()
-            self._pubs[i].put(encode(msg))
+        msgs = [base if base.end else self._tick_msg(base, i) for i in range(self.workers)]
+        for pub, msg in zip(self._pubs, msgs, strict=True):  # built first: the workers' calls
+            pub.put(encode(msg))  # then change the simulator while nothing here reads it
         end = time.monotonic() + timeout_s
         while True:
             with self._cv:
@@ -347,6 +336,22 @@ class DistributedRunner(FleetRunner):
                 raise BackendError(
                     f"load-test workers {missing} did not answer tick {base.k} in {timeout_s:g} s"
                 )
+
+    def _tick_msg(self, base: TickMsg, worker: int) -> TickMsg:
+        """Worker ``worker``'s tick: its robots' states, its watched goals, its new orders."""
+        names = self.spec.assignment[worker]
+        msg = TickMsg(
+            base.k,
+            base.t,
+            [self._backends[self._ns[n]].robot_state() for n in names],
+            self._goal_states(worker),
+            [o for n in names for o in self._orders[n]],
+            [g for n in names for g in self._grants[n]],
+        )
+        for n in names:
+            self._orders[n].clear()
+            self._grants[n].clear()
+        return msg
 
     def _goal_states(self, worker: int) -> list[tuple[str, GoalState]]:
         out: list[tuple[str, GoalState]] = []

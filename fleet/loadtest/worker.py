@@ -104,10 +104,15 @@ def _caller(session: zenoh.Session, run: str) -> Callable[[NavCall], NavReply]:
     key = nav_key(run)
 
     def call(c: NavCall) -> NavReply:
+        why = f"no answer within {CALL_TIMEOUT_S:g} s"
         for reply in session.get(key, payload=encode(c), timeout=CALL_TIMEOUT_S):
             if reply.ok is not None:
                 return _reply(reply.ok.payload.to_bytes())
-        raise BackendError(f"the load test's main process did not answer a {c.op} call for {c.namespace}")
+            if reply.err is not None:
+                why = reply.err.payload.to_bytes().decode("utf-8", "replace")
+        raise BackendError(
+            f"the load test's main process did not serve a {c.op} call for {c.namespace}: {why}"
+        )
 
     return call
 
