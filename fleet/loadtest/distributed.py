@@ -61,8 +61,10 @@ logger = logging.getLogger(__name__)
 
 #: Wall seconds to wait for every worker to be ready.
 READY_TIMEOUT_S = 300.0
-#: Wall seconds to wait for a worker's answer to one tick.
-TICK_TIMEOUT_S = 120.0
+#: Wall seconds to wait for a worker's answer to one tick (a tick of many agents with many
+#: goal calls can take minutes on a saturated machine; a local worker that dies is noticed
+#: at once).
+TICK_TIMEOUT_S = 600.0
 #: Wall seconds the workers get to answer the last (``end``) tick.
 END_TIMEOUT_S = 15.0
 

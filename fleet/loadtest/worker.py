@@ -48,8 +48,9 @@ from fleet.messages import Grant, StatusRecord, TaskMessage
 
 logger = logging.getLogger(__name__)
 
-#: A worker that hears nothing from the main process for this long (wall s) gives up.
-IDLE_S = 120.0
+#: A worker that hears nothing from the main process for this long after its last answer
+#: (wall s) gives up.
+IDLE_S = 600.0
 #: How long a worker waits for the main process's run description (wall s).
 SPEC_WAIT_S = 60.0
 #: A goal call not answered within this long (wall s) ends the worker.
@@ -219,6 +220,7 @@ def run_worker(endpoint: str, index: int, *, run: str = "main", out_dir: str | P
             bus.flush_statuses()
             watch = [gid for m in mirrors for gid in m.watch()]
             answer.put(encode(DoneMsg(index, msg.k, records, watch)))
+            last = time.monotonic()  # idle from the answer on: a tick may take long under load
     finally:
         for a in agents:
             try:
