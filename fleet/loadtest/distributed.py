@@ -215,7 +215,7 @@ class DistributedRunner(FleetRunner):
                 "--index",
                 str(i),
             ]
-            cmd += ["--run", self.run_id]
+            cmd += ["--run", self.run_id, "--parent", str(os.getpid())]
             out: TextIO | int = subprocess.DEVNULL
             if self.log_dir is not None:
                 self.log_dir.mkdir(parents=True, exist_ok=True)

@@ -119,8 +119,16 @@ def _caller(session: zenoh.Session, run: str) -> Callable[[NavCall], NavReply]:
 
 
 # long: the worker's whole life, setup to the final answer, reads best in one piece
-def run_worker(endpoint: str, index: int, *, run: str = "main", out_dir: str | Path | None = None) -> int:
-    """Run worker ``index`` of the load test on ``endpoint`` (see the module docstring)."""
+def run_worker(
+    endpoint: str,
+    index: int,
+    *,
+    run: str = "main",
+    out_dir: str | Path | None = None,
+    parent: int | None = None,
+) -> int:
+    """Run worker ``index`` of the load test on ``endpoint`` (see the module docstring);
+    ``parent``: the pid of the main process that started it (it exits when that one is gone)."""
     from fleet.clock import SimClock
     from fleet.loadtest.run import prepare_config
     from fleet.runtime.agent import RobotAgent
@@ -190,6 +198,8 @@ def run_worker(endpoint: str, index: int, *, run: str = "main", out_dir: str | P
             except queue.Empty:
                 if not started:
                     answer.put(ready)  # the main process may have missed it
+                if parent is not None and os.getppid() != parent:
+                    raise BusError("the main process that started this worker is gone") from None
                 if time.monotonic() - last > IDLE_S:
                     raise BusError(f"no tick from the main process for {IDLE_S:g} s") from None
                 continue
@@ -247,13 +257,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     ap.add_argument("--index", type=int, required=True, help="this worker's index, 0 .. K-1")
     ap.add_argument("--run", default="main", help=argparse.SUPPRESS)
+    ap.add_argument("--parent", type=int, help=argparse.SUPPRESS)
     ap.add_argument(
         "--out", type=Path, help="where to generate the warehouse (default: a temporary directory)"
     )
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
-        return run_worker(a.endpoint, a.index, run=a.run, out_dir=a.out)
+        return run_worker(a.endpoint, a.index, run=a.run, out_dir=a.out, parent=a.parent)
     except KeyboardInterrupt:
         return 130
     except FleetError as e:
