@@ -146,6 +146,7 @@ class DistributedRunner(FleetRunner):
         self._watch: dict[int, list[str]] = {i: [] for i in range(self.workers)}
         self._cv = threading.Condition()
         self._nav_lock = threading.Lock()
+        self._served: dict[int, tuple[int, bytes]] = {}  # worker -> its last call and answer
         self._k = 0
         self._session: zenoh.Session | None = None
         self.calls = 0
@@ -274,12 +275,17 @@ class DistributedRunner(FleetRunner):
             call = _call(query.payload.to_bytes() if query.payload is not None else b"")
             backend = self._backends[call.namespace]
             with self._nav_lock:
-                reply = self._serve(call, backend)
+                done = self._served.get(call.worker)
+                if done is not None and done[0] == call.call:
+                    data = done[1]  # asked again: the same answer, not a second goal
+                else:
+                    data = encode(self._serve(call, backend))
+                    self._served[call.worker] = (call.call, data)
         except Exception as e:  # noqa: BLE001 - answer with the reason, never raise into Zenoh
             logger.warning("load-test goal call failed: %r", e)
             query.reply_err(f"the main process could not serve the call: {e!r}".encode())
             return
-        query.reply(query.key_expr, encode(reply))
+        query.reply(query.key_expr, data)
 
     def _serve(self, call: NavCall, backend: NavigationBackend) -> NavReply:
         self.calls += 1

@@ -126,12 +126,15 @@ class DoneMsg(Struct, frozen=True):
 
 class NavCall(Struct, frozen=True):
     """Worker -> main (a query): ``op`` ``send`` (``goal`` for robot ``namespace``), ``cancel``
-    or ``state`` (of ``goal_id``)."""
+    or ``state`` (of ``goal_id``). ``call`` numbers the calls of one ``worker``: a call asked
+    again (its answer was late) is answered again, not served twice."""
 
     op: str
     namespace: str
     goal: GoalMsg | None = None
     goal_id: str = ""
+    worker: int = -1
+    call: int = 0
 
 
 class NavReply(Struct, frozen=True):

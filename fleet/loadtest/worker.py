@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import msgspec
 import zenoh
 
 from fleet.bus.session import Declaration, open_session, undeclare_all
@@ -54,7 +55,9 @@ IDLE_S = 600.0
 #: How long a worker waits for the main process's run description (wall s).
 SPEC_WAIT_S = 60.0
 #: A goal call not answered within this long (wall s) ends the worker.
-CALL_TIMEOUT_S = 60.0
+CALL_TIMEOUT_S = 300.0
+#: A goal call not answered within this long (wall s) is asked again.
+CALL_RETRY_S = 5.0
 
 _spec = decoder(RunSpec)
 _tick = decoder(TickMsg)
@@ -101,16 +104,24 @@ def fetch_spec(session: zenoh.Session, run: str, timeout_s: float = SPEC_WAIT_S)
     )
 
 
-def _caller(session: zenoh.Session, run: str) -> Callable[[NavCall], NavReply]:
+def _caller(session: zenoh.Session, run: str, worker: int) -> Callable[[NavCall], NavReply]:
     key = nav_key(run)
+    count = 0
 
     def call(c: NavCall) -> NavReply:
+        nonlocal count
+        count += 1
+        data = encode(msgspec.structs.replace(c, worker=worker, call=count))
         why = f"no answer within {CALL_TIMEOUT_S:g} s"
-        for reply in session.get(key, payload=encode(c), timeout=CALL_TIMEOUT_S):
-            if reply.ok is not None:
-                return _reply(reply.ok.payload.to_bytes())
-            if reply.err is not None:
-                why = reply.err.payload.to_bytes().decode("utf-8", "replace")
+        end = time.monotonic() + CALL_TIMEOUT_S
+        while time.monotonic() < end:  # ask again if an answer is late: the main process
+            for reply in session.get(key, payload=data, timeout=CALL_RETRY_S):  # serves it once
+                if reply.ok is not None:
+                    return _reply(reply.ok.payload.to_bytes())
+                if reply.err is not None:
+                    why = reply.err.payload.to_bytes().decode("utf-8", "replace")
+                    if "could not serve" in why:
+                        raise BackendError(f"the load test's main process failed a {c.op} call: {why}")
         raise BackendError(
             f"the load test's main process did not serve a {c.op} call for {c.namespace}: {why}"
         )
@@ -161,7 +172,7 @@ def run_worker(
             seed=spec.seed,
         )
         cfg.status_max_period_s = spec.status_max_period_s
-        call = _caller(session, run)
+        call = _caller(session, run, index)
         clock = SimClock()
         wbus = WorkerBus(bus)
         mirrors: list[MirrorBackend] = []
