@@ -65,6 +65,8 @@ READY_TIMEOUT_S = 300.0
 #: goal calls can take minutes on a saturated machine; a local worker that dies is noticed
 #: at once).
 TICK_TIMEOUT_S = 600.0
+#: A tick not answered within this many wall seconds is sent again.
+TICK_RESEND_S = 5.0
 #: Wall seconds the workers get to answer the last (``end``) tick.
 END_TIMEOUT_S = 15.0
 
@@ -186,10 +188,12 @@ class DistributedRunner(FleetRunner):
         self._decls += [
             session.declare_subscriber(done_key(self.run_id, i), self._on_done) for i in range(self.workers)
         ]
-        # block, never drop: a tick of 1000 robots is a 150 KB message, and a lost tick stalls the run
-        block = zenoh.CongestionControl.BLOCK
+        # congestion control drop, and a tick not answered in TICK_RESEND_S is sent again: with
+        # block, a put of a large tick once stalled for minutes on a saturated machine
         self._pubs += [
-            session.declare_publisher(tick_key(self.run_id, i), congestion_control=block)
+            session.declare_publisher(
+                tick_key(self.run_id, i), congestion_control=zenoh.CongestionControl.DROP
+            )
             for i in range(self.workers)
         ]
         self._start_workers()
@@ -327,16 +331,28 @@ class DistributedRunner(FleetRunner):
         """Send every worker its tick, wait for every answer (in ``self._answers``)."""
         with self._cv:
             self._answers.clear()
-        msgs = [base if base.end else self._tick_msg(base, i) for i in range(self.workers)]
-        for pub, msg in zip(self._pubs, msgs, strict=True):  # built first: the workers' calls
-            pub.put(encode(msg))  # then change the simulator while nothing here reads it
+        # built first: the workers' calls then change the simulator while nothing here reads it
+        data = [encode(base if base.end else self._tick_msg(base, i)) for i in range(self.workers)]
+        for pub, d in zip(self._pubs, data, strict=True):
+            pub.put(d)
         end = time.monotonic() + timeout_s
+        resend = time.monotonic() + TICK_RESEND_S
         while True:
             with self._cv:
-                if all(i in self._answers and self._answers[i].k == base.k for i in range(self.workers)):
+                missing = [
+                    i
+                    for i in range(self.workers)
+                    if not (i in self._answers and self._answers[i].k == base.k)
+                ]
+                if not missing:
                     return
                 self._cv.wait(0.2)
-            self._check_procs()
+            if time.monotonic() > resend:  # a tick or an answer may have been dropped: ask again
+                for i in missing:  # (a worker answers a tick it already did from its last answer)
+                    self._pubs[i].put(data[i])
+                resend = time.monotonic() + TICK_RESEND_S
+            if not base.end:  # a worker that answered the end may already have exited
+                self._check_procs()
             if self.stop_event.is_set() and not base.end:
                 raise KeyboardInterrupt
             if time.monotonic() > end:
