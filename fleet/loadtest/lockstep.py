@@ -25,6 +25,11 @@ records in the same order, so the run is the same run. The workers also publish 
 statuses on the bus as usual (batched, at ``bus.status_hz``), for ``fleet status`` and
 dashboards attached to the router.
 
+Delivery: ticks and answers go with congestion control *drop*; a tick not answered within a
+few seconds is sent again and a worker answers a tick it already did from its last answer, and
+a goal call not answered is asked again and served once (its number, :attr:`NavCall.call`), so
+a dropped message costs a few seconds, never a step of the run.
+
 Every message is MessagePack decoded into typed structs (``fleet.types`` dataclasses inside);
 a malformed one raises :class:`ValueError` in the receiver, which ends the run with an error
 (a lockstep run cannot skip a tick)."""
