@@ -88,3 +88,29 @@ def step_until(
         if clock.now() >= end:
             return False
         step()
+
+
+#: Tolerance on simulated-time comparisons of a tick schedule (s).
+TICK_EPS = 1e-9
+
+
+class TickSchedule:
+    """When the agents tick: every ``period`` simulated seconds from ``t0``, until ``t0 +
+    duration``. A clock that jumps ahead (a remote simulator) does not cause a burst of ticks."""
+
+    def __init__(self, t0: float, period: float, duration: float | None) -> None:
+        self.next = t0
+        self.period = period
+        self.end = None if duration is None else t0 + duration
+
+    def finished(self, now: float) -> bool:
+        return self.end is not None and now >= self.end - TICK_EPS
+
+    def due(self, now: float) -> bool:
+        """Whether a tick is due at ``now``; if so, schedule the next one."""
+        if now < self.next - TICK_EPS:
+            return False
+        self.next += self.period
+        if self.next <= now:
+            self.next = now + self.period
+        return True

@@ -211,3 +211,20 @@ def build_robot_tree(
     if kind == TreeKind.TASKS:
         return task_tree(namespace, backend, clock, battery, retries=retries, traffic=traffic)
     return build_tree(kind, namespace, backend, clock, battery, retries=retries, traffic=traffic)
+
+
+def build_agent_tree(
+    tree_kind: str,
+    tree_file: str | None,
+    namespace: str,
+    backend: NavigationBackend,
+    clock: Clock,
+    battery: BatteryModel,
+    traffic: bool,
+) -> Behaviour:
+    """The robot's tree: the XML file's when one is given, else the built-in tree of ``tree_kind``."""
+    if tree_file is not None:
+        from nodes.xml_tree import load_tree
+
+        return load_tree(tree_file, namespace, backend, clock, battery).root
+    return build_robot_tree(tree_kind, namespace, backend, clock, battery, traffic=traffic)

@@ -26,6 +26,16 @@ STATUS_KEYS = STATUS.format(robot="*")
 ALIVE_KEYS = ALIVE.format(robot="*")
 
 
+#: Status batches of every process (:mod:`fleet.messages.status_batch`); four chunks, so
+#: ``fleet/*/status`` never matches them.
+STATUS_BATCH_KEYS = "fleet/batch/*/status"
+
+
+def status_batch_key(source: str) -> str:
+    """``fleet/batch/<source>/status``: the status batches of the process named ``source``."""
+    return f"fleet/batch/{check_robot_name(source)}/status"
+
+
 def status_key(robot: str) -> str:
     return STATUS.format(robot=check_robot_name(robot))
 

@@ -3,6 +3,9 @@
 Topics (JSON, UTF-8; see ``docs/status_bus.md`` for schemas and examples):
 
 * ``fleet/<robot>/status``: a :class:`~fleet.messages.StatusRecord`, robot -> everyone;
+* ``fleet/batch/<source>/status``: many robots' records from one process
+  (:mod:`fleet.messages.status_batch`, MessagePack), when the bus batches (``batch_source``);
+  :meth:`StatusBus.subscribe_statuses` takes both forms, so receivers see the same records;
 * ``fleet/<robot>/task``: a :class:`~fleet.messages.TaskMessage`, coordinator -> robot;
 * ``fleet/<robot>/grant``: a :class:`~fleet.messages.Grant`, coordinator -> robot;
 * ``fleet/<robot>/alive``: a liveliness token held by the robot's agent session;
@@ -21,6 +24,9 @@ out of a Zenoh callback."""
 
 from __future__ import annotations
 
+import os
+import re
+import socket
 import threading
 from collections import deque
 from collections.abc import Callable
@@ -33,15 +39,18 @@ import zenoh
 from fleet.bus.keys import (
     ALIVE_KEYS,
     CONTROL_KEY,
+    STATUS_BATCH_KEYS,
     STATUS_KEYS,
     alive_key,
     grant_key,
     robot_of_key,
+    status_batch_key,
     status_key,
     task_key,
 )
 from fleet.bus.session import Declaration, close_session, undeclare_all
 from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
+from fleet.messages.status_batch import MAX_BATCH_RECORDS, check_status, decode_batch, encode_batch
 
 #: At most this many events wait in :meth:`StatusBus.drain_events` (oldest dropped first).
 MAX_EVENTS = 10000
@@ -109,6 +118,12 @@ class StatusBus:
     :meth:`shutdown` does that and closes the session. ``robot`` is this process's robot (for
     logs only). See the module docstring for threading and malformed-message handling.
 
+    Batching: with ``batch_source`` (a name for this process, one key chunk, e.g.
+    ``loadtest-w2``) :meth:`publish_status` only queues the record and :meth:`flush_statuses`
+    sends every queued record in batches of :data:`MAX_BATCH_RECORDS` on
+    ``fleet/batch/<batch_source>/status`` (one put per batch); the runner flushes after each
+    round of agent ticks. Without it every record is its own put on ``fleet/<robot>/status``.
+
     Counters (read at any time): ``received`` valid status, task and grant messages,
     ``malformed`` dropped payloads (``last_malformed`` says why: ``<key>: <field>: <reason>``),
     ``callback_errors`` exceptions raised by user callbacks, ``events_dropped`` events pushed
@@ -117,10 +132,21 @@ class StatusBus:
     """
 
     def __init__(
-        self, session: zenoh.Session, *, robot: str | None = None, max_events: int = MAX_EVENTS
+        self,
+        session: zenoh.Session,
+        *,
+        robot: str | None = None,
+        max_events: int = MAX_EVENTS,
+        batch_source: str | None = None,
     ) -> None:
         self.session = session
         self.robot = robot
+        #: Status records are queued and sent as batches under this name (see above).
+        self.batch_source = batch_source
+        self._batch_key = None if batch_source is None else status_batch_key(batch_source)
+        self._queued: list[StatusRecord] = []
+        #: Status puts sent (one per record, or one per batch when batching).
+        self.status_puts = 0
         self.received = 0
         self.malformed = 0
         self.last_malformed: str | None = None
@@ -139,6 +165,7 @@ class StatusBus:
         self._control_cbs: list[Callable[[FleetControl], None]] = []
         self._control_sub: zenoh.Subscriber[None] | None = None
         self._status_sub: zenoh.Subscriber[None] | None = None
+        self._batch_sub: zenoh.Subscriber[None] | None = None
         self._alive_sub: zenoh.Subscriber[None] | None = None
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._status_pubs: dict[str, zenoh.Publisher] = {}  # by robot name: the hot path
@@ -147,12 +174,12 @@ class StatusBus:
 
     # -- publishing ------------------------------------------------------------------
 
-    def _publisher(self, key: str, block: bool) -> zenoh.Publisher:
+    def _publisher(self, key: str, block: bool, encoding: zenoh.Encoding | None = None) -> zenoh.Publisher:
         pub = self._publishers.get(key)
         if pub is None:
             pub = self.session.declare_publisher(
                 key,
-                encoding=zenoh.Encoding.APPLICATION_JSON,
+                encoding=encoding or zenoh.Encoding.APPLICATION_JSON,
                 congestion_control=zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP,
             )
             self._publishers[key] = pub
@@ -160,12 +187,34 @@ class StatusBus:
 
     def publish_status(self, rec: StatusRecord) -> None:
         """Publish ``rec`` on ``fleet/<rec.robot>/status`` (congestion: drop, the next record
-        replaces a lost one). ValueError for a robot name that cannot be a key chunk or a
-        non-finite number; the record's types are not checked again here (receivers do)."""
+        replaces a lost one), or queue it for the next :meth:`flush_statuses` when batching.
+        ValueError for a robot name that cannot be a key chunk or a non-finite number; the
+        record's types are not checked again here (receivers do)."""
+        if self._batch_key is not None:
+            self._queued.append(check_status(rec))
+            if len(self._queued) >= MAX_BATCH_RECORDS:  # a full batch waits for nothing
+                self.flush_statuses()
+            return
         pub = self._status_pubs.get(rec.robot)
         if pub is None:
             pub = self._status_pubs[rec.robot] = self._publisher(status_key(rec.robot), False)
         pub.put(rec.to_json())
+        self.status_puts += 1
+
+    def flush_statuses(self) -> int:
+        """Send the queued records as batches (congestion: block); returns how many records
+        went out. Does nothing without ``batch_source``. (A batch is also sent as soon as
+        :data:`MAX_BATCH_RECORDS` records are queued, so none waits for more than that.)"""
+        queued, self._queued = self._queued, []
+        if self._batch_key is None or not queued or self.batch_source is None:
+            return 0
+        # congestion: block. A lost batch would lose hundreds of robots' records at once, and
+        # a sender that outruns the router should slow down rather than lose them
+        pub = self._publisher(self._batch_key, True, zenoh.Encoding("application/msgpack"))
+        for i in range(0, len(queued), MAX_BATCH_RECORDS):
+            pub.put(encode_batch(self.batch_source, queued[i : i + MAX_BATCH_RECORDS]))
+            self.status_puts += 1
+        return len(queued)
 
     def publish_task(self, robot: str | TaskMessage, msg: TaskMessage | None = None) -> None:
         """Publish an order on ``fleet/<robot>/task``: ``publish_task(robot, msg)`` or
@@ -230,19 +279,39 @@ class StatusBus:
         except Exception as e:  # noqa: BLE001 - count and drop
             self._bad(key, str(e))
             return
+        self._take(key, [rec])
+
+    def _on_batch_sample(self, sample: zenoh.Sample) -> None:
+        key = "?"
+        try:
+            key = str(sample.key_expr)
+            if _is_delete(sample):
+                return
+            batch = decode_batch(sample.payload.to_bytes())
+        except Exception as e:  # noqa: BLE001 - count and drop
+            self._bad(key, str(e))
+            return
+        for err in batch.errors:  # the bad records only; the rest of the batch counts
+            self._bad(key, err)
+        self._take(key, batch.records)
+
+    def _take(self, key: str, recs: list[StatusRecord]) -> None:
+        """Valid records: the latest table, the event queue, then the callbacks."""
         try:
             with self._lock:
-                self.received += 1
-                self._latest[robot] = rec
-                self._push(BusEvent("status", robot, rec))
+                for rec in recs:
+                    self.received += 1
+                    self._latest[rec.robot] = rec
+                    self._push(BusEvent("status", rec.robot, rec))
                 cbs = list(self._status_cbs)
-            self._call(cbs, rec)
+            for rec in recs:
+                self._call(cbs, rec)
         except Exception as e:  # noqa: BLE001
             self._bad(key, f"internal: {e!r}")
 
     def subscribe_statuses(self, callback: StatusCallback | None = None) -> BusHandle:
-        """Subscribe to ``fleet/*/status`` (once per bus) and keep the latest record per robot
-        (:meth:`latest`). ``callback(rec)``, if given, runs on Zenoh's thread for every valid
+        """Subscribe to ``fleet/*/status`` and the batches ``fleet/batch/*/status`` (once per
+        bus) and keep the latest record per robot (:meth:`latest`). ``callback(rec)``, if given, runs on Zenoh's thread for every valid
         record; the returned handle removes it."""
         with self._lock:
             if callback is not None:
@@ -250,6 +319,7 @@ class StatusBus:
             need = self._status_sub is None
         if need:
             self._status_sub = self.session.declare_subscriber(STATUS_KEYS, self._on_status_sample)
+            self._batch_sub = self.session.declare_subscriber(STATUS_BATCH_KEYS, self._on_batch_sample)
 
         def remove() -> None:
             with self._lock:
@@ -471,8 +541,10 @@ class StatusBus:
         self._closed = True
         for h in self._handles:
             h.undeclare()
-        undeclare_all([self._status_sub, self._alive_sub, self._control_sub, *self._publishers.values()])
-        self._status_sub = self._alive_sub = self._control_sub = None
+        self._queued.clear()
+        subs = [self._status_sub, self._batch_sub, self._alive_sub, self._control_sub]
+        undeclare_all([*subs, *self._publishers.values()])
+        self._status_sub = self._batch_sub = self._alive_sub = self._control_sub = None
         self._publishers.clear()
         self._status_pubs.clear()
 
@@ -488,3 +560,9 @@ class StatusBus:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def process_batch_source() -> str:
+    """This process's name on the bus for status batches: ``<host>-<pid>`` (one key chunk)."""
+    host = re.sub(r"[^A-Za-z0-9_.-]", "_", socket.gethostname()) or "host"
+    return f"{host}-{os.getpid()}"

@@ -8,7 +8,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from fleet.cli.argtypes import non_negative_float, positive_float, positive_int
+from fleet.cli.argtypes import non_negative_float, non_negative_int, positive_float, positive_int
 from fleet.cli.common import (
     EXIT_ERROR,
     EXIT_INTERRUPTED,
@@ -22,6 +22,7 @@ from fleet.cli.logs import configure_logging, resolve_level
 from fleet.config.model import FleetConfig
 from fleet.loadtest.run import (
     DEFAULT_STATUS_HZ,
+    DEFAULT_STATUS_MAX_PERIOD_S,
     DEFAULT_TICK_HZ,
     PATROL_SPACING_M,
     LoadTestResult,
@@ -45,6 +46,9 @@ examples:
   fleet loadtest --robots 1000 --duration 300 --out out/lt1000
   fleet loadtest --robots 5000 --duration 120 --backend sumo --step-s 0.1
   fleet loadtest --robots 20 --duration 60 --tick-hz 10 --status-hz 10 --plot-dir /tmp/plots
+  fleet loadtest --robots 1000 --duration 300 --workers 2          # agents in 2 processes
+  fleet loadtest --robots 1000 --duration 300 --workers 4 --local-workers 2 --endpoint tcp/0.0.0.0:7447
+      # and on another machine: python -m fleet.loadtest.worker --endpoint tcp/HOST:7447 --index 2 (and 3)
 
 defaults for large fleets: agents tick at 2 Hz (--tick-hz) and publish their status at 1 Hz
 (--status-hz); the config's agent.tick_hz is 10. Both are written to the report.
@@ -52,6 +56,7 @@ exit codes: 0 ok, 2 bad usage / bus or backend error, 130 interrupted (report st
 """
 
 
+# long: one flat list of the command's options reads best
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``fleet loadtest`` (see ``docs/performance.md``)."""
     p.add_argument("--robots", "-n", type=positive_int, required=True, metavar="N", help="number of robots")
@@ -120,6 +125,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="event (default): a robot's tree ticks only when something it reads changed, with the "
         "same decisions as ticking it every period; clock: every tree every period",
     )
+    p.add_argument(
+        "--status-max-period",
+        type=non_negative_float,
+        default=DEFAULT_STATUS_MAX_PERIOD_S,
+        metavar="S",
+        help="statuses go on the bus when they changed, and at least every S simulated s "
+        f"(default {DEFAULT_STATUS_MAX_PERIOD_S:g}; 0: at every --status-hz period)",
+    )
+    p.add_argument(
+        "--workers",
+        type=non_negative_int,
+        default=0,
+        metavar="K",
+        help="run the agents in K worker processes, in lockstep with this one (simulator, coordinator); "
+        "same outcomes as in one process. 0 (default): agents in this process",
+    )
+    p.add_argument(
+        "--local-workers",
+        type=non_negative_int,
+        default=None,
+        metavar="L",
+        help="start only workers 0..L-1 here (default: all K); start the others with "
+        "`python -m fleet.loadtest.worker --endpoint EP --index I`, on this or other machines",
+    )
     p.add_argument("--seed", type=int, default=1, help="warehouse and simulator seed (default 1)")
     p.add_argument("--endpoint", metavar="EP", help="Zenoh endpoint to listen on (default: a free port)")
     p.add_argument("--dpi", type=positive_int, default=100, help="PNG resolution (default 100)")
@@ -180,6 +209,10 @@ def handle(args: argparse.Namespace) -> int:
             ticking=args.ticking,
             on_config=announce,
             on_progress=display.show,
+            workers=args.workers,
+            local_workers=args.local_workers,
+            status_max_period_s=args.status_max_period or None,
+            on_line=lambda line: print(f"fleet loadtest: {line}", flush=True),
         )
     finally:
         display.close()

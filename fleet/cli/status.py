@@ -7,7 +7,8 @@ tokens ``fleet/*/alive``, and shows the table of :mod:`fleet.viz.table`.
 * default: redraws the table on a TTY (one summary line every few seconds otherwise) until
   Ctrl-C / SIGTERM, or for ``--duration`` wall seconds;
 * ``--once``: waits until robots have been seen (every robot holding a token has sent a
-  status, or no new robot for ``--settle`` s), up to ``--wait`` s, prints one table and exits
+  status, or, when no robot holds a token, no new robot for ``--settle`` s), up to ``--wait``
+  s, prints one table and exits
   0; exits 1 if no robot was seen;
 * ``--json``: prints JSON instead of the table (one object per line in live mode).
 
@@ -70,7 +71,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=0.5,
         metavar="S",
-        help="--once: stop waiting S s after the last new robot",
+        help="--once: without liveliness tokens, stop waiting S s after the last new robot "
+        "(robots holding a token are waited for, up to --wait)",
     )
     p.add_argument("--json", action="store_true", help="print the latest records as JSON")
     p.add_argument("--duration", type=float, metavar="S", help="live mode: exit after S wall seconds")
@@ -136,7 +138,9 @@ def _wait_for_robots(bus: StatusBus, wait_s: float, settle_s: float, stop: threa
         alive = bus.alive()
         if seen and alive <= seen:
             return True
-        if seen and now - last_new >= settle_s:
+        # robots holding a token are waited for (up to wait_s): with on-change statuses
+        # (bus.status_max_period_s) an idle robot speaks only every few seconds
+        if seen and not alive and now - last_new >= settle_s:
             return True
         if now >= end:
             break

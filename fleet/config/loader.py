@@ -125,6 +125,8 @@ def _build(p: Path, file: str, spec: ConfigFile, n_robots: int | None) -> FleetC
         secure=(p.parent / spec.bus.secure).resolve() if spec.bus.secure else None,
         link_timeout_s=spec.bus.link_timeout_s,
         reconnect_s=spec.bus.reconnect_s,
+        status_max_period_s=spec.bus.status_max_period_s,
+        status_batch=spec.bus.status_batch,
         parking=parking,
         traffic=spec.traffic.to_settings(),
     )

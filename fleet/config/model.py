@@ -114,6 +114,10 @@ class FleetConfig:
     secure: Path | None = None
     link_timeout_s: float = DEFAULT_LINK_TIMEOUT_S
     reconnect_s: float | None = DEFAULT_RECONNECT_S
+    #: Publish statuses on change, at least this often (s); None: at every status period.
+    status_max_period_s: float | None = None
+    #: A process with several agents sends their statuses as batches (one put per tick).
+    status_batch: bool = True
     parking: list[Pose2D] = field(default_factory=list)
     traffic: TrafficSettings = field(default_factory=TrafficSettings)
 

@@ -277,6 +277,16 @@ class BusSection(Section):
         description="a process of a split fleet waits this long for a lost simulator to come back "
         "before it ends its run (wall s); unset (null): forever",
     )
+    status_max_period_s: Annotated[float, Bounds(gt=0, le=3600)] | None = Field(
+        default=None,
+        description="publish a robot's status only when it changed, and at least this often (s; keep it "
+        "below coordinator.status_timeout_s); unset: at every status period",
+    )
+    status_batch: bool = Field(
+        default=True,
+        description="a process running several agents sends their statuses in batches on "
+        "fleet/batch/<process>/status (one message per tick) instead of one per robot",
+    )
 
 
 def _nodes(v: object) -> object:

@@ -46,6 +46,7 @@ from fleet.loadtest.sampler import DEFAULT_SAMPLE_S, HEAT_BIN_M, FleetSampler, l
 from fleet.viz.display import FleetSnapshot, NullDisplay
 
 if TYPE_CHECKING:
+    from fleet.loadtest.lockstep import RunSpec
     from fleet.runtime.report import RunReport
 
 #: Default agent tick rate of a load test (simulated Hz).
@@ -67,6 +68,10 @@ WORK_SHELF_MAX_M = 40.0
 #: A load test's floor has a charger per this many robots (:func:`work_chargers`).
 ROBOTS_PER_CHARGER = 2
 
+#: Default of ``--status-max-period``: a robot's status goes on the bus when it changed, and at
+#: least this often (simulated s; below the coordinator's 3 s silence timeout).
+DEFAULT_STATUS_MAX_PERIOD_S = 2.0
+
 
 def _free_endpoint() -> str:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
@@ -83,6 +88,7 @@ def prepare_config(
     step_s: float | None = None,
     route_copies: int | None = None,
     seed: int = 1,
+    status_max_period_s: float | None = DEFAULT_STATUS_MAX_PERIOD_S,
 ) -> FleetConfig:
     """Generate the warehouse for ``n_robots`` into ``out_dir`` and load it as a load-test config.
 
@@ -125,6 +131,7 @@ def prepare_config(
         )
     cfg.tick_hz = float(tick_hz)
     cfg.status_hz = float(status_hz)
+    cfg.status_max_period_s = status_max_period_s
     base = list(cfg.routes)
     copies = work_copies(cfg, n_robots) if route_copies is None else [route_copies] * len(base)
     for c in range(2, max(copies, default=1) + 1):
@@ -234,6 +241,7 @@ def _check(
     )
 
 
+# long: argument checks, the config, the run (in one process or over workers) and the outputs
 def run_loadtest(
     n_robots: int,
     duration: float,
@@ -255,15 +263,30 @@ def run_loadtest(
     ticking: str = "event",
     on_config: Callable[[FleetConfig], None] | None = None,
     on_progress: Callable[[FleetSnapshot], None] | None = None,
+    workers: int = 0,
+    local_workers: int | None = None,
+    status_max_period_s: float | None = DEFAULT_STATUS_MAX_PERIOD_S,
+    on_line: Callable[[str], None] | None = None,
 ) -> LoadTestResult:
     """Run one load test (see the module docstring) and write its report and plots.
 
     Defaults: ``out_dir`` ``out/loadtest-<N>``; ``report_path`` ``<out_dir>/report.json``;
     ``plot_dir`` ``out_dir``; ``endpoint`` a free TCP port on 127.0.0.1. ``on_config`` is
     called with the generated config before the run; ``on_progress`` with a progress snapshot
-    every few wall seconds. Raises :class:`ConfigError` for bad arguments, :class:`BusError` /
-    :class:`BackendError` when the bus or backend cannot be set up.
+    every few wall seconds. ``workers`` > 0 runs the agents in that many worker processes in
+    lockstep with this one (:mod:`fleet.loadtest.distributed`; ``local_workers`` of them started
+    here, default all; ``on_line`` gets their progress lines); 0 runs them in this process.
+    Raises :class:`ConfigError` for bad arguments, :class:`BusError` / :class:`BackendError`
+    when the bus or backend cannot be set up.
     """
+    if workers < 0 or (local_workers is not None and not 0 <= local_workers <= workers):
+        raise ConfigError(
+            "fleet loadtest",
+            "--workers",
+            f"need workers >= 0 and 0 <= local workers <= workers, got {workers}, {local_workers}",
+        )
+    if workers and backend != "sim":
+        raise ConfigError("fleet loadtest", "--workers", "agents in worker processes need the sim backend")
     rates = {"--tick-hz": tick_hz, "--status-hz": status_hz, "--sample-s": sample_s}
     paths = _check(n_robots, backend, rates, out_dir, report_path, plot_dir)
     cfg = prepare_config(
@@ -274,11 +297,25 @@ def run_loadtest(
         step_s=step_s,
         route_copies=route_copies,
         seed=seed,
+        status_max_period_s=status_max_period_s,
     )
+    if workers > len(cfg.robots):
+        raise ConfigError(
+            "fleet loadtest", "--workers", f"more workers ({workers}) than robots ({len(cfg.robots)})"
+        )
     if on_config is not None:
         on_config(cfg)
     sampler = FleetSampler(len(cfg.robots), cfg.grid.extent, sample_s=sample_s, on_progress=on_progress)
     ticks: dict[str, int] = {}
+    spec = None
+    if workers:
+        from fleet.loadtest.distributed import assign
+        from fleet.loadtest.lockstep import RunSpec
+
+        spec = RunSpec(
+            n_robots, seed, tick_hz, status_hz, status_max_period_s, step_s, route_copies, traffic,
+            assign([r.name for r in cfg.robots], workers),
+        )  # fmt: skip
     report = _run(
         cfg,
         sampler,
@@ -289,6 +326,10 @@ def run_loadtest(
         traffic=traffic,
         ticking=ticking,
         ticks=ticks,
+        spec=spec,
+        local_workers=local_workers,
+        log_dir=paths.out_dir / "workers",
+        on_line=on_line,
     )
     data = report.to_dict()
     data["loadtest"] = loadtest_block(
@@ -298,6 +339,8 @@ def run_loadtest(
     data["loadtest"]["ticking"] = ticking
     data["loadtest"]["tree_ticks"] = ticks.get("tree_ticks", 0)
     data["loadtest"]["agent_periods"] = ticks.get("agent_periods", 0)
+    data["loadtest"]["workers"] = workers
+    data["loadtest"]["status_max_period_s"] = status_max_period_s
     data["loadtest"]["patrol_routes"] = len(cfg.routes)
     data["loadtest"]["route_copies"] = len(cfg.routes) // max(1, len(base))
     plots = _plot(cfg, sampler, data, report, paths.plot_dir, backend=backend, dpi=dpi)
@@ -318,23 +361,35 @@ def _run(
     traffic: bool,
     ticking: str = "event",
     ticks: dict[str, int] | None = None,
+    spec: RunSpec | None = None,
+    local_workers: int | None = None,
+    log_dir: Path | None = None,
+    on_line: Callable[[str], None] | None = None,
 ) -> RunReport:
-    """The fleet run of a load test, sampled by ``sampler`` (its final state included);
-    ``ticks`` gets the trees ticked (``tree_ticks``) and the agent periods (``agent_periods``:
-    periods x agents)."""
+    """The fleet run of a load test, sampled by ``sampler`` (its final state included); with
+    ``spec`` the agents run in its workers. ``ticks`` gets the trees ticked (``tree_ticks``)
+    and the agent periods (``agent_periods``: periods x agents)."""
     from fleet.runtime.runner import FleetRunner
 
-    runner = FleetRunner(
-        cfg,
-        duration=duration,
-        speed=speed,
-        endpoint=endpoint or _free_endpoint(),
-        backend=backend,
-        live=False,
-        display=NullDisplay(),  # the sampler reports the progress
-        traffic=traffic,
-        ticking=ticking,
-    )
+    kw: dict[str, Any] = {
+        "duration": duration,
+        "speed": speed,
+        "endpoint": endpoint or _free_endpoint(),
+        "backend": backend,
+        "live": False,
+        "display": NullDisplay(),  # the sampler reports the progress
+        "traffic": traffic,
+        "ticking": ticking,
+    }
+    runner: FleetRunner
+    if spec is None:
+        runner = FleetRunner(cfg, **kw)
+    else:
+        from fleet.loadtest.distributed import DistributedRunner
+
+        runner = DistributedRunner(
+            cfg, spec, local_workers=local_workers, log_dir=log_dir, progress=on_line, **kw
+        )
     runner.observers.append(sampler)
     sampler.start()
     report = runner.run()

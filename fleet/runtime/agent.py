@@ -34,7 +34,11 @@ carries the robot's diagnostics (``health``, ``diag``: :func:`fleet.diagnostics.
 Status rate: with ``status_hz`` (the config's ``bus.status_hz``) the agent publishes its status
 on the bus at most that often (simulated time, from the records' ``t``): a record is published
 when at least ``1 / status_hz`` s passed since the last one published; ``None`` publishes every
-tick. ``on_status`` (an in-process coordinator) still gets every tick's record.
+tick. With ``status_max_period_s`` (the config's ``bus.status_max_period_s``) it publishes *on
+change* instead: a record goes out (still at most at ``status_hz``) only if it differs from the
+last one published (:func:`status_changed`: anything but ``t``, ``seq`` and small moves of the
+pose, battery, progress and odometry), and at least every ``status_max_period_s`` s whatever
+changed. ``on_status`` (an in-process coordinator) still gets every tick's record.
 
 Bus loss: :meth:`RobotAgent.set_link_lost` (called by the runner's bus-loss watchdog, see
 :class:`fleet.bus.link.LinkWatch`) stops the tree like a safety stop (the running goal is
@@ -55,7 +59,7 @@ import logging
 import math
 import threading
 from collections.abc import Callable, Iterable, Sequence
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING
 
 from fleet.diagnostics import (
     Diagnostic,
@@ -69,13 +73,13 @@ from fleet.diagnostics import (
 from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
 from fleet.runtime.agent_bus import AgentBus, ControlBus, Declared
 from fleet.runtime.order_gate import OrderGate
+from fleet.runtime.status_record import TreeView, status_changed
 from fleet.runtime.watched import WatchedBackend, wake_aware
 from fleet.types import Mode, Pose2D, RobotState, TaskKind, TreeKind
 from fleet.wake import Wake
+from nodes.task_tree import build_agent_tree
 
 if TYPE_CHECKING:
-    from py_trees.behaviour import Behaviour
-
     from fleet.bus.lease import Lease
     from fleet.navigation import Clock, NavigationBackend
     from fleet.robots import BatteryModel
@@ -114,6 +118,8 @@ class RobotAgent:
             and grants on the bus are then taken through the agent's :class:`OrderGate`.
             ``None``: the agent takes no orders from the bus (its coordinator runs in the same
             process and hands them over with :meth:`deliver` / :meth:`deliver_grant`).
+        status_max_period_s: publish on change, and at least this often (simulated s, > 0);
+            ``None``: publish at every ``status_hz`` period whether or not anything changed.
 
     ``published`` counts the records published on the bus.
     """
@@ -135,6 +141,7 @@ class RobotAgent:
         health: HealthParams | None = None,
         chargers: Sequence[Pose2D] = (),
         leases: Callable[[], Lease | None] | None = None,
+        status_max_period_s: float | None = None,
     ) -> None:
         from fleet.robots import BatteryModel
         from nodes.blackboard import clear_robot_blackboard, robot_blackboard
@@ -147,11 +154,14 @@ class RobotAgent:
         self.tick_hz = float(tick_hz)
         self.tree_kind = tree_kind
         self.on_status = on_status
-        if status_hz is not None and not (math.isfinite(status_hz) and status_hz > 0):
-            raise ValueError(f"status_hz must be a positive number of Hz or None, got {status_hz}")
+        _check_rate("status_hz", status_hz, "Hz")
+        _check_rate("status_max_period_s", status_max_period_s, "s")
         #: Least simulated time between two records published on the bus (None: every tick).
         self.status_period_s = None if status_hz is None else 1.0 / status_hz
+        #: Publish on change, and at least this often (None: every status period).
+        self.status_max_period_s = status_max_period_s
         self._last_published: float | None = None
+        self._last_sent: StatusRecord | None = None
         self.published = 0
         # py_trees' blackboard is process-global: start from the defaults, not from what an
         # earlier agent of the same namespace in this process left behind
@@ -162,7 +172,9 @@ class RobotAgent:
         self.tree_file = tree_file
         #: The tree's view of the backend: it records what the tree polls (``fleet.wake``).
         self.watched = WatchedBackend(backend)
-        self.root = _build_root(tree_kind, tree_file, self.namespace, self.watched, clock, battery, traffic)
+        self.root = build_agent_tree(
+            tree_kind, tree_file, self.namespace, self.watched, clock, battery, traffic
+        )
         self._init_ticking()
         self.health = health or HealthParams(battery_low=battery.low)
         #: The fleet-side safety stop (see the module docstring); ``watchdog.trips`` counts stops.
@@ -225,7 +237,7 @@ class RobotAgent:
         self._signature: tuple[object, ...] = ()
         #: The status record's view of the tree, kept while neither the tree nor the blackboard
         #: changed (a period without a tree tick, orders or a stop reads nothing new).
-        self._view: _TreeView | None = None
+        self._view: TreeView | None = None
         self._has_charger = False
 
     # -- orders ------------------------------------------------------------------------
@@ -440,15 +452,25 @@ class RobotAgent:
         last, period = self._last_published, self.status_period_s
         if period is not None and last is not None and rec.t < last + period - 1e-9:
             return
+        longest, sent = self.status_max_period_s, self._last_sent
+        if (
+            longest is not None
+            and last is not None
+            and sent is not None
+            and rec.t < last + longest - 1e-9
+            and not status_changed(sent, rec)
+        ):
+            return
         self._last_published = rec.t
+        self._last_sent = rec
         self.published += 1
         self.bus.publish_status(rec)
 
-    def _tree_view(self) -> _TreeView:
+    def _tree_view(self) -> TreeView:
         """What the status record reports of the tree and its blackboard (read now)."""
         bb = self.bb
         task_id = bb.task_id
-        return _TreeView(
+        return TreeView(
             bt=self.root.status.name,
             leaf=str(bb.active_leaf or ""),
             mode=str(bb.mode),
@@ -463,7 +485,7 @@ class RobotAgent:
             else 0,
         )
 
-    def status(self, state: RobotState | None = None, view: _TreeView | None = None) -> StatusRecord:
+    def status(self, state: RobotState | None = None, view: TreeView | None = None) -> StatusRecord:
         """The current status record of this robot (each call takes the next ``seq``), from
         ``state`` (default: the backend's now) and ``view`` (default: the tree now)."""
         self.seq += 1
@@ -542,38 +564,9 @@ class RobotAgent:
         self._token = self._sub = self._grant_sub = self._control_sub = None
 
 
-def _build_root(
-    tree_kind: str,
-    tree_file: str | None,
-    namespace: str,
-    backend: NavigationBackend,
-    clock: Clock,
-    battery: BatteryModel,
-    traffic: bool,
-) -> Behaviour:
-    """The robot's tree: the XML file's when one is given, else the built-in tree of ``tree_kind``."""
-    if tree_file is not None:
-        from nodes.xml_tree import load_tree
-
-        return load_tree(tree_file, namespace, backend, clock, battery).root
-    from nodes.task_tree import build_robot_tree
-
-    return build_robot_tree(tree_kind, namespace, backend, clock, battery, traffic=traffic)
-
-
-class _TreeView(NamedTuple):
-    """The status record's fields that come from the tree and its blackboard."""
-
-    bt: str
-    leaf: str
-    mode: str
-    task_id: str | None
-    laps: int
-    progress: float
-    picks_done: int
-    result_id: str | None
-    result: str
-    steps_done: int
+def _check_rate(name: str, value: float | None, unit: str) -> None:
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive number of {unit} or None, got {value}")
 
 
 def _stopped(reason: str) -> Diagnostic:

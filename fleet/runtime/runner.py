@@ -39,7 +39,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
-from fleet.clock import Pacer, WallClock
+from fleet.clock import Pacer, TickSchedule, WallClock
 from fleet.config.model import FleetConfig
 from fleet.errors import BackendError, ConfigError
 from fleet.messages import StatusRecord
@@ -68,32 +68,6 @@ if TYPE_CHECKING:
     from fleet.traffic.policy import ReservationTraffic
 
 logger = logging.getLogger(__name__)
-
-#: Tolerance on simulated-time comparisons of the loop (s).
-_EPS = 1e-9
-
-
-class _Ticks:
-    """When the agents tick: every ``period`` simulated seconds from ``t0``, until ``t0 +
-    duration``. A clock that jumps ahead (a remote simulator) does not cause a burst of ticks."""
-
-    def __init__(self, t0: float, period: float, duration: float | None) -> None:
-        self.next = t0
-        self.period = period
-        self.end = None if duration is None else t0 + duration
-
-    def finished(self, now: float) -> bool:
-        return self.end is not None and now >= self.end - _EPS
-
-    def due(self, now: float) -> bool:
-        """Whether a tick is due at ``now``; if so, schedule the next one."""
-        if now < self.next - _EPS:
-            return False
-        self.next += self.period
-        if self.next <= now:
-            self.next = now + self.period
-        return True
-
 
 class FleetRunner:
     """Run a fleet: world + agents + coordinator on one Zenoh session. See the module docstring.
@@ -279,12 +253,13 @@ class FleetRunner:
 
     def _setup(self, factory: WorldFactory, session: zenoh.Session) -> World:
         """The bus, the world, the coordinator and the agents, on ``session``."""
-        from fleet.bus.status_bus import StatusBus
+        from fleet.bus.status_bus import StatusBus, process_batch_source
 
-        self.bus = StatusBus(session)
+        specs = [self.config.robot(n) for n in self.agent_names]
+        batch = self.config.status_batch and len(specs) > 1
+        self.bus = StatusBus(session, batch_source=process_batch_source() if batch else None)
         self.bus.subscribe_statuses(self.bus_view.see)
         guard = self.bus.guard_orders(self.agent_names)  # counts what arrives while we start
-        specs = [self.config.robot(n) for n in self.agent_names]
         self.world = world = factory(self.config, specs, session)
         sim = getattr(world, "sim", None)
         self._world_latch = (
@@ -395,6 +370,7 @@ class FleetRunner:
             on_status=self.coordinator.feed_local if self.coordinator is not None else None,
             traffic=self.traffic,
             status_hz=self.config.status_hz,
+            status_max_period_s=self.config.status_max_period_s,
             tree_file=self.tree_file,
             chargers=[c.pose for c in self.config.chargers],
             leases=self.lease_watch.current if self.lease_watch is not None else None,
@@ -403,7 +379,7 @@ class FleetRunner:
     def _loop(self, world: World) -> None:
         clock = world.clock
         self._t0 = clock.now()
-        ticks = _Ticks(self._t0, 1.0 / self.config.tick_hz, self.duration)
+        ticks = TickSchedule(self._t0, 1.0 / self.config.tick_hz, self.duration)
         pacer = Pacer(clock, 0.0 if world.remote else self.speed, self._wall)
         display = self.display or default_display(self.out, self.live)
         next_show = self._wall.now() + display.interval_s
@@ -466,6 +442,8 @@ class FleetRunner:
                 a.tick()
                 if self.scheduler is not None:
                     self.scheduler.ticked(a, now)
+        if self.bus is not None:
+            self.bus.flush_statuses()
 
     def _tick(self, now: float) -> None:
         """One agent tick: every local agent (its tree when the scheduler says so), then the
@@ -476,6 +454,8 @@ class FleetRunner:
             a.tick(tree)
             if a.tree_ticked and sched is not None:
                 sched.ticked(a, now)
+        if self.bus is not None:
+            self.bus.flush_statuses()  # the statuses of this round, in batches when batching
         if self.coordinator is not None:
             self.coordinator.cycle()
         if self.host is not None:

@@ -179,14 +179,17 @@ def test_fleet_cli_dispatches_loadtest(tmp_path: Path) -> None:
 
 def test_status_hz_is_the_configs_bus_rate_honoured_by_the_agents(tmp_path: Path) -> None:
     """``--status-hz`` sets the generated config's ``bus.status_hz``; the agents publish at that
-    rate (simulated time), whatever the tick rate."""
+    rate (simulated time), whatever the tick rate (``status_max_period_s=None``: every period,
+    changed or not; the load test's default publishes on change)."""
     from ports import free_endpoint
 
     from fleet.loadtest.run import prepare_config
     from fleet.runtime.runner import FleetRunner
     from fleet.viz.display import NullDisplay
 
-    cfg = prepare_config(4, tmp_path / "w", tick_hz=4.0, status_hz=1.0, route_copies=1)
+    cfg = prepare_config(
+        4, tmp_path / "w", tick_hz=4.0, status_hz=1.0, route_copies=1, status_max_period_s=None
+    )
     assert cfg.status_hz == 1.0 and cfg.tick_hz == 4.0
     runner = FleetRunner(cfg, duration=10.0, speed=0, endpoint=free_endpoint(), display=NullDisplay())
     runner.run()

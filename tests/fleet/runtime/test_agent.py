@@ -213,3 +213,30 @@ def test_status_and_liveliness_on_the_bus(config: FleetConfig, bus: StatusBus) -
         watch.close()
         lease.release()
     assert left.wait(WAIT_S)
+
+
+def test_on_change_publishing_idle_robot_heartbeats_and_a_new_order_goes_out_at_once(
+    config: FleetConfig,
+) -> None:
+    """``status_max_period_s=2`` with ``status_hz=10``: an idle robot that nothing changes
+    publishes every 2 s only; an order that changes its mode and task is published at the next
+    tick, and a driving robot publishes at every status period (its pose moves)."""
+    bus = CountingBus()
+    agent, sim = make_agent(config, bus, status_hz=10.0, status_max_period_s=2.0)
+    try:
+        run(agent, sim, 6.0)  # idle at its start pose: first record, then one every 2 s
+        idle = [r.t for r in bus.statuses]
+        assert len(idle) == 3 and all(
+            b - a == pytest.approx(2.0, abs=0.11) for a, b in zip(idle, idle[1:], strict=False)
+        )
+        bus.statuses.clear()
+        agent.apply(patrol_msg(config, "p-0001"))
+        run(agent, sim, 3.0)
+        first = bus.statuses[0]
+        assert first.task_id == "p-0001" and first.t == pytest.approx(6.0, abs=0.11)
+        moving = [r for r in bus.statuses if r.mode == "patrol"]
+        assert len(moving) >= 25  # about every tick while driving (a turn on the spot may pause)
+    finally:
+        agent.close()
+    with pytest.raises(ValueError, match="status_max_period_s"):
+        make_agent(config, CountingBus(), status_max_period_s=-1.0)
