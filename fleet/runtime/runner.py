@@ -69,6 +69,7 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
+
 class FleetRunner:
     """Run a fleet: world + agents + coordinator on one Zenoh session. See the module docstring.
 
