@@ -87,7 +87,10 @@ def assign(names: list[str], workers: int) -> list[list[str]]:
 
 class RemoteAgent:
     """What the runner keeps of an agent that runs in a worker: its latest status record and,
-    at the end, the statistics the report needs."""
+    at the end, the statistics the report needs. It has no order gate: its orders travel in
+    the lockstep ticks, not on the bus."""
+
+    gate = None
 
     def __init__(self, name: str) -> None:
         self.name = name
