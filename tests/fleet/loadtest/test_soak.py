@@ -7,7 +7,7 @@ warm-up. ``scale`` marker (``make test-scale``); ``bench/soak.py`` prints the sa
 The bound is not 0: bounded histories still fill early in the run (the simulator keeps the
 last ten minutes of every robot's trajectory, float32, about 1.3 kB per simulated second for
 200 robots; the coordinator's event log up to 10,000 lines). Measured with ``bench/soak.py``
-on this workload: 3.2 % after the warm-up over 30 minutes (15.8 % over an hour while the
+on this workload: 3.2 % after the warm-up over 30 minutes, 1.4 % over an hour (15.8 % over an hour while the
 simulator kept a whole hour of trajectories)."""
 
 from __future__ import annotations
