@@ -1,0 +1,37 @@
+"""The scripted chaos run, briefly: ``bench/chaos.py`` on a split fleet of four robots (real
+``fleet sim``, ``fleet coordinator`` and ``fleet agent`` processes on loopback) with a random
+process killed (``kill -9``) and restarted every few wall seconds. No task is lost or done
+twice, nothing collides, no process prints a traceback. ``scale`` marker (``make
+test-scale``): the long run's figures are in ``docs/faults.md``."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+@pytest.mark.scale
+@pytest.mark.timeout(1200)  # hang guard: about 2 min on an idle 2-core machine
+def test_chaos_run_loses_nothing_duplicates_nothing_and_collides_nowhere(tmp_path: Path) -> None:
+    args = ["--robots", "4", "--duration", "400", "--speed", "5", "--every", "5", "--seed", "3"]
+    p = subprocess.run(
+        [sys.executable, str(ROOT / "bench" / "chaos.py"), *args, "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=1100,
+    )
+    out = p.stdout + p.stderr
+    assert "tasks lost: 0   tasks done twice: 0   collisions: 0   tracebacks: 0" in out, out
+    assert p.returncode == 0, out
+    kills = re.search(r"(\d+) kills \(sim (\d+), coordinator (\d+), agent (\d+)\)", out)
+    assert kills is not None, out
+    assert int(kills.group(1)) >= 3, out  # the run did kill processes
+    back = re.findall(r"^\s+\d+\s+\S+\s+\d+\s+([\d.]+|-)\s+([\d.]+|-)$", out, re.M)
+    assert back and all(b != "-" for b, _ in back), out  # every killed process came back
