@@ -154,14 +154,7 @@ class ZenohNavBackend:
             self._open.discard(gid)
             g = self._goals[gid]
             if not g.state.status.terminal:
-                g.state = GoalState(
-                    gid,
-                    g.state.kind,
-                    GoalStatus.ABORTED,
-                    g.state.feedback,
-                    error_code=int(ErrorCode.SERVER_UNAVAILABLE),
-                    error_msg="the simulator no longer knows the goal (was it restarted?)",
-                )
+                g.state = _unavailable(g.state, "the simulator no longer knows the goal (was it restarted?)")
 
     # -- the protocol --------------------------------------------------------------------
 
@@ -230,14 +223,7 @@ class ZenohNavBackend:
             reason = f"the simulator did not acknowledge the goal within {self.timeout_s:g} s"
         if reason is not None:
             self._open.discard(gid)
-            g.state = GoalState(
-                gid,
-                g.state.kind,
-                GoalStatus.ABORTED,
-                g.state.feedback,
-                error_code=int(ErrorCode.SERVER_UNAVAILABLE),
-                error_msg=reason,
-            )
+            g.state = _unavailable(g.state, reason)
             return
         if not g.acked and now - g.last_sent_wall >= self.resend_s:
             g.last_sent_wall = now
@@ -283,3 +269,16 @@ class ZenohNavBackend:
 
     def __repr__(self) -> str:
         return f"ZenohNavBackend({self._namespace!r})"
+
+
+def _unavailable(state: GoalState, reason: str) -> GoalState:
+    """``state`` ended ABORTED with SERVER_UNAVAILABLE and ``reason`` (the simulator is gone or
+    forgot the goal)."""
+    return GoalState(
+        state.goal_id,
+        state.kind,
+        GoalStatus.ABORTED,
+        state.feedback,
+        error_code=int(ErrorCode.SERVER_UNAVAILABLE),
+        error_msg=reason,
+    )

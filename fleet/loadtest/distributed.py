@@ -323,12 +323,7 @@ class DistributedRunner(FleetRunner):
                 if self.coordinator is not None:
                     self.coordinator.feed_local(rec)
             self._watch[i] = self._answers[i].watch
-        if self.coordinator is not None:
-            self.coordinator.cycle()
-        if self.host is not None:
-            self.host.tick(now)
-        for observe in self.observers:
-            observe(now, self)
+        self._after_agents(now)
 
     def _round(self, base: TickMsg, timeout_s: float = TICK_TIMEOUT_S) -> None:
         """Send every worker its tick, wait for every answer (in ``self._answers``)."""

@@ -457,6 +457,10 @@ class FleetRunner:
                 sched.ticked(a, now)
         if self.bus is not None:
             self.bus.flush_statuses()  # the statuses of this round, in batches when batching
+        self._after_agents(now)
+
+    def _after_agents(self, now: float) -> None:
+        """What follows the agents' tick: the coordinator cycle, the task service, the observers."""
         if self.coordinator is not None:
             self.coordinator.cycle()
         if self.host is not None:
