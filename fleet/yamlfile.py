@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from yaml import YAMLError
 from yaml.composer import Composer
 from yaml.constructor import SafeConstructor
 from yaml.events import Event, MappingEndEvent, MappingStartEvent, SequenceEndEvent, SequenceStartEvent
@@ -160,5 +161,15 @@ def parse_yaml(text: str) -> object:
     loader = _Loader(text)
     try:
         return loader.get_single_data()
+    except YAMLError as e:
+        # PyYAML >= 6.0.4 stops scanning at its own depth limit (1000), and its scanner reads
+        # ahead of the nodes composed here: the same problem, named the same way
+        if "maximum nesting depth" not in str(e):
+            raise
+        mark = getattr(e, "problem_mark", None)
+        line = f" (line {mark.line + 1})" if mark is not None else ""
+        raise YamlProblem(
+            _field(loader._path[:1]), f"nested more than {MAX_DEPTH} levels deep{line}"
+        ) from None
     finally:
         loader.dispose()
