@@ -94,7 +94,9 @@ def test_ros_run_matches_the_simulators_ground_truth_at_speed_5(tmp_path: Path) 
         if row.name == "robot6":
             assert row.charges >= 1, "the idle robot at 12 % battery was never sent to charge"
         else:
-            assert true["distance_m"] > 10.0, (row.name, true["distance_m"])
+            # it drove (how far depends on traffic waits, which follow ROS's wall-clock timing:
+            # 4.9 to 20 m seen), so the odometer comparison below compares something
+            assert true["distance_m"] > 2.0, (row.name, true["distance_m"])
         truth_m = true["distance_m"] - driven_after
         assert row.distance_m == pytest.approx(truth_m, rel=0.03, abs=0.5), row.name
         assert len(pts) >= 20, row.name
