@@ -42,7 +42,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import zenoh
-from bench_zenoh import free_port, record
+from bench_zenoh import _percentile, free_port, record
 
 import fleet
 from fleet.bus.keys import status_batch_key
@@ -141,7 +141,8 @@ def worker(
 
 
 def _pct(vals: list[float], q: float) -> float:
-    return vals[min(len(vals) - 1, int(q * len(vals)))] * 1e3 if vals else float("nan")
+    """The ``q`` percentile of the sorted latencies ``vals`` (s), in ms."""
+    return _percentile(vals, q) * 1e3
 
 
 def run(
