@@ -30,6 +30,8 @@ navigation server down) the tree is halted at once (its running goal is canceled
 stops within this one control period), the robot reports ``mode = "safety_stop"`` and the
 coordinator takes its task back; when it clears the tree runs again. Every status record
 carries the robot's diagnostics (``health``, ``diag``: :func:`fleet.diagnostics.robot_diagnostics`).
+Until the backend gave a first pose the robot *waits for state* (no fault, no watchdog trip):
+mode ``idle``, leaf ``WaitingForState``, ``localization`` WARN, the tree not ticked.
 
 Status rate: with ``status_hz`` (the config's ``bus.status_hz``) the agent publishes its status
 on the bus at most that often (simulated time, from the records' ``t``): a record is published
@@ -207,6 +209,8 @@ class RobotAgent:
         self.link_lost = ""
         #: Times the bus-loss watchdog stopped the robot.
         self.link_stops = 0
+        #: No pose came from the backend yet: the robot waits for its first state (not a fault).
+        self.waiting_for_state = self._was_waiting = True
         self._token: Declared | None = None
         self._sub: Declared | None = None
         self._grant_sub: Declared | None = None
@@ -381,12 +385,14 @@ class RobotAgent:
                 self._default_charger(st.pose)
             self._has_charger = self.bb.charger is not None
         was = self.watchdog.reason
-        reason = self.watchdog.check(st)
+        waiting = self._waiting_for_state(st)
+        reason = "" if waiting else self.watchdog.check(st)
         ctl = self._control  # replaced whole under the lock; reading it needs none
         halt = (
             None if ctl is None or not (ctl.estop or ctl.paused) else Mode.ESTOP if ctl.estop else Mode.PAUSED
         )
-        if halt is not None or reason or was:
+        was_waiting, self._was_waiting = self._was_waiting, waiting
+        if halt is not None or reason or was or was_waiting:
             self._view = None  # the blackboard changes below
         if halt is not None:  # the fleet's pause or e-stop comes before everything
             if self.halted is None:
@@ -404,10 +410,12 @@ class RobotAgent:
                 self.root.stop(Status.INVALID)  # cancels the running goal: the robot stops
             self.bb.mode = Mode.SAFETY_STOP
             self.bb.active_leaf = "SafetyWatchdog"
+        elif waiting:
+            self.bb.mode, self.bb.active_leaf = Mode.IDLE, "WaitingForState"
         else:
             if was:
                 logger.warning("robot %s: safety stop cleared", self.name)
-            if was or self.halted is not None:
+            if was or was_waiting or self.halted is not None:
                 self.halted = None
                 self.bb.mode = Mode.IDLE
                 tree = True
@@ -430,6 +438,14 @@ class RobotAgent:
         if self.on_status is not None:
             self.on_status(rec)
         return rec
+
+    def _waiting_for_state(self, st: RobotState) -> bool:
+        """Whether the robot still waits for its first state (no pose yet from the backend)."""
+        if self.waiting_for_state and st.pose is not None:
+            self.waiting_for_state = False
+        elif self.waiting_for_state and not self.ticks:
+            logger.info("robot %s: waiting for its first state from the navigation backend", self.name)
+        return self.waiting_for_state
 
     def _tick_tree(self) -> None:
         """Tick the tree once; note whether it has settled (``settling``: the tick changed a
@@ -527,6 +543,10 @@ class RobotAgent:
         """``(worst level, the checks that are not OK)`` of ``st``; a healthy robot (the common
         case) costs no check objects."""
         h = self.health
+        if self.waiting_for_state:
+            return int(Level.WARN), (
+                ("localization", int(Level.WARN), "waiting for the robot's first state"),
+            )
         if (
             st.localized
             and st.navigation_ready

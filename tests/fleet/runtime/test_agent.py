@@ -240,3 +240,54 @@ def test_on_change_publishing_idle_robot_heartbeats_and_a_new_order_goes_out_at_
         agent.close()
     with pytest.raises(ValueError, match="status_max_period_s"):
         make_agent(config, CountingBus(), status_max_period_s=-1.0)
+
+
+def test_before_the_first_state_the_robot_waits_without_a_safety_stop(
+    config: FleetConfig, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A robot of a simulator in another process has no pose until the simulator's first state
+    arrives: its agent reports ``waiting for state`` (idle, leaf ``WaitingForState``, a
+    ``localization`` warning), not a safety stop; an order given meanwhile is driven once the
+    state is there, and the watchdog never tripped (real Zenoh, a real ``SimNavServer``)."""
+    from fleet.bus.nav_client import ZenohNavBackend
+    from fleet.bus.nav_server import SimNavServer
+
+    ep = free_endpoint()
+    clock = SimClock()
+    sim = Simulator(config.grid, config.sim, clock)
+    for r in config.robots:
+        sim.add_robot(r)
+    caplog.set_level("INFO", logger="fleet.runtime.agent")
+    with open_session(ep, "router") as router, open_session(ep, "client") as client:
+        backend = ZenohNavBackend(client, "/robot1")
+        agent = RobotAgent("/robot1", backend, clock, CountingBus(), battery_model=config.sim.battery)
+        server: SimNavServer | None = None
+        try:
+            agent.deliver(patrol_msg(config, "p-0001"))
+            for _ in range(3):
+                rec = agent.tick()
+            assert (rec.mode, rec.leaf, rec.pose) == ("idle", "WaitingForState", None)
+            assert rec.diag == (("localization", 1, "waiting for the robot's first state"),)
+            assert agent.watchdog.trips == 0 and agent.bb.task_id == "p-0001"
+            server = SimNavServer(router, sim)
+
+            def step() -> None:
+                sim.step()
+                assert server is not None
+                server.publish()
+                agent.tick()
+
+            wait_until(
+                lambda: agent.last_status is not None and agent.last_status.mode == "patrol",
+                "patrol",
+                act=step,
+            )
+            assert agent.watchdog.trips == 0
+            assert not agent.waiting_for_state
+            assert "waiting for its first state" in caplog.text
+            assert "safety stop" not in caplog.text
+        finally:
+            agent.close()
+            if server is not None:
+                server.close()
+            backend.close()
