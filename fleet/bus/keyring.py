@@ -5,7 +5,8 @@ A key directory holds, each file mode 0600:
 * ``<identity>.json5`` per identity: a complete Zenoh *client* config (mode ``client``, the
   router's endpoint, scouting off, ``transport.auth.usrpwd`` user and password) that a plain
   ``zenoh.open(zenoh.Config.from_file(path))`` can use as is. Identities: one per robot (named
-  like the robot), ``coordinator``, ``simulator`` and ``observer`` (read only);
+  like the robot), ``coordinator``, ``simulator``, ``observer`` (read only) and ``worker``
+  (a load test's agent worker);
 * ``router.json5``: the config of the router session (``fleet run`` / ``fleet sim`` host it):
   listen endpoint, its own credentials, the password dictionary and the access control
   generated from :data:`fleet.bus.keys.ACCESS` (:mod:`fleet.bus.access`);
@@ -44,6 +45,7 @@ SERVICE_IDENTITIES: dict[str, Role] = {
     "coordinator": "coordinator",
     "simulator": "simulator",
     "observer": "observer",
+    "worker": "worker",
 }
 
 #: The router's own user name.

@@ -30,6 +30,11 @@ ALIVE_KEYS = ALIVE.format(robot="*")
 #: ``fleet/*/status`` never matches them.
 STATUS_BATCH_KEYS = "fleet/batch/*/status"
 
+#: The key space of a load test's lockstep protocol between its main process and its agent
+#: workers (:mod:`fleet.loadtest.lockstep`): ``<prefix>/<run>/spec`` and ``<prefix>/<run>/nav``
+#: (queries the main process answers), ``<prefix>/<run>/w<i>/tick`` and ``.../done``.
+LOCKSTEP_PREFIX = "fleet/loadtest"
+
 
 def status_batch_key(source: str) -> str:
     """``fleet/batch/<source>/status``: the status batches of the process named ``source``."""
@@ -111,7 +116,7 @@ Use = Literal["put", "subscribe", "token", "watch", "serve", "query"]
 
 #: The roles of processes on the bus (``fleet keys init`` makes one identity per robot and
 #: one of each other role).
-Role = Literal["robot", "coordinator", "simulator", "observer"]
+Role = Literal["robot", "coordinator", "simulator", "observer", "worker"]
 
 
 @dataclass(frozen=True)
@@ -177,6 +182,17 @@ ACCESS: dict[Role, tuple[KeyUse, ...]] = {
         KeyUse("subscribe", CONTROL_KEY),
         KeyUse("subscribe", SERVICE_EVENTS),
         *(KeyUse("query", k) for k in SERVICE_READS),
+    ),
+    # a load test's agent worker (`fleet loadtest --workers K --secure DIR`): its robots'
+    # orders, states and goal calls travel in the lockstep protocol with the main process (the
+    # router); on the bus it publishes the statuses and holds the liveliness of the robots it runs
+    "worker": (
+        KeyUse("subscribe", f"{LOCKSTEP_PREFIX}/*/*/tick"),
+        KeyUse("put", f"{LOCKSTEP_PREFIX}/*/*/done"),
+        KeyUse("query", f"{LOCKSTEP_PREFIX}/*/spec"),
+        KeyUse("query", f"{LOCKSTEP_PREFIX}/*/nav"),
+        KeyUse("put", STATUS_KEYS),
+        KeyUse("token", ALIVE_KEYS),
     ),
 }
 

@@ -113,6 +113,31 @@ class Secure:
         return Secure(self.keys, identity)
 
 
+def checked_secure(keys: Path, identity: str = "worker") -> Secure:
+    """``Secure(keys, identity)`` once checked: :class:`BusError` naming the path if ``keys`` is
+    not a key directory holding that identity (``"router"``: the router's config)."""
+    from fleet.bus.keyring import Keyring
+
+    ring = Keyring(keys)
+    if not keys.is_dir():
+        raise BusError(
+            f"--secure {keys}: no such key directory (make it with `fleet keys init CONFIG {keys}`)"
+        )
+    for path, what in (
+        (ring.router_file, "a key directory"),
+        (ring.identity_file(identity), f"identity {identity!r}"),
+    ):
+        if not path.is_file():
+            older = (
+                "; one made before load-test workers existed needs `--force`" if identity == "worker" else ""
+            )
+            raise BusError(
+                f"--secure {keys}: not {what}: {path} is missing (make the keys with `fleet keys init CONFIG "
+                f"{keys}`{older})"
+            )
+    return Secure(keys, identity)
+
+
 def bus_note(secure: Secure | None) -> str:
     """How a command describes its bus in its first line: open, or secured as whom."""
     if secure is None:

@@ -35,9 +35,9 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
     init = ksub.add_parser(
         "init",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        help="write one identity per robot, coordinator, simulator, observer, the router config and the API token",
+        help="write one identity per robot, coordinator, simulator, observer, worker, the router config and the API token",
         description="Write DIR/<identity>.json5 (a Zenoh client config a plain Zenoh session opens as "
-        "is) for every robot of CONFIG and for coordinator, simulator and observer; DIR/router.json5 "
+        "is) for every robot of CONFIG and for coordinator, simulator, observer and worker (load-test workers); DIR/router.json5 "
         "(credentials + access control) with DIR/router.passwords; DIR/api.token (the HTTP API's token).",
         epilog=EPILOG,
     )
@@ -107,7 +107,7 @@ def handle_init(args: argparse.Namespace) -> int:
     print(f"keys: {len(files)} files in {ring.dir} (mode 0600) for {endpoint}")
     if args.tls:
         print("  TLS: tls/ca.pem and a certificate per identity (mutual TLS); the CA's key is not kept")
-    print(f"  identities: {', '.join(robots)}, coordinator, simulator, observer")
+    print(f"  identities: {', '.join(robots)}, coordinator, simulator, observer, worker")
     print("  router: router.json5 + router.passwords; HTTP API token: api.token")
     print(f"  use: fleet run {config.path} --secure {args.dir}   (see docs/security.md)")
     return EXIT_OK

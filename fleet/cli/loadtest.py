@@ -8,6 +8,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from fleet.bus.session import Secure, bus_note
 from fleet.cli.argtypes import non_negative_float, non_negative_int, positive_float, positive_int
 from fleet.cli.common import (
     EXIT_ERROR,
@@ -47,6 +48,7 @@ examples:
   fleet loadtest --robots 5000 --duration 120 --backend sumo --step-s 0.1
   fleet loadtest --robots 20 --duration 60 --tick-hz 10 --status-hz 10 --plot-dir /tmp/plots
   fleet loadtest --robots 1000 --duration 300 --workers 2          # agents in 2 processes
+  fleet loadtest --robots 20 --duration 300 --workers 2 --secure out/keys   # on a secured bus
   fleet loadtest --robots 1000 --duration 300 --workers 4 --local-workers 2 --endpoint tcp/0.0.0.0:7447
       # and on another machine: python -m fleet.loadtest.worker --endpoint tcp/HOST:7447 --index 2 (and 3)
 
@@ -152,6 +154,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=1, help="warehouse and simulator seed (default 1)")
     p.add_argument("--endpoint", metavar="EP", help="Zenoh endpoint to listen on (default: a free port)")
     p.add_argument("--dpi", type=positive_int, default=100, help="PNG resolution (default 100)")
+    p.add_argument(
+        "--secure",
+        type=Path,
+        metavar="DIR",
+        help="secured bus: this process hosts the router with the keys of DIR (`fleet keys init`); "
+        "workers connect as its `worker` identity; `fleet status --secure DIR` attaches as the observer",
+    )
 
 
 def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
@@ -179,12 +188,14 @@ def handle(args: argparse.Namespace) -> int:
     w0 = time.monotonic()
     display = ProgressDisplay(sys.stdout)
 
+    bus = bus_note(None if args.secure is None else Secure(args.secure, "router"))
+
     def announce(cfg: FleetConfig) -> None:
         xmax, ymax = cfg.grid.extent[1], cfg.grid.extent[3]
         print(
             f"fleet loadtest: {len(cfg.robots)} robots, {len(cfg.routes)} patrol routes, map {xmax:g} x {ymax:g} m, "
             f"backend {args.backend}, agents at {args.tick_hz:g} Hz, status at {args.status_hz:g} Hz, "
-            f"step {cfg.sim.step_s:g} s; config {cfg.path} ({time.monotonic() - w0:.1f} s)",
+            f"step {cfg.sim.step_s:g} s; config {cfg.path} ({time.monotonic() - w0:.1f} s); {bus}",
             flush=True,
         )
 
@@ -213,6 +224,7 @@ def handle(args: argparse.Namespace) -> int:
             local_workers=args.local_workers,
             status_max_period_s=args.status_max_period or None,
             on_line=lambda line: print(f"fleet loadtest: {line}", flush=True),
+            secure=args.secure,
         )
     finally:
         display.close()

@@ -12,7 +12,8 @@ fleet.loadtest.worker``, same interpreter); the rest must be started by hand, on
 others, against this process's endpoint. The run starts when all ``K`` said they are ready
 (progress lines meanwhile; :class:`~fleet.errors.BackendError` after ``ready_timeout_s``). A
 worker process that exits, or a tick not answered within ``tick_timeout_s``, ends the run
-(reported as interrupted). On every exit path (the end, Ctrl-C, an error) the workers are told
+(reported as interrupted). On a secured bus (``secure``) the workers get ``--secure DIR`` and
+connect as the key directory's ``worker`` identity. On every exit path (the end, Ctrl-C, an error) the workers are told
 to stop, then terminated, then killed, and waited for."""
 
 from __future__ import annotations
@@ -223,7 +224,7 @@ class DistributedRunner(FleetRunner):
                 "--index",
                 str(i),
             ]
-            cmd += ["--run", self.run_id, "--parent", str(os.getpid())]
+            cmd += ["--run", self.run_id, "--parent", str(os.getpid()), *self._secure_args()]
             out: TextIO | int = subprocess.DEVNULL
             if self.log_dir is not None:
                 self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -234,8 +235,12 @@ class DistributedRunner(FleetRunner):
         if self.local_workers < self.workers:
             self.progress(
                 f"start workers {self.local_workers}..{self.workers - 1} yourself: python -m fleet.loadtest.worker "
-                f"--endpoint {self.endpoint} --index I"
+                f"--endpoint {self.endpoint} --index I{' '.join(['', *self._secure_args()])}"
             )
+
+    def _secure_args(self) -> list[str]:
+        """A worker's ``--secure DIR`` on a secured bus (it connects as ``worker``)."""
+        return [] if self.secure is None else ["--secure", str(self.secure.keys)]
 
     def _wait_ready(self) -> None:
         end = time.monotonic() + READY_TIMEOUT_S

@@ -43,6 +43,7 @@ from typing import Final, TypeVar
 import msgspec
 from msgspec import Struct
 
+from fleet.bus.keys import LOCKSTEP_PREFIX
 from fleet.messages import StatusRecord
 from fleet.messages.nav import GoalMsg, goal_message
 from fleet.types import Goal, GoalState, GoalStatus, RobotState
@@ -51,7 +52,7 @@ from fleet.types import Goal, GoalState, GoalStatus, RobotState
 KEEP_FINISHED = 16
 
 #: The key space of a load test's lockstep protocol (``<run>`` names the run).
-PREFIX: Final = "fleet/loadtest"
+PREFIX: Final = LOCKSTEP_PREFIX
 
 TERMINAL: Final = frozenset(
     {GoalStatus.SUCCEEDED, GoalStatus.ABORTED, GoalStatus.CANCELED, GoalStatus.REJECTED}

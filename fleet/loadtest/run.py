@@ -46,6 +46,7 @@ from fleet.loadtest.sampler import DEFAULT_SAMPLE_S, HEAT_BIN_M, FleetSampler, l
 from fleet.viz.display import FleetSnapshot, NullDisplay
 
 if TYPE_CHECKING:
+    from fleet.bus.session import Secure
     from fleet.loadtest.lockstep import RunSpec
     from fleet.runtime.report import RunReport
 
@@ -267,6 +268,7 @@ def run_loadtest(
     local_workers: int | None = None,
     status_max_period_s: float | None = DEFAULT_STATUS_MAX_PERIOD_S,
     on_line: Callable[[str], None] | None = None,
+    secure: Path | None = None,
 ) -> LoadTestResult:
     """Run one load test (see the module docstring) and write its report and plots.
 
@@ -276,6 +278,8 @@ def run_loadtest(
     every few wall seconds. ``workers`` > 0 runs the agents in that many worker processes in
     lockstep with this one (:mod:`fleet.loadtest.distributed`; ``local_workers`` of them started
     here, default all; ``on_line`` gets their progress lines); 0 runs them in this process.
+    ``secure``: a key directory (``fleet keys init``): the bus is secured with it (this process
+    hosts the router; workers connect as its ``worker`` identity, checked before anything runs).
     Raises :class:`ConfigError` for bad arguments, :class:`BusError` / :class:`BackendError`
     when the bus or backend cannot be set up.
     """
@@ -287,6 +291,12 @@ def run_loadtest(
         )
     if workers and backend != "sim":
         raise ConfigError("fleet loadtest", "--workers", "agents in worker processes need the sim backend")
+    keys = None
+    if secure is not None:
+        from fleet.bus.keyring import ROUTER_USER
+        from fleet.bus.session import checked_secure
+
+        keys = checked_secure(secure, "worker" if workers else ROUTER_USER)
     rates = {"--tick-hz": tick_hz, "--status-hz": status_hz, "--sample-s": sample_s}
     paths = _check(n_robots, backend, rates, out_dir, report_path, plot_dir)
     cfg = prepare_config(
@@ -330,6 +340,7 @@ def run_loadtest(
         local_workers=local_workers,
         log_dir=paths.out_dir / "workers",
         on_line=on_line,
+        secure=keys,
     )
     data = report.to_dict()
     data["loadtest"] = loadtest_block(
@@ -365,6 +376,7 @@ def _run(
     local_workers: int | None = None,
     log_dir: Path | None = None,
     on_line: Callable[[str], None] | None = None,
+    secure: Secure | None = None,
 ) -> RunReport:
     """The fleet run of a load test, sampled by ``sampler`` (its final state included); with
     ``spec`` the agents run in its workers. ``ticks`` gets the trees ticked (``tree_ticks``)
@@ -380,6 +392,7 @@ def _run(
         "display": NullDisplay(),  # the sampler reports the progress
         "traffic": traffic,
         "ticking": ticking,
+        "secure": secure,
     }
     runner: FleetRunner
     if spec is None:

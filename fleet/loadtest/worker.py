@@ -6,7 +6,11 @@ same arguments (into ``--out``, default a temporary directory), builds the agent
 robots assigned to worker ``I`` and ticks them in lockstep with the main process
 (:mod:`fleet.loadtest.lockstep`) until it says ``end`` or stops answering. The main process
 starts its local workers itself; start this command by hand on other machines (``--index`` of
-the workers the main process was told not to start, ``docs/performance.md``).
+the workers the main process was told not to start, ``docs/performance.md``). On a secured
+bus (``--secure DIR``) the worker connects as the identity ``worker`` of the key directory
+(``--identity`` to choose another), which may take part in the lockstep protocol and publish its
+robots' statuses and liveliness, nothing else (``docs/security.md``); it then publishes each
+robot's status on the robot's own key (status batches are in no role).
 
 Exit codes: 0 the run ended, 1 the main process went away or sent something malformed, 2 bad
 usage or no router, 130 interrupted."""
@@ -27,7 +31,7 @@ from pathlib import Path
 import msgspec
 import zenoh
 
-from fleet.bus.session import Declaration, open_session, undeclare_all
+from fleet.bus.session import Declaration, Secure, checked_secure, open_session, undeclare_all
 from fleet.bus.status_bus import BusHandle, StatusBus
 from fleet.errors import BackendError, BusError, FleetError
 from fleet.loadtest.lockstep import (
@@ -137,20 +141,22 @@ def run_worker(
     run: str = "main",
     out_dir: str | Path | None = None,
     parent: int | None = None,
+    secure: Secure | None = None,
 ) -> int:
     """Run worker ``index`` of the load test on ``endpoint`` (see the module docstring);
-    ``parent``: the pid of the main process that started it (it exits when that one is gone)."""
+    ``parent``: the pid of the main process that started it (it exits when that one is gone);
+    ``secure``: connect to a secured bus with that identity."""
     from fleet.clock import SimClock
     from fleet.loadtest.run import prepare_config
     from fleet.runtime.agent import RobotAgent
     from fleet.types import TreeKind
 
-    session = open_session(endpoint, "client", connect_timeout_s=10.0)
+    session = open_session(endpoint, "client", connect_timeout_s=10.0, secure=secure)
     inbox: queue.Queue[bytes] = queue.Queue()
     sub: Declaration = session.declare_subscriber(
         tick_key(run, index), lambda s: inbox.put(s.payload.to_bytes())
     )
-    bus = StatusBus(session, batch_source=f"{_host()}-{os.getpid()}-w{index}")
+    bus = StatusBus(session, batch_source=None if secure else f"{_host()}-{os.getpid()}-w{index}")
     agents: list[RobotAgent] = []
     tmp: tempfile.TemporaryDirectory[str] | None = None
     try:
@@ -278,10 +284,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument(
         "--out", type=Path, help="where to generate the warehouse (default: a temporary directory)"
     )
+    ap.add_argument(
+        "--secure", type=Path, metavar="DIR", help="secured bus: the key directory of the main process"
+    )
+    ap.add_argument(
+        "--identity", default="worker", help="the identity of DIR to connect as (default: worker)"
+    )
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
-        return run_worker(a.endpoint, a.index, run=a.run, out_dir=a.out, parent=a.parent)
+        secure = checked_secure(a.secure, a.identity) if a.secure is not None else None
+        return run_worker(a.endpoint, a.index, run=a.run, out_dir=a.out, parent=a.parent, secure=secure)
     except KeyboardInterrupt:
         return 130
     except FleetError as e:

@@ -105,13 +105,13 @@ def settle(pub: zenoh.Session, key: str, inbox: Inbox) -> None:
 def test_keys_init_writes_secret_files_that_plain_zenoh_opens(keys: Path, zenoh_endpoint: str) -> None:
     names = sorted(p.name for p in keys.iterdir())
     assert names == sorted(
-        ["robot1.json5", "robot2.json5", "coordinator.json5", "simulator.json5", "observer.json5",
+        ["robot1.json5", "robot2.json5", "coordinator.json5", "simulator.json5", "observer.json5", "worker.json5",
          "router.json5", "router.passwords", "api.token"]
     )  # fmt: skip
     assert stat.S_IMODE(keys.stat().st_mode) == 0o700
     assert all(stat.S_IMODE(p.stat().st_mode) == 0o600 for p in keys.iterdir())
     passwords = dict(line.split(":", 1) for line in (keys / "router.passwords").read_text().split())
-    assert len(set(passwords.values())) == len(passwords) == 6  # router + 5 identities, all different
+    assert len(set(passwords.values())) == len(passwords) == 7  # router + 6 identities, all different
     assert all(len(p) >= 32 for p in passwords.values())
     # the files as they are, with nothing of ours: a router and a client that talk
     router = zenoh.open(zenoh.Config.from_file(keys / "router.json5"))
@@ -130,7 +130,7 @@ def test_the_router_enforces_exactly_the_key_table(keys: Path) -> None:
     """Read back from the written router config, each identity may do what ``ACCESS`` says
     for its role and nothing else."""
     rights = describe(Keyring(keys).access())
-    assert set(rights) == {*ROBOTS, "coordinator", "simulator", "observer"}
+    assert set(rights) == {*ROBOTS, "coordinator", "simulator", "observer", "worker"}
     verbs = {"put": "publishes", "subscribe": "receives", "token": "holds", "watch": "watches", "serve": "serves",
              "query": "asks"}  # fmt: skip
     for identity, role, robot in [
@@ -138,6 +138,7 @@ def test_the_router_enforces_exactly_the_key_table(keys: Path) -> None:
         ("coordinator", "coordinator", None),
         ("simulator", "simulator", None),
         ("observer", "observer", None),
+        ("worker", "worker", None),
     ]:
         name = robot or identity
         want: dict[str, set[str]] = {}
@@ -305,7 +306,7 @@ def test_tls_keys_need_the_identity_s_own_certificate(tmp_path: Path, zenoh_endp
     assert stat.S_IMODE((keys / "tls").stat().st_mode) == 0o700
     assert all(stat.S_IMODE(p.stat().st_mode) == 0o600 for p in (keys / "tls").iterdir())
     assert sorted(p.name for p in (keys / "tls").iterdir()) == sorted(
-        ["ca.pem"] + [f"{n}.{x}" for n in ("router", *ROBOTS, "coordinator", "simulator", "observer")
+        ["ca.pem"] + [f"{n}.{x}" for n in ("router", *ROBOTS, "coordinator", "simulator", "observer", "worker")
                       for x in ("pem", "key")]
     )  # fmt: skip
     assert json.loads(ring.client_config("robot1").get_json("connect/endpoints")) == [tls_ep]

@@ -32,7 +32,7 @@ def test_secured_split_fleet_completes_laps(tmp_path: Path) -> None:
     cfg = [str(PATROL), "--robots", "2"]
     r = fleet("keys", "init", *cfg, str(keys), "--endpoint", ep)
     assert r.returncode == 0, r.stderr
-    assert "robot1, robot2, coordinator, simulator, observer" in r.stdout
+    assert "robot1, robot2, coordinator, simulator, observer, worker" in r.stdout
     again = fleet("keys", "init", *cfg, str(keys))
     assert again.returncode == 2 and "exists; pass --force" in again.stderr and "robot1.json5" in again.stderr
     secure = ["--endpoint", ep, "--secure", str(keys)]
@@ -84,8 +84,8 @@ def test_bad_secure_values_are_clear_errors(tmp_path: Path) -> None:
     assert fleet("keys", "init", str(PATROL), str(keys), "--endpoint", ep).returncode == 0
     shown = fleet("keys", "show", str(keys))
     assert shown.returncode == 0, shown.stderr
-    assert f"router on {ep}, no TLS" in shown.stdout and "9 identities" in shown.stdout
-    observer = shown.stdout.split("observer:")[1]
+    assert f"router on {ep}, no TLS" in shown.stdout and "10 identities" in shown.stdout
+    observer = shown.stdout.split("observer:")[1].split("worker:")[0]
     assert "(read only)" in observer and "publishes" not in observer
     assert "publishes fleet/robot1/status, fleet/robot1/nav/goal, fleet/robot1/nav/cancel" in shown.stdout
     r = fleet("agent", str(PATROL), "--robot", "robot1,robot2", "--endpoint", ep, "--secure", str(keys))
