@@ -84,6 +84,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
         "nodes",
         "sim",
     ),
+    "fleet.chaos": ("fleet.bus",),
     "fleet.cli": ("*",),
     "fleet": (),
 }

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import logging
 import re
+import socket
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -207,6 +208,13 @@ def open_session(
                 f"no Zenoh router at {endpoint} — start `fleet run` (or `fleet sim`) first or pass --endpoint"
             ) from None
         raise BusError(f"cannot open a Zenoh {role} session on {endpoint}: {text}") from None
+
+
+def free_endpoint() -> str:
+    """``tcp/127.0.0.1:<port>`` on a port that is free now (the OS picks it)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
 def has_router(session: zenoh.Session) -> bool:

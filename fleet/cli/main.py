@@ -21,6 +21,7 @@ from collections.abc import Callable, Sequence
 
 from fleet.cli import (
     agent,
+    chaos,
     config_schema,
     coordinator,
     keys,
@@ -74,6 +75,7 @@ COMMANDS: tuple[Callable[[SubParsers], argparse.ArgumentParser], ...] = (
     validate.add_parser,
     config_schema.add_parser,
     loadtest.add_parser,
+    chaos.add_parser,
     task.add_parser,
     keys.add_parser,
 )

@@ -1,4 +1,4 @@
-"""The scripted chaos run, briefly: ``bench/chaos.py`` on a split fleet of four robots (real
+"""The scripted chaos run, briefly: ``fleet chaos`` on a split fleet of four robots (real
 ``fleet sim``, ``fleet coordinator`` and ``fleet agent`` processes on loopback) with a random
 process killed (``kill -9``) and restarted every few wall seconds. No task is lost or done
 twice, nothing collides, no process prints a traceback. ``scale`` marker (``make
@@ -21,7 +21,8 @@ ROOT = Path(__file__).resolve().parents[3]
 def test_chaos_run_loses_nothing_duplicates_nothing_and_collides_nowhere(tmp_path: Path) -> None:
     args = ["--robots", "4", "--duration", "400", "--speed", "5", "--every", "5", "--seed", "3"]
     p = subprocess.run(
-        [sys.executable, str(ROOT / "bench" / "chaos.py"), *args, "--out", str(tmp_path)],
+        [sys.executable, "-m", "fleet.cli", "chaos", str(ROOT / "configs" / "warehouse_patrol.yaml"), *args,
+         "--out", str(tmp_path)],  # fmt: skip
         capture_output=True,
         text=True,
         cwd=ROOT,
