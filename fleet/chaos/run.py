@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Literal
 
-from fleet.bus.session import Secure, open_session
+from fleet.bus.session import Secure, open_session, undeclare_all
 from fleet.bus.status_bus import StatusBus
 from fleet.chaos.watch import Watch, book_checks
 from fleet.errors import BusError
@@ -206,7 +206,7 @@ def run_chaos(spec: ChaosSpec, say: Callable[[str], None] = print) -> ChaosResul
         pending = _kill_loop(spec, procs, watch, robots, result, say)
         _settle(spec, watch, robots, result, pending)
     finally:
-        control.undeclare()
+        undeclare_all([control])
         bus.close()
         session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves Session.close unannotated
         for p in procs[1:]:  # the router's host last: the others follow its clock

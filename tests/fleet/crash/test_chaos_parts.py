@@ -36,7 +36,9 @@ def test_fleet_time_and_collisions_add_up_across_restarts() -> None:
     assert sum(w.collisions.values()) == 3
 
 
-def test_bad_keys_are_refused_before_anything_starts(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_bad_keys_are_refused_before_anything_starts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     args = ["chaos", str(PATROL), "--robots", "2", "--out", str(tmp_path / "out")]
     assert main([*args, "--secure", str(tmp_path / "missing")]) == 2
     assert f"--secure {tmp_path / 'missing'}: no such key directory" in capsys.readouterr().err
