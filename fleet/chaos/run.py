@@ -137,6 +137,8 @@ class ChaosResult:
     twice: list[str] = field(default_factory=list)
     collisions: int = 0
     tracebacks: list[str] = field(default_factory=list)
+    #: The lowest battery fraction a robot reported (not part of the verdict), and which robot.
+    min_battery: tuple[float, str] = (1.0, "")
 
     @property
     def ok(self) -> bool:
@@ -204,6 +206,7 @@ def run_chaos(spec: ChaosSpec, say: Callable[[str], None] = print) -> ChaosResul
             p.start()
         _wait_start(spec, watch, robots)
         pending = _kill_loop(spec, procs, watch, robots, result, say)
+        result.elapsed = watch.fleet_elapsed()  # the chaos; the settling after it is not counted
         _settle(spec, watch, robots, result, pending)
     finally:
         undeclare_all([control])
@@ -212,8 +215,8 @@ def run_chaos(spec: ChaosSpec, say: Callable[[str], None] = print) -> ChaosResul
         for p in procs[1:]:  # the router's host last: the others follow its clock
             p.stop()
         procs[0].stop()
-    result.elapsed = watch.fleet_elapsed()
     result.collisions = sum(watch.collisions.values())
+    result.min_battery = watch.min_battery
     result.tracebacks = [p.name for p in procs if "Traceback" in p.log.read_text(errors="replace")]
     return result
 
@@ -334,6 +337,8 @@ def report_lines(res: ChaosResult) -> list[str]:
                 )
     counts = ", ".join(f"{n} {sum(k.what.startswith(n) for k in kills)}" for n in kinds)
     lines.append(f"fleet time {res.elapsed:.0f} s, {len(kills)} kills ({counts})")
+    low, robot = res.min_battery
+    lines.append(f"lowest battery seen: {low:.0%}{f' ({robot})' if robot else ''}")
     lines.append(
         f"tasks lost: {len(res.lost)}   tasks done twice: {len(res.twice)}   collisions: {res.collisions}   "
         f"tracebacks: {len(res.tracebacks)}"

@@ -34,6 +34,8 @@ class Watch:
     shared: set[tuple[str, ...]] = field(default_factory=set)
     #: Simulated seconds the fleet ran, summed over restarts of its clock.
     elapsed: float = 0.0
+    #: The lowest battery fraction any robot reported, and which robot.
+    min_battery: tuple[float, str] = (1.0, "")
     _last_t: float | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -49,6 +51,7 @@ class Watch:
             self.collisions[rec.robot] = self.collisions.get(rec.robot, 0) + rec.collisions - seen
             self.collisions_seen[rec.robot] = rec.collisions
             self._advance(rec.t)
+            self.min_battery = min(self.min_battery, (rec.battery, rec.robot))
             self.latest[rec.robot] = (now, rec)
             live: dict[str, list[str]] = {}
             for name, (w, r) in self.latest.items():
