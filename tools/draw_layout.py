@@ -33,6 +33,7 @@ SHOWN: dict[str, str] = {
     "fleet.service": "task service, durable store",
     "fleet.client": "FleetClient (Python API)",
     "fleet.loadtest": "generated fleets, time series",
+    "fleet.chaos": "kill -9 at random, verdicts",
     "fleet.ros": "ROS 2 / Nav2 edge",
     "fleet.runtime": "worlds, agents, runner, report",
     "sim.sumo": "SUMO backend (libsumo)",
