@@ -257,7 +257,9 @@ class FleetRunner:
         from fleet.bus.status_bus import StatusBus, process_batch_source
 
         specs = [self.config.robot(n) for n in self.agent_names]
-        batch = self.config.status_batch and len(specs) > 1
+        # batches are in no role of a secured bus (docs/security.md): its observers and
+        # coordinators receive each robot's status on the robot's own key only
+        batch = self.config.status_batch and len(specs) > 1 and self.secure is None
         self.bus = StatusBus(session, batch_source=process_batch_source() if batch else None)
         self.bus.subscribe_statuses(self.bus_view.see)
         guard = self.bus.guard_orders(self.agent_names)  # counts what arrives while we start

@@ -102,3 +102,22 @@ def test_bad_secure_values_are_clear_errors(tmp_path: Path) -> None:
     r = fleet("keys", "init", str(PATROL), str(tmp_path / "k3"), "--tls", "--endpoint", "udp/127.0.0.1:7447")
     assert r.returncode == 2 and "--endpoint: TLS needs a tcp/ or tls/ endpoint" in r.stderr, r.stderr
     assert not (tmp_path / "k3").exists()
+
+
+def test_the_observer_sees_every_robot_of_a_secured_fleet_run(tmp_path: Path) -> None:
+    """``fleet run --secure`` hosts the router and all agents: its statuses go out one robot per
+    key (a status batch is in no role, so the observer would receive nothing)."""
+    ep = free_endpoint()
+    keys = tmp_path / "keys"
+    assert fleet("keys", "init", str(PATROL), str(keys), "--robots", "3", "--endpoint", ep).returncode == 0
+    with processes() as procs:
+        run = spawn(
+            procs,
+            ["run", str(PATROL), "--robots", "3", "--endpoint", ep, "--secure", str(keys), "--speed", "2",
+             "--no-live", "--state", str(tmp_path / "state")],
+            tmp_path / "run.log",
+        )  # fmt: skip
+        assert "secured bus" in output(run).wait_line("fleet: ", DEADLINE_S)
+        seen = fleet("status", "--once", "--json", "--endpoint", ep, "--secure", str(keys), "--wait", "30")
+        assert seen.returncode == 0, seen.stderr
+        assert {r["robot"] for r in json.loads(seen.stdout)["robots"]} == {"robot1", "robot2", "robot3"}
