@@ -13,13 +13,15 @@ whom. Deterministic (``--speed 0``), so two code versions compare row by row.
 from __future__ import annotations
 
 import argparse
+import os
 import socket
 import sys
 from collections import Counter, defaultdict
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+if not os.environ.get("PYTHONPATH"):
+    sys.path.insert(0, str(ROOT))  # run from a checkout; PYTHONPATH chooses another
 
 from fleet.config.loader import load_config  # noqa: E402
 from fleet.runtime.runner import FleetRunner  # noqa: E402

@@ -222,7 +222,7 @@ class TrafficManager:
         if way is not None and len(way) > 1:
             new_nodes, new_must = way[1:] + seq[1:], [False] * (len(way) - 2) + must
         else:
-            new_nodes, new_must = join(st.roads, prefix, seq, must)
+            new_nodes, new_must = join(st.roads, prefix, seq, must, loop)
         r.loop = (list(seq), list(must)) if loop else None
         r.must_passed = 0
         install(st, r, prefix + new_nodes, pm + new_must)

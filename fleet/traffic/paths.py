@@ -50,16 +50,20 @@ def checked_path(
 
 
 def join(
-    roads: RoadIndex, prefix: list[str], seq: list[str], must: list[bool]
+    roads: RoadIndex, prefix: list[str], seq: list[str], must: list[bool], loop: bool = True
 ) -> tuple[list[str], list[bool]]:
     """Nodes (and must flags) to append after ``prefix`` to continue on ``seq``: from where
-    ``seq`` passes ``prefix[-1]``, else by a shortest path to ``seq[0]``. Raises
+    ``seq`` passes ``prefix[-1]`` (for a path driven once, only where no must-visit node of
+    ``seq`` comes before: a task whose last stop is where the robot stands must still
+    visit its first stops), else by a shortest path to ``seq[0]``. Raises
     :class:`TrafficError` if ``seq`` cannot be reached."""
     if not prefix:
         return list(seq), list(must)
     last = prefix[-1]
     for i, n in enumerate(seq):
         if n == last:
+            if not loop and any(must[:i]):
+                break
             return seq[i + 1 :], must[i + 1 :]
     link = roads.shortest(last, seq[0], frozenset())
     if link is None:

@@ -58,7 +58,9 @@ def _aisle_robot() -> tuple[Any, str]:
     policy = traffic_from_config(load_config(root / "configs" / "warehouse_patrol.yaml"))
     m = policy.manager
     m.add_robot("r1", Pose2D(12.0, 9.0, math.pi / 2), 0.0)
-    m.set_path("r1", policy.roadmap.expand_route(["a3_s", "a3_n", "a4_n", "a4_s"], closed=True), 0.0, loop=True)
+    m.set_path(
+        "r1", policy.roadmap.expand_route(["a3_s", "a3_n", "a4_n", "a4_s"], closed=True), 0.0, loop=True
+    )
     m.cycle(0.0)
     assert m.grant("r1").nodes[-1] == "a3_n"  # the aisle up to its far end
     m.update("r1", Pose2D(12.0, 10.0, math.pi / 2), 1.0)
