@@ -35,7 +35,7 @@ def _free_endpoint() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("config")
+    ap.add_argument("config", nargs="?", default=str(ROOT / "configs" / "warehouse_patrol.yaml"))
     ap.add_argument("--duration", type=float, default=1800.0)
     ap.add_argument("--no-traffic", action="store_true")
     ap.add_argument("--tree", default="patrol", help="patrol, picking or tasks (the config's initial tasks)")
