@@ -75,6 +75,13 @@ def following(st: TrafficState, r: TrackedRobot, out: list[int]) -> bool:
 def oncoming(st: TrafficState, r: TrackedRobot, far: str, last: str) -> bool:
     """Whether another live robot's next :data:`ONCOMING_NODES` path nodes go from the
     junction ``far`` into the corridor node ``last`` (the opposite way to ``r``)."""
+    who = moves_ahead(st).get((far, last))
+    return who is not None and (len(who) > 1 or r.name not in who)
+
+
+def moves_ahead(st: TrafficState) -> dict[tuple[str, str], set[str]]:
+    """``(a, b)`` -> the live robots whose next :data:`ONCOMING_NODES` path nodes step from
+    ``a`` to ``b`` (built once per cycle, ``st.dir_index``)."""
     idx = st.dir_index
     if idx is None:
         idx = {}
@@ -85,8 +92,7 @@ def oncoming(st: TrafficState, r: TrackedRobot, far: str, last: str) -> bool:
             for a, b in zip(seg, seg[1:], strict=False):
                 idx.setdefault((a, b), set()).add(o.name)
         st.dir_index = idx
-    who = idx.get((far, last))
-    return who is not None and (len(who) > 1 or r.name not in who)
+    return idx
 
 
 def extend(st: TrafficState, r: TrackedRobot, now: float) -> None:

@@ -61,7 +61,7 @@ from fleet.traffic.deadlocks import cycles, detect_and_resolve
 from fleet.traffic.failures import avoid_dead, kill, revive, shrink
 from fleet.traffic.grants import extend
 from fleet.traffic.params import TrafficParams
-from fleet.traffic.paths import checked_path, install, join, pose_at
+from fleet.traffic.paths import checked_path, errand_way, install, join, pose_at
 from fleet.traffic.reservations import ReservationTable, Resource, edge_key
 from fleet.traffic.roads import RoadIndex
 from fleet.traffic.state import TrackedRobot, TrafficMetrics, TrafficState
@@ -195,11 +195,15 @@ class TrafficManager:
         now: float,
         must_visit: Iterable[int] | None = None,
         loop: bool = False,
+        turn_back: bool = False,
     ) -> int:
         """Give ``robot`` the node path ``nodes`` (consecutive nodes must be roadmap edges).
 
         The robot first finishes its current grant; the new path is joined from there
-        (where it crosses the grant, or by a shortest path to ``nodes[0]``). ``must_visit``
+        (where it crosses the grant, or by a shortest path to ``nodes[0]``). With
+        ``turn_back`` (errands) the robot may turn back, from its grant's end or from a node
+        before it (the grant is then cut back there), and drive against the fleet's flow
+        where nobody comes, when that way is shorter (:func:`fleet.traffic.paths.errand_way`). ``must_visit``
         are indices into ``nodes`` that detours must keep (default: the last node; with
         ``loop`` every node). With ``loop=True`` the path repeats forever (``nodes[-1]`` must
         be adjacent to ``nodes[0]`` or equal to it); :meth:`laps` counts completed loops.
@@ -212,9 +216,13 @@ class TrafficManager:
         st.now = now
         if not r.alive:
             return r.path_id
+        way = errand_way(st, r, seq[0]) if turn_back and not loop else None
         prefix = r.path[r.cur : r.g + 1]
         pm = [False] * len(prefix) if loop else r.must[r.cur : r.g + 1]
-        new_nodes, new_must = join(st.roads, prefix, seq, must)
+        if way is not None and len(way) > 1:
+            new_nodes, new_must = way[1:] + seq[1:], [False] * (len(way) - 2) + must
+        else:
+            new_nodes, new_must = join(st.roads, prefix, seq, must, loop)
         r.loop = (list(seq), list(must)) if loop else None
         r.must_passed = 0
         install(st, r, prefix + new_nodes, pm + new_must)

@@ -43,6 +43,12 @@ class TrafficParams:
     manager plans itself (to a charger or parking dock, detours) cost an edge driven against
     the fleet's patrol loops ``1 + flow_penalty`` times its length
     (:meth:`fleet.traffic.roads.RoadIndex.set_flow`), so errands drive with the traffic.
+    ``turn_back``: a robot sent on an errand (``set_path(..., turn_back=True)``: to a charger
+    or a parking dock) may turn back and drive against the flow where nobody comes, giving
+    up the part of its grant beyond the first node at least ``turn_back_m`` ahead of it,
+    when that way is shorter (:func:`fleet.traffic.paths.errand_way`); ``turn_back_m`` must
+    exceed the robot's stopping distance plus how far it drives before its follower learns
+    of the shorter grant.
     """
 
     robot_radius: float = 0.3
@@ -67,6 +73,8 @@ class TrafficParams:
     hold_far_end: bool = False
     follow: bool = True
     flow_penalty: float = 3.0
+    turn_back: bool = True
+    turn_back_m: float = 1.5
 
     @property
     def clearance(self) -> float:

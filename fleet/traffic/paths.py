@@ -8,7 +8,8 @@ import math
 from collections.abc import Iterable, Sequence
 
 from fleet.errors import TrafficError
-from fleet.traffic.reservations import edge_key
+from fleet.traffic.grants import moves_ahead
+from fleet.traffic.reservations import Resource, edge_key
 from fleet.traffic.roads import RoadIndex
 from fleet.traffic.state import TrackedRobot, TrafficState
 from fleet.types import Pose2D
@@ -49,21 +50,111 @@ def checked_path(
 
 
 def join(
-    roads: RoadIndex, prefix: list[str], seq: list[str], must: list[bool]
+    roads: RoadIndex, prefix: list[str], seq: list[str], must: list[bool], loop: bool = True
 ) -> tuple[list[str], list[bool]]:
     """Nodes (and must flags) to append after ``prefix`` to continue on ``seq``: from where
-    ``seq`` passes ``prefix[-1]``, else by a shortest path to ``seq[0]``. Raises
+    ``seq`` passes ``prefix[-1]`` (for a path driven once, only where no must-visit node of
+    ``seq`` comes before: a task whose last stop is where the robot stands must still
+    visit its first stops), else by a shortest path to ``seq[0]``. Raises
     :class:`TrafficError` if ``seq`` cannot be reached."""
     if not prefix:
         return list(seq), list(must)
     last = prefix[-1]
     for i, n in enumerate(seq):
         if n == last:
+            if not loop and any(must[:i]):
+                break
             return seq[i + 1 :], must[i + 1 :]
     link = roads.shortest(last, seq[0], frozenset())
     if link is None:
         raise TrafficError(f"no roadmap path from {last!r} to {seq[0]!r}")
     return link[1:] + seq[1:], [False] * (len(link) - 2) + must
+
+
+class HeldByOthers:
+    """The nodes some robot other than ``robot`` holds (a container for
+    :meth:`RoadIndex.shortest`'s ``avoid``, looked up in the table when asked)."""
+
+    def __init__(self, st: TrafficState, robot: str) -> None:
+        self.holder = st.table.holder
+        self.robot = robot
+
+    def __contains__(self, node: object) -> bool:
+        h = self.holder(node) if isinstance(node, str) else None
+        return h is not None and h != self.robot
+
+
+class Oncoming:
+    """The steps ``(u, v)`` that another robot is about to drive the other way, ``(v, u)``,
+    within its next :data:`~fleet.traffic.params.ONCOMING_NODES` path nodes (a container
+    for :meth:`RoadIndex.shortest`'s ``avoid_moves``)."""
+
+    def __init__(self, st: TrafficState, robot: str) -> None:
+        self.idx = moves_ahead(st)
+        self.robot = robot
+
+    def __contains__(self, move: object) -> bool:
+        if not isinstance(move, tuple):
+            return False
+        who = self.idx.get((move[1], move[0]))
+        return who is not None and (len(who) > 1 or self.robot not in who)
+
+
+def errand_way(st: TrafficState, r: TrackedRobot, target: str) -> list[str] | None:
+    """The way for ``r``, sent on an errand to ``target`` (a charger, a parking dock), when
+    a shorter one than the planned way exists; ``None`` otherwise.
+
+    The planned way finishes the grant and goes on from its end with the fleet's flow
+    (edges against it cost ``1 + flow_penalty`` times their length). The errand's way may
+    also turn back, from the grant's end or from the first granted node at least
+    ``turn_back_m`` ahead of the robot (where it can still stop), and drive against the
+    flow where nobody comes: it enters no node another robot holds and drives no step
+    another robot is about to drive the other way (:class:`Oncoming`). It is taken when it
+    is shorter (m); if it turns back before the grant's end, what lies beyond is released
+    and the grant ends there. A robot called to a charger in the middle of its patrol's
+    aisle then turns back instead of driving on around the loop (on the 6-robot warehouse
+    the trips to a charger were 36 m, where robots without traffic management drove 11 m).
+    Returns the node path from the grant's (new) end to ``target``."""
+    if not st.params.turn_back:
+        return None
+    cur, g = r.cur, r.g
+    path, pos, roads = r.path, st.roads.pos, st.roads
+    planned = roads.shortest(path[g], target, frozenset())
+    if planned is None:
+        return None
+    best = r.cum[g] - r.cum[cur] + roads.cost(planned, flow=False) - 1e-6
+    k = cur + 1
+    stop2 = st.params.turn_back_m * st.params.turn_back_m
+    while k < g:
+        x, y = pos[path[k]]
+        if (x - r.x) * (x - r.x) + (y - r.y) * (y - r.y) >= stop2:
+            break
+        k += 1
+    held, onc = HeldByOthers(st, r.name), Oncoming(st, r.name)
+    chosen: tuple[int, list[str]] | None = None
+    for j in sorted({min(k, g), g}):
+        way = roads.shortest(path[j], target, held, flow=False, avoid_moves=onc)
+        if way is None:
+            continue
+        d = r.cum[j] - r.cum[cur] + roads.cost(way, flow=False)
+        if d < best:
+            best, chosen = d, (j, way)
+    if chosen is None:
+        return None
+    j, way = chosen
+    if j < g:
+        keep: set[object] = set(path[cur : j + 1]) | r.back
+        keep.update(edge_key(path[i], path[i + 1]) for i in range(cur, j) if path[i] != path[i + 1])
+        drop: list[Resource] = []
+        for i in range(j + 1, g + 1):
+            a, b = path[i - 1], path[i]
+            if a != b and edge_key(a, b) not in keep:
+                drop.append(edge_key(a, b))
+            if b not in keep:
+                drop.append(b)
+        st.release(r, drop)
+        r.g = j
+    return way
 
 
 def install(

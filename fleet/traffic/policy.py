@@ -232,7 +232,9 @@ class ReservationTraffic:
         m = self.manager
         if not m.is_alive(robot):
             m.declare_alive(robot, self._now)  # e.g. stalled earlier: a new errand revives it
-        m.set_path(robot, nodes, self._now, must_visit=must, loop=loop)
+        # errands (charger, parking) may turn back instead of finishing the patrol's grant
+        errand = purpose in (Purpose.CHARGE, Purpose.CHARGE_WAIT, Purpose.PARK)
+        m.set_path(robot, nodes, self._now, must_visit=must, loop=loop, turn_back=errand)
         self._purpose[robot] = purpose
 
     def _apply_pending(self, robot: str) -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Iterable
+from collections.abc import Container, Iterable, Sequence
 
 import networkx as nx
 import numpy as np
@@ -75,12 +75,33 @@ class RoadIndex:
                     heapq.heappush(heap, (nd, v))
         return dist
 
+    def cost(self, nodes: Sequence[str], flow: bool = True) -> float:
+        """Cost (m, edges against the flow weighted as in :meth:`shortest`; with
+        ``flow=False`` the length) of driving the node path ``nodes`` (consecutive nodes are
+        edges or repeats)."""
+        lens = self.length
+        against: dict[tuple[str, str], float] = self.against if flow else {}
+        total = 0.0
+        for u, v in zip(nodes, nodes[1:], strict=False):
+            if u != v:
+                total += lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0))
+        return total
+
     def shortest(
-        self, a: str, b: str, avoid: frozenset[str] | set[str], limit: float = math.inf
+        self,
+        a: str,
+        b: str,
+        avoid: Container[str],
+        limit: float = math.inf,
+        *,
+        flow: bool = True,
+        avoid_moves: Container[tuple[str, str]] = (),
     ) -> list[str] | None:
         """A* from ``a`` to ``b`` by edge length (straight-line heuristic), not entering nodes
-        in ``avoid``; ``None`` if there is no such path of cost at most ``limit`` (m). An
-        edge driven against the flow (:meth:`set_flow`) costs ``1 + penalty`` times its length."""
+        in ``avoid`` nor driving a step ``(u, v)`` in ``avoid_moves``; ``None`` if there is no
+        such path of cost at most ``limit`` (m). An edge driven against the flow
+        (:meth:`set_flow`) costs ``1 + penalty`` times its length (with ``flow=False``, its
+        length)."""
         if a == b:
             return [a]
         if b in avoid:
@@ -90,7 +111,8 @@ class RoadIndex:
         dist = {a: 0.0}
         prev: dict[str, str] = {}
         heap = [(math.dist(pos[a], (bx, by)), 0.0, a)]
-        adj, lens, against = self.adj, self.length, self.against
+        adj, lens = self.adj, self.length
+        against: dict[tuple[str, str], float] = self.against if flow else {}
         closed: set[str] = set()
         while heap:
             f, d, u = heapq.heappop(heap)
@@ -105,7 +127,7 @@ class RoadIndex:
                 continue
             closed.add(u)
             for v in adj[u]:
-                if v in avoid or v in closed:
+                if v in avoid or v in closed or (u, v) in avoid_moves:
                     continue
                 nd = d + lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0))
                 if nd < dist.get(v, math.inf):

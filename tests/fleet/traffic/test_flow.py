@@ -3,6 +3,9 @@ the direction of the patrol loops (``TrafficParams.flow_penalty``)."""
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 import networkx as nx
 
 from fleet.traffic.roads import RoadIndex
@@ -39,3 +42,54 @@ def test_a_shipped_config_gives_its_patrol_loops_direction() -> None:
     costs = policy.manager.costs_from("a1_s")
     # aisle 1 is driven north in its loop: south-bound costs more than its length
     assert policy.manager.costs_from("a1_n")["a1_s"] > costs["a1_n"]
+
+
+def _aisle_robot() -> tuple[Any, str]:
+    """The 6-robot warehouse's traffic policy with robot ``r1`` driving north in aisle 3 of
+    the ``aisles_3_4`` loop (clockwise: north in aisle 3, south in aisle 4), 1 m past
+    ``a3_1``; and the charger west of aisle 3's south end."""
+    from pathlib import Path
+
+    from fleet.config.loader import load_config
+    from fleet.traffic.policy import traffic_from_config
+    from fleet.types import Pose2D
+
+    root = Path(__file__).resolve().parents[3]
+    policy = traffic_from_config(load_config(root / "configs" / "warehouse_patrol.yaml"))
+    m = policy.manager
+    m.add_robot("r1", Pose2D(12.0, 9.0, math.pi / 2), 0.0)
+    m.set_path(
+        "r1", policy.roadmap.expand_route(["a3_s", "a3_n", "a4_n", "a4_s"], closed=True), 0.0, loop=True
+    )
+    m.cycle(0.0)
+    assert m.grant("r1").nodes[-1] == "a3_n"  # the aisle up to its far end
+    m.update("r1", Pose2D(12.0, 10.0, math.pi / 2), 1.0)
+    m.cycle(1.0)
+    return m, "dock:charger:charger1"
+
+
+def test_a_robot_sent_to_a_charger_turns_back_in_its_aisle_when_nobody_comes() -> None:
+    m, charger = _aisle_robot()
+    m.set_path("r1", [charger], 1.0, turn_back=True)
+    # it gives up the aisle's far end (released), turns back at the next node and drives
+    # against the loop's flow to the charger: 4 + 9 + 2 + 1 m instead of about 30 m around
+    assert m.path("r1") == ["a3_1", "a3_2", "a3_1", "a3_s", "via:10.00,5.00", charger]
+    assert m.holder("a3_n") is None
+    m.cycle(1.1)
+    assert m.grant("r1").nodes[0] == "a3_2"
+
+
+def test_an_errand_keeps_the_flow_when_a_robot_comes_the_other_way_or_without_turn_back() -> None:
+    from fleet.types import Pose2D
+
+    m, charger = _aisle_robot()
+    m.set_path("r1", [charger], 1.0)  # a path that is no errand: the grant is finished first
+    assert m.path("r1")[:4] == ["a3_1", "a3_2", "a3_n", "a4_n"]
+
+    m, charger = _aisle_robot()
+    m.add_robot("r2", Pose2D(12.0, 5.0, math.pi / 2), 1.0)  # at the aisle's south end ...
+    m.set_path("r2", ["a3_s", "a3_1", "a3_2"], 1.0)  # ... about to drive up the aisle
+    m.set_path("r1", [charger], 1.0, turn_back=True)
+    # no head-on in the aisle: on through its far end (then down aisle 2, where nobody comes)
+    assert m.path("r1")[:3] == ["a3_1", "a3_2", "a3_n"]
+    assert "a3_s" not in m.path("r1")

@@ -1,0 +1,177 @@
+"""Where a fleet loses time under traffic management: one in-process ``fleet run`` sampled
+every simulated second.
+
+Prints, per robot, the seconds spent in each state (patrolling and driving, patrolling and
+waiting for right of way, on the way to a charger, charging, idle, ...), the routes' seconds
+without a robot, and for the waits: the nodes and edges robots waited at and who waited for
+whom. Deterministic (``--speed 0``), so two code versions compare row by row.
+
+    python bench/traffic_time.py configs/warehouse_patrol.yaml --duration 1800
+    python bench/traffic_time.py configs/warehouse_patrol.yaml --duration 1800 --no-traffic
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import socket
+import sys
+from collections import Counter, defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+if not os.environ.get("PYTHONPATH"):
+    sys.path.insert(0, str(ROOT))  # run from a checkout; PYTHONPATH chooses another
+
+from fleet.config.loader import load_config  # noqa: E402
+from fleet.runtime.runner import FleetRunner  # noqa: E402
+
+
+def _free_endpoint() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("config", nargs="?", default=str(ROOT / "configs" / "warehouse_patrol.yaml"))
+    ap.add_argument("--duration", type=float, default=1800.0)
+    ap.add_argument("--no-traffic", action="store_true")
+    ap.add_argument("--tree", default="patrol", help="patrol, picking or tasks (the config's initial tasks)")
+    ap.add_argument("--top", type=int, default=12)
+    ap.add_argument("--param", action="append", default=[], help="NAME=VALUE: a TrafficParams field (float)")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        help="MODULE.NAME=VALUE: a module constant (float), e.g. fleet.traffic.errands.TOP_UP_BELOW=0",
+    )
+    a = ap.parse_args(argv)
+    for item in a.set:
+        import importlib
+
+        target, value = item.split("=", 1)
+        mod, _, const = target.rpartition(".")
+        setattr(importlib.import_module(mod), const, float(value))
+    if a.param:
+        import fleet.traffic.policy as policy_mod
+        from fleet.traffic.params import TrafficParams
+
+        over = {k: float(v) for k, v in (p.split("=", 1) for p in a.param)}
+
+        def params(**kw: float) -> TrafficParams:
+            return TrafficParams(**{**kw, **over})  # type: ignore[arg-type]
+
+        policy_mod.TrafficParams = params  # type: ignore[misc,assignment]
+    config = load_config(a.config)
+    runner = FleetRunner(
+        config,
+        duration=a.duration,
+        speed=0.0,
+        endpoint=_free_endpoint(),
+        live=False,
+        traffic=not a.no_traffic,
+        tree_kind=a.tree,
+        out=open("/dev/null", "w"),  # noqa: SIM115 - closed with the process
+    )
+    states: dict[str, Counter[str]] = defaultdict(Counter)
+    at: Counter[str] = Counter()
+    whom: Counter[tuple[str, str]] = Counter()
+    unassigned: Counter[str] = Counter()
+    last = [-1.0]
+    trip: dict[str, tuple[float, float]] = {}  # robot -> (t, odometer) when it began to charge
+    trips: list[tuple[float, float]] = []  # (s, m) from the charge decision to the charger
+    prev_mode: dict[str, str] = {}
+    prev_purpose: dict[str, str] = {}
+    waited: dict[str, bool] = {}
+    set_at: dict[str, float] = {}
+    split: list[tuple[bool, float, float]] = []  # (queued, m before the charger path, m in all)
+    legs: list[tuple[float, float]] = []  # (granted m, whole path m) when a charge path is set
+
+    def observe(now: float, r: FleetRunner) -> None:
+        if now - last[0] < 1.0:
+            return
+        last[0] = now
+        tp = r.traffic_policy
+        m = tp.manager if tp is not None else None
+        assigned = set()
+        if r.coordinator is not None:
+            for v in r.coordinator.state.robots.values():
+                if v.assignment is not None:
+                    assigned.add(v.assignment.name)
+        for rec in r.records():
+            key = rec.mode
+            if rec.mode == "charging" and prev_mode.get(rec.robot) != "charging":
+                trip[rec.robot] = (now, rec.distance_m)
+            if rec.charging and rec.robot in trip:
+                t0, d0 = trip.pop(rec.robot)
+                trips.append((now - t0, rec.distance_m - d0))
+                split.append(
+                    (waited.pop(rec.robot, False), set_at.pop(rec.robot, d0) - d0, rec.distance_m - d0)
+                )
+            prev_mode[rec.robot] = rec.mode
+            tracked = m._st.robots if m is not None else {}
+            tr = tracked.get(rec.robot) or tracked.get(rec.ns)
+            pur = str(tp.purpose(rec.robot) or "") if tp is not None else ""
+            if tr is not None and pur == "charge" and prev_purpose.get(rec.robot) != "charge":
+                legs.append((tr.cum[tr.g] - tr.cum[tr.cur], tr.cum[-1] - tr.cum[tr.cur]))
+            if rec.robot in trip:
+                if pur == "charge-wait":
+                    waited[rec.robot] = True
+                if pur == "charge" and rec.robot not in set_at:
+                    set_at[rec.robot] = rec.distance_m
+            prev_purpose[rec.robot] = pur
+            if tr is not None:
+                key += ":" + (pur or "-")
+                if tr.wait_since is not None:
+                    key += "/wait"
+                    for b in tr.blockers:
+                        whom[(rec.robot, b.lstrip("/"))] += 1
+                    for x in tr.blocked_on:
+                        at[str(x)] += 1
+                elif tr.g > tr.cur:
+                    key += "/drive"
+                else:
+                    key += "/stand"
+            states[rec.robot][key] += 1
+        if r.coordinator is not None:
+            for route in r.config.routes:
+                if route.name not in assigned:
+                    unassigned[route.name] += 1
+
+    runner.observers.append(observe)
+    rep = runner.run()
+    print(f"{a.config} traffic={'off' if a.no_traffic else 'on'} {a.duration:g} s: laps {rep.laps_completed}")
+    keys = sorted({k for c in states.values() for k in c})
+    print("robot    " + " ".join(f"{k:>14}" for k in keys))
+    for name in sorted(states):
+        print(f"{name:8} " + " ".join(f"{states[name][k]:>14}" for k in keys))
+    print("route seconds without a robot:", dict(unassigned))
+    if trips:
+        ts, ds = sorted(t for t, _ in trips), sorted(d for _, d in trips)
+        print(
+            f"charge trips: {len(trips)}, to the charger median {ts[len(ts) // 2]:.0f} s / "
+            f"{ds[len(ds) // 2]:.1f} m, mean {sum(ts) / len(ts):.0f} s / {sum(ds) / len(ds):.1f} m, "
+            f"max {ts[-1]:.0f} s / {ds[-1]:.1f} m"
+        )
+    for q in (False, True):
+        sel = [(a, b) for w, a, b in split if w is q]
+        if sel:
+            print(
+                f"charge trips {'queued' if q else 'direct'}: {len(sel)}, mean m before the charger "
+                f"path {sum(a for a, _ in sel) / len(sel):.1f}, mean m in all {sum(b for _, b in sel) / len(sel):.1f}"
+            )
+    if legs:
+        n = len(legs)
+        print(
+            f"charge paths: {n}, mean granted ahead {sum(g for g, _ in legs) / n:.1f} m, "
+            f"mean whole {sum(w for _, w in legs) / n:.1f} m"
+        )
+    print("waited at (robot-s, resource):", at.most_common(a.top))
+    print("waited for (robot-s, who -> blocker):", whom.most_common(a.top))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
