@@ -83,7 +83,15 @@ def one(config: str, n: int, profile: str, timeout_s: float, shards: int = 1) ->
                     if all(rb[ns].goal_state(g).status.terminal for ns, g in ids.items()):
                         break
                     time.sleep(0.01)
-                ok = sum(rb[ns].goal_state(g).status is GoalStatus.SUCCEEDED for ns, g in ids.items())
+                states = [rb[ns].goal_state(g) for ns, g in ids.items()]
+                ok = sum(st.status is GoalStatus.SUCCEEDED for st in states)
+                ends: dict[str, int] = {}
+                for st in states:
+                    if st.status is not GoalStatus.SUCCEEDED:
+                        key = f"{st.status.name}: {st.error_msg}"[:120]
+                        ends[key] = ends.get(key, 0) + 1
+                if ends:
+                    row["wait_other"] = json.dumps(ends)
                 row["wait_all_s"] = round(time.monotonic() - t1, 3)
                 row["wait_ok"] = ok
             row["client_rss_mb"] = round(rss_mb() - rss0, 1)
