@@ -11,9 +11,10 @@ excluded from the timing (``setup_wall_s``); later goals (re-planned patrol laps
 the timed loop. The headline figure is ``N * K / wall seconds of the K timed steps`` including
 the goal polling (``goal_state`` of every robot at ``poll_hz``), as in ``bench/sumo_steps.py``;
 ``step_only_*`` counts the time inside ``Simulator.step()`` alone and ``poll_wall_s`` the time in
-the polling rounds (the goals re-sent included). Polling reads every robot's goal status in one
-``Simulator.goal_table()`` call (arrays, no snapshot objects), as a batch-polling runner does;
-``--per-goal`` polls with one ``goal_state`` snapshot per goal instead.
+the polling rounds (the goals re-sent included). Polling reads every robot's state and goal in
+one ``Simulator.query_batch(namespaces, goal_ids)`` call (the navigation contract's batch query,
+as the fleet runner's scheduler does: arrays, no snapshot objects); ``--per-goal`` polls with
+one ``goal_state`` snapshot per goal instead.
 
 Command line::
 
@@ -85,7 +86,7 @@ def run_sim_steps(
     batch: bool = True,
 ) -> SimBenchResult:
     """Run ``steps`` timed steps of every robot of ``cfg`` patrolling (module docstring).
-    ``batch``: poll every goal at once with ``Simulator.goal_table()``; else one
+    ``batch``: poll every goal at once with ``Simulator.query_batch``; else one
     ``goal_state`` snapshot per goal."""
     from sim.goals import STATUS_CODES, TERMINAL
     from sim.simulator import Simulator
@@ -111,8 +112,8 @@ def run_sim_steps(
                 goals[i] = sim.send_goal(ns, NavigateThroughPoses(routes[i % len(routes)]))
 
     def dispatch_table() -> None:
-        # every robot's goal here is its latest motion goal, so the table's row is its goal
-        codes = sim.goal_table().status
+        # the navigation contract's batch query: every robot's state and goal in one call
+        codes = sim.query_batch(nss, goals).goal_status
         for i in TERMINAL[codes].nonzero()[0].tolist():
             counts["ok" if STATUS_CODES[codes[i]] is GoalStatus.SUCCEEDED else "failed"] += 1
             goals[i] = sim.send_goal(nss[i], NavigateThroughPoses(routes[i % len(routes)]))
@@ -306,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--per-goal",
         action="store_true",
-        help="poll with one goal_state snapshot per goal instead of one Simulator.goal_table() call",
+        help="poll with one goal_state snapshot per goal instead of one Simulator.query_batch() call",
     )
     ap.add_argument("--out", help="directory for the generated warehouse (default: a temp dir)")
     ap.add_argument("--warmup", type=int, default=0, help="untimed steps before the timed ones (default 0)")

@@ -10,8 +10,8 @@ warm-up. What each side computes per step:
   path follower, local avoidance, reactive safety stop, static-obstacle clamping, battery,
   progress checker and contact counting. Robot ``i`` patrols route ``i mod R`` of the config
   (NavigateThroughPoses of ``config.route_poses(route)``, re-sent when it ends); goals are
-  polled at 10 Hz of simulated time inside the timed loop, every robot's goal status in one
-  ``Simulator.goal_table()`` call.
+  polled at 10 Hz of simulated time inside the timed loop, every robot's state and goal in one
+  ``Simulator.query_batch()`` call (the navigation contract's batch query).
 * **SUMO** (``bench/sumo_steps.py``, ``sim/sumo/world.py``): the warehouse roadmap converted
   to a SUMO network, one vehicle per robot, ``libsumo.simulationStep()`` plus the backend's
   per-step bookkeeping (positions of every vehicle, arrivals, collisions, teleports). Each
