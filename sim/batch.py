@@ -56,6 +56,9 @@ class SimBatch:
         self.robot_state = robot_state
         self._rows_of: tuple[list[str], npt.NDArray[np.intp]] = ([], np.zeros(0, dtype=np.intp))
         self._ids: dict[str | None, int] = {None: -1}
+        #: Robots (by row) whose navigation is down (the ``navigation_down`` fault), kept by
+        #: ``Simulator.set_fault``.
+        self.navigation_down: set[int] = set()
 
     def query_batch(self, namespaces: Sequence[str], goal_ids: Sequence[str | None]) -> NavBatch:
         """The batch of ``namespaces`` / ``goal_ids`` (see the module docstring). Raises
@@ -71,7 +74,8 @@ class SimBatch:
             pose = self.robot_state(namespaces[k]).pose
             x[k], y[k], th[k] = (math.nan,) * 3 if pose is None else (pose.x, pose.y, pose.theta)
         status, error, remaining = self._goals(goal_ids)
-        ready = np.array([r.fault != "navigation_down" for r in self.dispatch.order], dtype=np.bool_)
+        ready = np.ones(s.n, dtype=np.bool_)
+        ready[list(self.navigation_down)] = False
         return NavBatch(
             namespaces=tuple(namespaces),
             goal_ids=tuple(goal_ids),

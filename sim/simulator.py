@@ -298,6 +298,10 @@ class Simulator:
             raise BackendError(f"unknown fault {fault!r}; known faults: {', '.join(FAULTS)}")
         r = self._robot(namespace)
         r.fault = fault
+        if fault == "navigation_down":
+            self._batch.navigation_down.add(r.index)
+        else:
+            self._batch.navigation_down.discard(r.index)
         self.state.stalled[r.index] = fault == "stalled"
         self.localization.set_lost(r.index, fault == "localization_lost", self.clock.now())
         self._update_safety(r)
