@@ -15,6 +15,7 @@ CONFIG --robots N`` in a child process and measure
 Private ROS domain, loopback, the fleet's FastDDS discovery profile.
 
 Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full] [--shards 1,8]
+       [--executor single,events]
        [--config configs/warehouse_patrol_30.yaml] [--json out/bench_ros_scale.json]
 """
 
@@ -42,11 +43,20 @@ def rss_mb(pid: int | str = "self") -> float:
     return float("nan")
 
 
-def one(config: str, n: int, profile: str, timeout_s: float, shards: int = 1) -> dict[str, float | int | str]:
+def one(
+    config: str, n: int, profile: str, timeout_s: float, shards: int = 1, executor: str = "single"
+) -> dict[str, float | int | str]:
     from fleet.ros.backend import make_ros_backends
+    from fleet.ros.executors import EXECUTOR_VAR
     from fleet.types import GoalStatus, Wait
 
-    row: dict[str, float | int | str] = {"robots": n, "profile": profile, "shards": shards}
+    os.environ[EXECUTOR_VAR] = executor  # the server child's executor (fleet.ros.executors)
+    row: dict[str, float | int | str] = {
+        "robots": n,
+        "profile": profile,
+        "shards": shards,
+        "executor": executor,
+    }
     with ServerProcess.for_config(
         config,
         "--robots",
@@ -112,6 +122,11 @@ def main(argv: list[str] | None = None) -> int:
         default="1",
         help="comma-separated DDS participant counts of the server (fleet sim-ros --shards), one run each",
     )
+    ap.add_argument(
+        "--executor",
+        default="single",
+        help="comma-separated executors of the server (FLEET_ROS_EXECUTOR: single, events), one run each",
+    )
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     # SIGTERM (e.g. `timeout`) unwinds like Ctrl-C so the server child is stopped
@@ -122,9 +137,10 @@ def main(argv: list[str] | None = None) -> int:
     for profile in args.profile.split(","):
         for n in (int(x) for x in args.robots.split(",")):
             for shards in (int(x) for x in args.shards.split(",")):
-                row = one(args.config, n, profile, args.timeout, shards)
-                rows.append(row)
-                print(json.dumps(row), flush=True)
+                for executor in args.executor.split(","):
+                    row = one(args.config, n, profile, args.timeout, shards, executor)
+                    rows.append(row)
+                    print(json.dumps(row), flush=True)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
