@@ -23,6 +23,7 @@ Command line::
     python bench/bench_sim.py --robots 1000 --steps 200 --warmup 200 --profile   # cProfile of step()
     python bench/bench_sim.py --robots 1000 --steps 200 --warmup 200 --stages    # stage timers
     python bench/bench_sim.py --scenes    # speed of the unit tests' scenes and the planner
+    python bench/bench_sim.py --robots 1000 --query   # ms of one query_batch of every robot
 """
 
 from __future__ import annotations
@@ -249,6 +250,33 @@ def _room_rate(n: int, cols: int, warm_s: float, timed_s: float) -> float:
     return n * k / (time.perf_counter() - t0)
 
 
+def query_cost(cfg: Any, steps: int = 40, calls: int = 50) -> str:
+    """Wall ms of one ``Simulator.query_batch`` over every robot and its goal (the rows a
+    runner polls) and of ``goal_table`` / ``robot_table``, after ``steps`` steps of patrolling."""
+    from sim.simulator import Simulator
+
+    sim = Simulator(cfg.grid, cfg.sim, SimClock())
+    for spec in cfg.robots:
+        sim.add_robot(spec)
+    routes = [cfg.route_poses(r) for r in cfg.routes]
+    nss = sim.namespaces
+    goals = [sim.send_goal(ns, NavigateThroughPoses(routes[i % len(routes)])) for i, ns in enumerate(nss)]
+    for _ in range(steps):
+        sim.step()
+    out = []
+    for name, fn in (
+        ("query_batch", lambda: sim.query_batch(nss, goals)),
+        ("goal_table", sim.goal_table),
+        ("robot_table", sim.robot_table),
+    ):
+        fn()
+        t = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        out.append(f"{name} {(time.perf_counter() - t) / calls * 1000:.3f} ms")
+    return f"{len(nss)} robots, one call each: " + ", ".join(out)
+
+
 def scenes() -> list[str]:
     """The speed figures of the simulator's unit-test scenes (the tests assert behaviour only):
     30 and 400 robots crossing a 40 x 30 m room, and the planner on a 40 x 30 m warehouse."""
@@ -318,6 +346,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--progress", action="store_true", help="print progress to stderr")
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
     ap.add_argument(
+        "--query", action="store_true", help="print the cost of one batch read of every robot instead"
+    )
+    ap.add_argument(
         "--scenes",
         action="store_true",
         help="print the speed of the unit tests' scenes (30 / 400 robots in a room, the planner) instead",
@@ -328,6 +359,9 @@ def main(argv: list[str] | None = None) -> int:
             print(line)
         return 0
     cfg = load_world(args.robots, args.out)
+    if args.query:
+        print(query_cost(cfg))
+        return 0
     res = run_sim_steps(
         cfg,
         args.steps,
