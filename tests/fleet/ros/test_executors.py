@@ -54,3 +54,22 @@ def test_events_executor_runs_timers_and_subscriptions(
     finally:
         ex.shutdown(timeout_sec=1.0)
         node.destroy_node()
+
+
+def test_sim_ros_refuses_an_unknown_executor_in_one_line() -> None:
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    env = {**os.environ, "FLEET_ROS_EXECUTOR": "threads", "PYTHONPATH": str(root)}
+    proc = subprocess.run(
+        [sys.executable, "-m", "fleet.ros.nav2_server", str(root / "configs" / "warehouse_patrol.yaml")],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,  # hang guard
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == "error: FLEET_ROS_EXECUTOR must be one of single, events, got 'threads'"
