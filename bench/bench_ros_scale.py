@@ -15,18 +15,23 @@ CONFIG --robots N`` in a child process and measure
 Private ROS domain, loopback, the fleet's FastDDS discovery profile.
 
 Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full] [--shards 1,8]
-       [--executor single,events]
+       [--executor single,events] [--discovery-server]
        [--config configs/warehouse_patrol_30.yaml] [--json out/bench_ros_scale.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import signal
+import socket
+import subprocess
 import sys
+import sysconfig
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -41,6 +46,40 @@ def rss_mb(pid: int | str = "self") -> float:
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) / 1024.0
     return float("nan")
+
+
+@contextlib.contextmanager
+def discovery_server(timeout_s: float = 30.0) -> Iterator[str]:
+    """FastDDS's discovery server as the ROS wheels ship it (``fast-discovery-server-*`` next
+    to this interpreter; its libraries in the venv's ``lib`` and ``ros_fastrtps.libs``) on a
+    free loopback port; ``ROS_DISCOVERY_SERVER`` points this process and its children at it."""
+    exe = sorted(Path(sys.executable).parent.glob("fast-discovery-server-*"))
+    if not exe:
+        raise SystemExit("error: no fast-discovery-server next to this Python (make setup-ros)")
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    venv = Path(sys.executable).parent.parent
+    libs = [str(venv / "lib"), str(Path(sysconfig.get_paths()["purelib"]) / "ros_fastrtps.libs")]
+    env = {**os.environ, "LD_LIBRARY_PATH": os.pathsep.join([*libs, os.environ.get("LD_LIBRARY_PATH", "")])}
+    cmd = [str(exe[-1]), "-i", "0", "-l", "127.0.0.1", "-p", str(port)]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + timeout_s
+        assert proc.stdout is not None
+        while "Server is running" not in proc.stdout.readline():
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise SystemExit(f"error: {' '.join(cmd)} did not start")
+        os.environ["ROS_DISCOVERY_SERVER"] = f"127.0.0.1:{port}"
+        yield os.environ["ROS_DISCOVERY_SERVER"]
+    finally:
+        os.environ.pop("ROS_DISCOVERY_SERVER", None)
+        proc.terminate()
+        try:
+            proc.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 def one(
@@ -127,6 +166,11 @@ def main(argv: list[str] | None = None) -> int:
         default="single",
         help="comma-separated executors of the server (FLEET_ROS_EXECUTOR: single, events), one run each",
     )
+    ap.add_argument(
+        "--discovery-server",
+        action="store_true",
+        help="run FastDDS's discovery server (shipped with the ROS wheels) and point both sides at it",
+    )
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     # SIGTERM (e.g. `timeout`) unwinds like Ctrl-C so the server child is stopped
@@ -138,7 +182,11 @@ def main(argv: list[str] | None = None) -> int:
         for n in (int(x) for x in args.robots.split(",")):
             for shards in (int(x) for x in args.shards.split(",")):
                 for executor in args.executor.split(","):
-                    row = one(args.config, n, profile, args.timeout, shards, executor)
+                    with contextlib.ExitStack() as stack:
+                        if args.discovery_server:
+                            stack.enter_context(discovery_server())
+                        row = one(args.config, n, profile, args.timeout, shards, executor)
+                    row["discovery"] = "server" if args.discovery_server else "simple"
                     rows.append(row)
                     print(json.dumps(row), flush=True)
     if args.json:
