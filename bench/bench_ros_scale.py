@@ -9,6 +9,8 @@ CONFIG --robots N`` in a child process and measure
   * discover_s: in this process, from creating N RosNavigationBackends (one lean node each,
     in as many rclpy contexts, i.e. DDS participants, as the server's --shards, one executor
     thread each) until every robot's 7 action servers are discovered;
+  * active_s: from the same start until every robot's navigator answers ``active`` on its
+    lifecycle ``get_state`` service (the server has discovered this client too);
   * wait_all_s: sending one Wait(0.5 s) goal to every robot at once until all SUCCEEDED
     (the goal round trip under load, at --speed 1);
   * client_rss_mb: this process's resident memory growth.
@@ -124,6 +126,12 @@ def one(
         missing = [m for g in groups for m in g.wait_for_servers(max(0.0, deadline - time.monotonic()))]
         row["discover_s"] = round(time.monotonic() - t0, 3) if not missing else float("nan")
         row["missing"] = len(missing)
+        if not missing:
+            # every navigator answering its lifecycle get_state (what make_ros_backends(wait_s)
+            # waits for before a fleet sends goals): the server has discovered the client too
+            inactive = [m for g in groups for m in g.wait_until_active(max(0.0, deadline - time.monotonic()))]
+            row["active_s"] = round(time.monotonic() - t0, 3) if not inactive else float("nan")
+            row["inactive"] = len(inactive)
         try:
             if not missing:
                 t1 = time.monotonic()
