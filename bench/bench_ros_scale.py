@@ -9,23 +9,31 @@ CONFIG --robots N`` in a child process and measure
   * discover_s: in this process, from creating N RosNavigationBackends (one lean node each,
     in as many rclpy contexts, i.e. DDS participants, as the server's --shards, one executor
     thread each) until every robot's 7 action servers are discovered;
+  * active_s: from the same start until every robot's navigator answers ``active`` on its
+    lifecycle ``get_state`` service (the server has discovered this client too);
   * wait_all_s: sending one Wait(0.5 s) goal to every robot at once until all SUCCEEDED
     (the goal round trip under load, at --speed 1);
   * client_rss_mb: this process's resident memory growth.
 Private ROS domain, loopback, the fleet's FastDDS discovery profile.
 
 Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full] [--shards 1,8]
+       [--executor single,events] [--discovery-server]
        [--config configs/warehouse_patrol_30.yaml] [--json out/bench_ros_scale.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import signal
+import socket
+import subprocess
 import sys
+import sysconfig
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -42,11 +50,54 @@ def rss_mb(pid: int | str = "self") -> float:
     return float("nan")
 
 
-def one(config: str, n: int, profile: str, timeout_s: float, shards: int = 1) -> dict[str, float | int | str]:
+@contextlib.contextmanager
+def discovery_server(timeout_s: float = 30.0) -> Iterator[str]:
+    """FastDDS's discovery server as the ROS wheels ship it (``fast-discovery-server-*`` next
+    to this interpreter; its libraries in the venv's ``lib`` and ``ros_fastrtps.libs``) on a
+    free loopback port; ``ROS_DISCOVERY_SERVER`` points this process and its children at it."""
+    exe = sorted(Path(sys.executable).parent.glob("fast-discovery-server-*"))
+    if not exe:
+        raise SystemExit("error: no fast-discovery-server next to this Python (make setup-ros)")
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    venv = Path(sys.executable).parent.parent
+    libs = [str(venv / "lib"), str(Path(sysconfig.get_paths()["purelib"]) / "ros_fastrtps.libs")]
+    env = {**os.environ, "LD_LIBRARY_PATH": os.pathsep.join([*libs, os.environ.get("LD_LIBRARY_PATH", "")])}
+    cmd = [str(exe[-1]), "-i", "0", "-l", "127.0.0.1", "-p", str(port)]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + timeout_s
+        assert proc.stdout is not None
+        while "Server is running" not in proc.stdout.readline():
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise SystemExit(f"error: {' '.join(cmd)} did not start")
+        os.environ["ROS_DISCOVERY_SERVER"] = f"127.0.0.1:{port}"
+        yield os.environ["ROS_DISCOVERY_SERVER"]
+    finally:
+        os.environ.pop("ROS_DISCOVERY_SERVER", None)
+        proc.terminate()
+        try:
+            proc.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def one(
+    config: str, n: int, profile: str, timeout_s: float, shards: int = 1, executor: str = "single"
+) -> dict[str, float | int | str]:
     from fleet.ros.backend import make_ros_backends
+    from fleet.ros.executors import EXECUTOR_VAR
     from fleet.types import GoalStatus, Wait
 
-    row: dict[str, float | int | str] = {"robots": n, "profile": profile, "shards": shards}
+    os.environ[EXECUTOR_VAR] = executor  # the server child's executor (fleet.ros.executors)
+    row: dict[str, float | int | str] = {
+        "robots": n,
+        "profile": profile,
+        "shards": shards,
+        "executor": executor,
+    }
     with ServerProcess.for_config(
         config,
         "--robots",
@@ -75,6 +126,12 @@ def one(config: str, n: int, profile: str, timeout_s: float, shards: int = 1) ->
         missing = [m for g in groups for m in g.wait_for_servers(max(0.0, deadline - time.monotonic()))]
         row["discover_s"] = round(time.monotonic() - t0, 3) if not missing else float("nan")
         row["missing"] = len(missing)
+        if not missing:
+            # every navigator answering its lifecycle get_state (what make_ros_backends(wait_s)
+            # waits for before a fleet sends goals): the server has discovered the client too
+            inactive = [m for g in groups for m in g.wait_until_active(max(0.0, deadline - time.monotonic()))]
+            row["active_s"] = round(time.monotonic() - t0, 3) if not inactive else float("nan")
+            row["inactive"] = len(inactive)
         try:
             if not missing:
                 t1 = time.monotonic()
@@ -83,7 +140,15 @@ def one(config: str, n: int, profile: str, timeout_s: float, shards: int = 1) ->
                     if all(rb[ns].goal_state(g).status.terminal for ns, g in ids.items()):
                         break
                     time.sleep(0.01)
-                ok = sum(rb[ns].goal_state(g).status is GoalStatus.SUCCEEDED for ns, g in ids.items())
+                states = [rb[ns].goal_state(g) for ns, g in ids.items()]
+                ok = sum(st.status is GoalStatus.SUCCEEDED for st in states)
+                ends: dict[str, int] = {}
+                for st in states:
+                    if st.status is not GoalStatus.SUCCEEDED:
+                        key = f"{st.status.name}: {st.error_msg}"[:120]
+                        ends[key] = ends.get(key, 0) + 1
+                if ends:
+                    row["wait_other"] = json.dumps(ends)
                 row["wait_all_s"] = round(time.monotonic() - t1, 3)
                 row["wait_ok"] = ok
             row["client_rss_mb"] = round(rss_mb() - rss0, 1)
@@ -104,6 +169,16 @@ def main(argv: list[str] | None = None) -> int:
         default="1",
         help="comma-separated DDS participant counts of the server (fleet sim-ros --shards), one run each",
     )
+    ap.add_argument(
+        "--executor",
+        default="single",
+        help="comma-separated executors of the server (FLEET_ROS_EXECUTOR: single, events), one run each",
+    )
+    ap.add_argument(
+        "--discovery-server",
+        action="store_true",
+        help="run FastDDS's discovery server (shipped with the ROS wheels) and point both sides at it",
+    )
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     # SIGTERM (e.g. `timeout`) unwinds like Ctrl-C so the server child is stopped
@@ -114,9 +189,14 @@ def main(argv: list[str] | None = None) -> int:
     for profile in args.profile.split(","):
         for n in (int(x) for x in args.robots.split(",")):
             for shards in (int(x) for x in args.shards.split(",")):
-                row = one(args.config, n, profile, args.timeout, shards)
-                rows.append(row)
-                print(json.dumps(row), flush=True)
+                for executor in args.executor.split(","):
+                    with contextlib.ExitStack() as stack:
+                        if args.discovery_server:
+                            stack.enter_context(discovery_server())
+                        row = one(args.config, n, profile, args.timeout, shards, executor)
+                    row["discovery"] = "server" if args.discovery_server else "simple"
+                    rows.append(row)
+                    print(json.dumps(row), flush=True)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")

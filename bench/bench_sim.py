@@ -11,9 +11,10 @@ excluded from the timing (``setup_wall_s``); later goals (re-planned patrol laps
 the timed loop. The headline figure is ``N * K / wall seconds of the K timed steps`` including
 the goal polling (``goal_state`` of every robot at ``poll_hz``), as in ``bench/sumo_steps.py``;
 ``step_only_*`` counts the time inside ``Simulator.step()`` alone and ``poll_wall_s`` the time in
-the polling rounds (the goals re-sent included). Polling reads every robot's goal status in one
-``Simulator.goal_table()`` call (arrays, no snapshot objects), as a batch-polling runner does;
-``--per-goal`` polls with one ``goal_state`` snapshot per goal instead.
+the polling rounds (the goals re-sent included). Polling reads every robot's state and goal in
+one ``Simulator.query_batch(namespaces, goal_ids)`` call (the navigation contract's batch query,
+as the fleet runner's scheduler does: arrays, no snapshot objects); ``--per-goal`` polls with
+one ``goal_state`` snapshot per goal instead.
 
 Command line::
 
@@ -22,6 +23,7 @@ Command line::
     python bench/bench_sim.py --robots 1000 --steps 200 --warmup 200 --profile   # cProfile of step()
     python bench/bench_sim.py --robots 1000 --steps 200 --warmup 200 --stages    # stage timers
     python bench/bench_sim.py --scenes    # speed of the unit tests' scenes and the planner
+    python bench/bench_sim.py --robots 1000 --query   # ms of one query_batch of every robot
 """
 
 from __future__ import annotations
@@ -85,7 +87,7 @@ def run_sim_steps(
     batch: bool = True,
 ) -> SimBenchResult:
     """Run ``steps`` timed steps of every robot of ``cfg`` patrolling (module docstring).
-    ``batch``: poll every goal at once with ``Simulator.goal_table()``; else one
+    ``batch``: poll every goal at once with ``Simulator.query_batch``; else one
     ``goal_state`` snapshot per goal."""
     from sim.goals import STATUS_CODES, TERMINAL
     from sim.simulator import Simulator
@@ -111,8 +113,8 @@ def run_sim_steps(
                 goals[i] = sim.send_goal(ns, NavigateThroughPoses(routes[i % len(routes)]))
 
     def dispatch_table() -> None:
-        # every robot's goal here is its latest motion goal, so the table's row is its goal
-        codes = sim.goal_table().status
+        # the navigation contract's batch query: every robot's state and goal in one call
+        codes = sim.query_batch(nss, goals).goal_status
         for i in TERMINAL[codes].nonzero()[0].tolist():
             counts["ok" if STATUS_CODES[codes[i]] is GoalStatus.SUCCEEDED else "failed"] += 1
             goals[i] = sim.send_goal(nss[i], NavigateThroughPoses(routes[i % len(routes)]))
@@ -248,6 +250,33 @@ def _room_rate(n: int, cols: int, warm_s: float, timed_s: float) -> float:
     return n * k / (time.perf_counter() - t0)
 
 
+def query_cost(cfg: Any, steps: int = 40, calls: int = 50) -> str:
+    """Wall ms of one ``Simulator.query_batch`` over every robot and its goal (the rows a
+    runner polls) and of ``goal_table`` / ``robot_table``, after ``steps`` steps of patrolling."""
+    from sim.simulator import Simulator
+
+    sim = Simulator(cfg.grid, cfg.sim, SimClock())
+    for spec in cfg.robots:
+        sim.add_robot(spec)
+    routes = [cfg.route_poses(r) for r in cfg.routes]
+    nss = sim.namespaces
+    goals = [sim.send_goal(ns, NavigateThroughPoses(routes[i % len(routes)])) for i, ns in enumerate(nss)]
+    for _ in range(steps):
+        sim.step()
+    out = []
+    for name, fn in (
+        ("query_batch", lambda: sim.query_batch(nss, goals)),
+        ("goal_table", sim.goal_table),
+        ("robot_table", sim.robot_table),
+    ):
+        fn()
+        t = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        out.append(f"{name} {(time.perf_counter() - t) / calls * 1000:.3f} ms")
+    return f"{len(nss)} robots, one call each: " + ", ".join(out)
+
+
 def scenes() -> list[str]:
     """The speed figures of the simulator's unit-test scenes (the tests assert behaviour only):
     30 and 400 robots crossing a 40 x 30 m room, and the planner on a 40 x 30 m warehouse."""
@@ -306,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--per-goal",
         action="store_true",
-        help="poll with one goal_state snapshot per goal instead of one Simulator.goal_table() call",
+        help="poll with one goal_state snapshot per goal instead of one Simulator.query_batch() call",
     )
     ap.add_argument("--out", help="directory for the generated warehouse (default: a temp dir)")
     ap.add_argument("--warmup", type=int, default=0, help="untimed steps before the timed ones (default 0)")
@@ -316,6 +345,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--stages", action="store_true", help="time the step's stages (stderr)")
     ap.add_argument("--progress", action="store_true", help="print progress to stderr")
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
+    ap.add_argument(
+        "--query", action="store_true", help="print the cost of one batch read of every robot instead"
+    )
     ap.add_argument(
         "--scenes",
         action="store_true",
@@ -327,6 +359,9 @@ def main(argv: list[str] | None = None) -> int:
             print(line)
         return 0
     cfg = load_world(args.robots, args.out)
+    if args.query:
+        print(query_cost(cfg))
+        return 0
     res = run_sim_steps(
         cfg,
         args.steps,

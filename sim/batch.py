@@ -1,6 +1,13 @@
-"""The simulator's batch query (:class:`fleet.navigation.BatchNavigation`): many robots' states
-and goals in one call, read from the simulator's arrays instead of one snapshot object per
-robot and goal.
+"""The simulator's batch reads, one path for all of them: :meth:`SimBatch.query_batch` (the
+navigation contract's :class:`fleet.navigation.BatchNavigation`: many robots' states and goals in
+one call) and the whole-fleet tables :meth:`SimBatch.goal_table` / :meth:`SimBatch.robot_table`
+read the same state arrays (:class:`sim.state.FleetState`), not one snapshot object per robot
+and goal.
+
+A goal that is its robot's latest motion goal is answered from the status arrays (``g_num``,
+``g_code``; a running planned navigation, ``g_nav``, takes its remaining distance from the
+follower's arrays for all such rows at once); only finished goals, computations, older goals
+and other running tasks read their record (a few rows per call in a patrolling fleet).
 
 Rows agree with :meth:`sim.simulator.Simulator.robot_state` and ``goal_state``: the pose is the
 true pose of a localized robot (a robot that is not localized reports its estimate, read
@@ -21,15 +28,20 @@ from fleet.errors import BackendError
 from fleet.navigation import GOAL_CODES, NO_GOAL, NavBatch
 from fleet.types import RobotState
 from sim.dispatch import GoalDispatch
+from sim.goals import TERMINAL
 from sim.localization import Localization
+from sim.snapshots import GoalTable, RobotTable
 from sim.state import FleetState
 from sim.tasks import NavigateTask
 
+#: Goal ids remembered with their robot row and number (cleared when it holds more).
+ID_CACHE = 65536
+
 
 class SimBatch:
-    """The simulator's :class:`~fleet.navigation.BatchNavigation` over its state arrays, its
+    """The simulator's batch reads (see the module docstring) over its state arrays, its
     localization, its goal dispatch and its per-robot ``robot_state`` (for rows that are not
-    localized)."""
+    localized). One per simulator; pure reads."""
 
     def __init__(
         self,
@@ -42,89 +54,148 @@ class SimBatch:
         self.localization = localization
         self.dispatch = dispatch
         self.robot_state = robot_state
+        self._rows_of: tuple[list[str], npt.NDArray[np.intp]] = ([], np.zeros(0, dtype=np.intp))
+        self._ids: dict[str | None, int] = {None: -1}
+        #: Robots (by row) whose navigation is down (the ``navigation_down`` fault), kept by
+        #: ``Simulator.set_fault``.
+        self.navigation_down: set[int] = set()
 
     def query_batch(self, namespaces: Sequence[str], goal_ids: Sequence[str | None]) -> NavBatch:
         """The batch of ``namespaces`` / ``goal_ids`` (see the module docstring). Raises
         :class:`BackendError` for an unknown namespace and ``ValueError`` when the sequences
         differ in length."""
-        return query_batch(self, namespaces, goal_ids)
+        if len(namespaces) != len(goal_ids):
+            raise ValueError(f"query_batch: {len(namespaces)} namespaces but {len(goal_ids)} goal ids")
+        idx = self._rows(namespaces)
+        s = self.state
+        x, y, th = s.x[idx].astype(np.float64), s.y[idx].astype(np.float64), s.th[idx].astype(np.float64)
+        localized = self._localized()[idx]
+        for k in np.flatnonzero(~localized).tolist():  # rare: the estimate, as robot_state reports it
+            pose = self.robot_state(namespaces[k]).pose
+            x[k], y[k], th[k] = (math.nan,) * 3 if pose is None else (pose.x, pose.y, pose.theta)
+        status, error, remaining = self._goals(goal_ids)
+        ready = np.ones(s.n, dtype=np.bool_)
+        ready[list(self.navigation_down)] = False
+        return NavBatch(
+            namespaces=tuple(namespaces),
+            goal_ids=tuple(goal_ids),
+            x=x,
+            y=y,
+            theta=th,
+            battery=s.battery[idx].astype(np.float64),
+            distance_m=s.dist[idx].astype(np.float64),
+            collisions=s.collisions[idx].astype(np.int64),
+            charging=s.charging[idx].astype(np.bool_),
+            stuck=s.stuck[idx].astype(np.bool_),
+            localized=localized,
+            navigation_ready=ready[idx],
+            goal_status=status,
+            goal_error=error,
+            distance_remaining=remaining,
+        )
 
+    def goal_table(self) -> GoalTable:
+        """Every robot's latest motion goal number and status, in robot order (the rows
+        :meth:`query_batch` answers from the arrays)."""
+        n = self.state.n
+        return GoalTable(self.state.g_num[:n].copy(), self.state.g_code[:n].astype(np.int8))
 
-def query_batch(sim: SimBatch, namespaces: Sequence[str], goal_ids: Sequence[str | None]) -> NavBatch:
-    """The :class:`~fleet.navigation.NavBatch` of ``namespaces`` / ``goal_ids`` in ``sim``."""
-    if len(namespaces) != len(goal_ids):
-        raise ValueError(f"query_batch: {len(namespaces)} namespaces but {len(goal_ids)} goal ids")
-    robots = sim.dispatch.robots
-    try:
-        rows = [robots[ns] for ns in namespaces]
-    except KeyError as e:
-        raise BackendError(f"no robot with namespace {e.args[0]!r} in the simulator") from None
-    idx = np.fromiter((r.index for r in rows), dtype=np.intp, count=len(rows))
-    s = sim.state
-    x, y, th = s.x[idx].astype(np.float64), s.y[idx].astype(np.float64), s.th[idx].astype(np.float64)
-    est = sim.localization.robots
-    localized = np.array([est[r.index].localized and not est[r.index].lost for r in rows], dtype=np.bool_)
-    for k in np.flatnonzero(~localized).tolist():  # rare: the estimate, as robot_state reports it
-        pose = sim.robot_state(namespaces[k]).pose
-        x[k], y[k], th[k] = (math.nan,) * 3 if pose is None else (pose.x, pose.y, pose.theta)
-    status, error, remaining, nav = _goals(sim, goal_ids)
-    if nav:
-        rows_nav = np.array(nav, dtype=np.intp)
-        remaining[rows_nav] = _path_remaining(sim.state, idx[rows_nav])
-    return NavBatch(
-        namespaces=tuple(namespaces),
-        goal_ids=tuple(goal_ids),
-        x=x,
-        y=y,
-        theta=th,
-        battery=s.battery[idx].astype(np.float64),
-        distance_m=s.dist[idx].astype(np.float64),
-        collisions=s.collisions[idx].astype(np.int64),
-        charging=s.charging[idx].astype(np.bool_),
-        stuck=s.stuck[idx].astype(np.bool_),
-        localized=localized,
-        navigation_ready=np.array([r.fault != "navigation_down" for r in rows], dtype=np.bool_),
-        goal_status=status,
-        goal_error=error,
-        distance_remaining=remaining,
-    )
+    def robot_table(self) -> RobotTable:
+        """Every robot's true state, in robot order."""
+        s, n = self.state, self.state.n
+        x, y, th, v, w, bat, dist, ch, st, col = (
+            a[:n].copy()
+            for a in (s.x, s.y, s.th, s.v, s.w, s.battery, s.dist, s.charging, s.stuck, s.collisions)
+        )
+        return RobotTable(x, y, th, v, w, bat, dist, ch, st, col)
 
-
-def _goals(
-    sim: SimBatch, goal_ids: Sequence[str | None]
-) -> tuple[npt.NDArray[np.int8], npt.NDArray[np.int32], npt.NDArray[np.float64], list[int]]:
-    """Status codes, error codes and remaining distances of ``goal_ids``; the rows whose goal is
-    a planned navigation task running now (their distance is filled in from the arrays)."""
-    n = len(goal_ids)
-    status = np.full(n, NO_GOAL, dtype=np.int8)
-    error = np.zeros(n, dtype=np.int32)
-    remaining = np.full(n, math.nan, dtype=np.float64)
-    dispatch = sim.dispatch
-    book, tasks, robots = dispatch.goals, dispatch.tasks, dispatch.robots
-    nav: list[int] = []
-    for k, gid in enumerate(goal_ids):
-        if gid is None:
-            continue
+    def _rows(self, namespaces: Sequence[str]) -> npt.NDArray[np.intp]:
+        """The state rows of ``namespaces`` (remembered for the last list asked for)."""
+        known, idx = self._rows_of
+        if len(known) == len(namespaces) and known == list(namespaces):
+            return idx
+        robots = self.dispatch.robots
         try:
-            record = book.get(gid)
+            idx = np.fromiter((robots[ns].index for ns in namespaces), dtype=np.intp, count=len(namespaces))
+        except KeyError as e:
+            raise BackendError(f"no robot with namespace {e.args[0]!r} in the simulator") from None
+        self._rows_of = (list(namespaces), idx)
+        return idx
+
+    def _localized(self) -> npt.NDArray[np.bool_]:
+        """Whether each robot's localizer has a converged estimate and no loss fault."""
+        ok = np.ones(len(self.localization.robots), dtype=np.bool_)
+        ok[self.localization.unlocalized()] = False
+        return ok
+
+    def _goal_rows(
+        self, goal_ids: Sequence[str | None]
+    ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.int64]]:
+        """The robot row and the ``n`` of each goal id ``"<namespace>#<n>"``; row -1 for
+        ``None`` and for an id that names no robot of this simulator. Ids are remembered as
+        ``row << 32 | n`` (-1: no robot)."""
+        ids = self._ids
+        get = ids.get
+        keys = list(map(get, goal_ids))
+        if None in keys:
+            if len(ids) >= ID_CACHE:
+                ids.clear()
+                ids[None] = -1
+            robots = self.dispatch.robots
+            for k in [k for k, key in enumerate(keys) if key is None]:
+                gid = goal_ids[k]
+                assert gid is not None
+                ns, _, num = gid.rpartition("#")
+                robot = robots.get(ns)
+                ok = robot is not None and num.isdigit() and 0 < int(num) < 1 << 32
+                ids[gid] = keys[k] = (robot.index << 32 | int(num)) if ok and robot is not None else -1
+        code = np.fromiter(keys, dtype=np.int64, count=len(keys))
+        rows = np.where(code < 0, -1, code >> 32).astype(np.intp)
+        return rows, code & 0xFFFFFFFF
+
+    def _goals(
+        self, goal_ids: Sequence[str | None]
+    ) -> tuple[npt.NDArray[np.int8], npt.NDArray[np.int32], npt.NDArray[np.float64]]:
+        """Status codes, error codes and remaining distances of ``goal_ids``."""
+        n = len(goal_ids)
+        status = np.full(n, NO_GOAL, dtype=np.int8)
+        error = np.zeros(n, dtype=np.int32)
+        remaining = np.full(n, math.nan, dtype=np.float64)
+        rows, nums = self._goal_rows(goal_ids)
+        s = self.state
+        safe = np.maximum(rows, 0)
+        latest = (rows >= 0) & (s.g_num[safe] == nums) & (nums > 0)
+        code = s.g_code[safe]
+        fast = latest & s.g_nav[safe] & ~TERMINAL[code]
+        k_fast = np.flatnonzero(fast)
+        status[k_fast] = code[k_fast]
+        remaining[k_fast] = _path_remaining(s, safe[k_fast])
+        for k in np.flatnonzero(~fast & (rows >= 0)).tolist():
+            gid = goal_ids[k]
+            assert gid is not None
+            status[k], error[k], remaining[k] = self._slow_goal(gid)
+        return status, error, remaining
+
+    def _slow_goal(self, gid: str) -> tuple[int, int, float]:
+        """Status code, error code and remaining distance of one goal from its record."""
+        dispatch = self.dispatch
+        try:
+            record = dispatch.goals.get(gid)
         except KeyError:
-            continue
-        status[k] = GOAL_CODES[record.status]
-        error[k] = record.error_code
+            return NO_GOAL, 0, math.nan
         fb = record.feedback
         if not record.terminal:
-            task = tasks.get(robots[record.namespace].index)
+            i = dispatch.robots[record.namespace].index
+            task = dispatch.tasks.get(i)
             if task is not None and task.record is record:
                 if isinstance(task, NavigateTask):
+                    rem = 0.0
                     if task.planned:
-                        nav.append(k)
-                        continue
-                    remaining[k] = 0.0
-                    continue
+                        rem = float(_path_remaining(self.state, np.array([i], dtype=np.intp))[0])
+                    return GOAL_CODES[record.status], record.error_code, rem
                 fb = task.feedback()
-        if fb.distance_remaining_m is not None:
-            remaining[k] = fb.distance_remaining_m
-    return status, error, remaining, nav
+        rem = math.nan if fb.distance_remaining_m is None else fb.distance_remaining_m
+        return GOAL_CODES[record.status], record.error_code, rem
 
 
 def _path_remaining(s: FleetState, idx: npt.NDArray[np.intp]) -> npt.NDArray[np.float64]:

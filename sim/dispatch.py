@@ -107,12 +107,14 @@ class GoalDispatch:
         self._current[i] = record
         self.state.g_num[i] = int(record.goal_id.rpartition("#")[2])
         self.state.g_code[i] = STATUS_CODE[record.status]
+        self.state.g_nav[i] = False  # until its task is the robot's (_set_task)
         record.on_finish = self._finished
 
     def _finished(self, record: GoalRecord) -> None:
         i = self.robots[record.namespace].index
         if self._current.get(i) is record:
             self.state.g_code[i] = STATUS_CODE[record.status]
+            self.state.g_nav[i] = False
 
     def goal_state(self, goal_id: str) -> GoalState:
         """Snapshot of goal ``goal_id``; ``KeyError`` for an id never issued."""
@@ -145,9 +147,11 @@ class GoalDispatch:
         self.state.has_task[i] = task is not None
         self.state.drives[i] = False
         self._py.pop(i, None)
+        self.state.g_nav[i] = False
         if task is not None:
             if isinstance(task, NavigateTask):
                 task.start(self.clock.now())
+                self.state.g_nav[i] = task.planned and self._current.get(i) is task.record
             if not self.state.fol[i]:
                 self._py[i] = robot
 
@@ -159,6 +163,7 @@ class GoalDispatch:
             self.tasks.pop(i, None)
             self.state.fol[i] = False
             self.state.has_task[i] = False
+            self.state.g_nav[i] = False
             self._py.pop(i, None)
         elif self.state.fol[i]:
             self._py.pop(i, None)

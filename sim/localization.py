@@ -87,6 +87,9 @@ class Localization:
 
     def __init__(self) -> None:
         self.robots: list[Estimate] = []
+        #: Robots whose estimate was ever changed (a loss or an initial pose): every other
+        #: robot is localized, as added (what batch reads rely on).
+        self.touched: set[int] = set()
 
     def add(self, start: Pose2D, now: float) -> None:
         """A robot added at ``start`` (its odometry starts at zero there), localized."""
@@ -100,6 +103,7 @@ class Localization:
         """Inject (``lost``) or clear the loss of robot ``i``'s localization. Clearing it
         re-localizes the robot at once (the estimate is exact again)."""
         e = self.robots[i]
+        self.touched.add(i)
         if lost and not e.lost:
             if e.localized:
                 e.updated = now  # last confirmed now
@@ -115,6 +119,7 @@ class Localization:
         localizer converged (see the module docstring). While the loss fault is injected the
         hint becomes the estimate and the robot stays lost."""
         e = self.robots[i]
+        self.touched.add(i)
         near = (
             hint.distance_to(truth) <= CONVERGE_RADIUS_M
             and abs(normalize_angle(hint.theta - truth.theta)) <= CONVERGE_YAW_RAD
@@ -137,6 +142,10 @@ class Localization:
         e.localized = True
         e.updated = now
         e.reason = ""
+
+    def unlocalized(self) -> list[int]:
+        """The robots that are not localized or whose localization is lost, by index."""
+        return sorted(i for i in self.touched if not self.robots[i].localized or self.robots[i].lost)
 
     def confirmed(self, i: int, now: float) -> float:
         """When robot ``i``'s estimate was last confirmed: ``now`` while it is localized and

@@ -140,6 +140,7 @@ class Simulator:
         self.costmaps = Costmaps(grid, params.model.radius)
         self.localization = Localization()
         self._dispatch = GoalDispatch(self.state, params, self.planner, clock, self._safety, self.costmaps)
+        self._batch = SimBatch(self.state, self.localization, self._dispatch, self.robot_state)
         #: Why each robot is stopped by the safety watchdog (absent: it is not).
         self.safety_stops: dict[str, str] = {}
         #: ``(t, namespace, reason)`` of every safety stop, the last :data:`sim.history.EVENTS_KEPT`.
@@ -297,6 +298,10 @@ class Simulator:
             raise BackendError(f"unknown fault {fault!r}; known faults: {', '.join(FAULTS)}")
         r = self._robot(namespace)
         r.fault = fault
+        if fault == "navigation_down":
+            self._batch.navigation_down.add(r.index)
+        else:
+            self._batch.navigation_down.discard(r.index)
         self.state.stalled[r.index] = fault == "stalled"
         self.localization.set_lost(r.index, fault == "localization_lost", self.clock.now())
         self._update_safety(r)
@@ -437,24 +442,16 @@ class Simulator:
 
     def query_batch(self, namespaces: Sequence[str], goal_ids: Sequence[str | None]) -> NavBatch:
         """Robot and goal states of many robots as arrays (:mod:`sim.batch`; pure read)."""
-        return SimBatch(self.state, self.localization, self._dispatch, self.robot_state).query_batch(
-            namespaces, goal_ids
-        )
+        return self._batch.query_batch(namespaces, goal_ids)
 
     def goal_table(self) -> GoalTable:
         """Every robot's latest motion goal number and status as arrays (:class:`GoalTable`):
-        polling a whole fleet in one call, no snapshot object built."""
-        n = self.state.n
-        return GoalTable(self.state.g_num[:n].copy(), self.state.g_code[:n].astype(np.int8))
+        polling a whole fleet in one call, no snapshot object built (:mod:`sim.batch`)."""
+        return self._batch.goal_table()
 
     def robot_table(self) -> RobotTable:
         """Every robot's true state as arrays (:class:`RobotTable`), in one call."""
-        s, n = self.state, self.state.n
-        x, y, th, v, w, bat, dist, ch, st, col = (
-            a[:n].copy()
-            for a in (s.x, s.y, s.th, s.v, s.w, s.battery, s.dist, s.charging, s.stuck, s.collisions)
-        )
-        return RobotTable(x, y, th, v, w, bat, dist, ch, st, col)
+        return self._batch.robot_table()
 
     def cancel_goal(self, goal_id: str) -> None:
         """Cancel ``goal_id``: it ends CANCELED at once and the robot decelerates to a stop.

@@ -20,7 +20,9 @@ and :meth:`FleetState.load_vias` refresh them whenever ``f_seg`` / ``f_nv`` chan
 
 The robot's latest motion goal is ``g_num`` (the ``n`` of its id ``"<namespace>#<n>"``, 0:
 none yet) with status ``g_code`` (a code of :data:`sim.goals.STATUS_CODES`, -1: none), kept
-by :class:`sim.dispatch.GoalDispatch` for batch polling.
+by :class:`sim.dispatch.GoalDispatch` for batch polling; ``g_nav`` tells that this goal is running
+as a planned navigation task (NavigateToPose, NavigateThroughPoses, FollowPath) on the path
+follower, so its remaining distance is the follower's (:mod:`sim.batch` reads it from the arrays).
 
 Snapshots (goal feedback, robot state) read one robot at a time through :meth:`FleetState.row`.
 Between steps every robot's row is copied out of the arrays at once, on the first read after
@@ -52,7 +54,19 @@ _INT = (
     "g_num",
     "g_code",
 )
-_BOOL = ("charging", "stuck", "stalled", "halt", "has_task", "drives", "fol", "f_xy", "c_long", "c_vmore")
+_BOOL = (
+    "charging",
+    "stuck",
+    "stalled",
+    "halt",
+    "has_task",
+    "drives",
+    "fol",
+    "f_xy",
+    "c_long",
+    "c_vmore",
+    "g_nav",
+)
 #: The arrays of a :meth:`FleetState.row`, in order.
 ROW = (
     "x y th v w battery charging stuck dist collisions f_t c_ax c_ay c_bx c_by c_suf f_xy f_len f_nv f_vn"
@@ -123,6 +137,7 @@ class FleetState:
     c_vseg: np.ndarray
     g_num: np.ndarray
     g_code: np.ndarray
+    g_nav: np.ndarray
     c_long: np.ndarray
     c_vmore: np.ndarray
     charging: np.ndarray

@@ -101,6 +101,8 @@ SENT_KINDS = (*NAVIGATION_ACTIONS, *PLANNING_ACTIONS, "clear_costmaps")
 #: A robot whose odometry lags the newest stamp by more than this (s) does not hold the
 #: fleet's clock back (:meth:`RosBackends.fleet_time`).
 CLOCK_LAG_S = 2.0
+#: Wall seconds between checks that a robot's action servers are discovered (navigation_ready).
+READY_PERIOD_S = 1.0
 #: Wall seconds :meth:`RosBackends.close` waits for queued requests and cancel answers.
 CLOSE_FLUSH_S = 3.0
 #: Goals kept for ``goal_state`` (the oldest beyond are forgotten: ``KeyError``).
@@ -137,9 +139,10 @@ class RosNavigationBackend:
         self._live: dict[str, RemoteGoal] = {}
         self._ids = itertools.count(1)
         self._current: RemoteGoal | None = None
-        #: Whether every action server of the robot is discovered (refreshed by the executor
-        #: thread's watchdog, every 0.1 s).
+        #: Whether every action server of the robot is discovered (checked by the watchdog every
+        #: :data:`READY_PERIOD_S`, robots staggered; every 0.1 s while active and one is missing).
         self.servers_ready = False
+        self._ready_at = (index % 10) * READY_PERIOD_S / 10
         #: The robot's navigator lifecycle state (polled on the executor thread).
         self.lifecycle = LifecycleWatch(self.node)
         self.tracker = RobotStateTracker(
@@ -347,9 +350,10 @@ class RosNavigationBackend:
         """Send goals that waited for their server; end goals whose server vanished or never
         answered (executor thread)."""
         self.lifecycle.poll(now)
-        self.servers_ready = self.lifecycle.active and all(
-            c.server_is_ready() for c in self._clients.values()
-        )
+        if now >= self._ready_at or (self.lifecycle.active and not self.servers_ready):
+            # server_is_ready() counts over the whole graph under the lock discovery needs
+            self._ready_at = now + READY_PERIOD_S
+            self.servers_ready = self.lifecycle.active and self.wait_for_servers(0.0, self._clients)
         with self._lock:
             for gid in [g for g, r in self._live.items() if r.status.terminal]:
                 del self._live[gid]
@@ -449,13 +453,13 @@ class RosBackends:
             self._guard.trigger()
 
     def wait_for_servers(self, timeout_s: float = 30.0, kinds: Iterable[str] = BACKEND_KINDS) -> list[str]:
-        """Wait until every robot's action servers are discovered; return the namespaces
-        still missing after ``timeout_s`` (empty when all are there)."""
+        """Wait until every robot's action servers are discovered (a sweep stops at the first
+        robot missing: checks are costly, see ``_watchdog``); return those missing after ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
         kinds = tuple(kinds)
         missing = list(self.backends)
         while missing and time.monotonic() < deadline:
-            missing = [ns for ns in missing if not self.backends[ns].wait_for_servers(0.0, kinds)]
+            missing = list(itertools.dropwhile(lambda ns: self[ns].wait_for_servers(0.0, kinds), missing))
             if missing:
                 time.sleep(0.05)
         return missing

@@ -61,6 +61,7 @@ from fleet.errors import BackendError, FleetError  # noqa: E402
 from fleet.maps import FREE, OccupancyGrid  # noqa: E402
 from fleet.navigation import Clock  # noqa: E402
 from fleet.ros.conversions import pose2d_to_pose, seconds_to_time  # noqa: E402
+from fleet.ros.executors import executor_kind  # noqa: E402
 from fleet.ros.lifecycle import LIFECYCLE_NODES  # noqa: E402
 from fleet.ros.nav2_facade import Profile, RobotFacade  # noqa: E402
 from fleet.ros.shards import Shards  # noqa: E402
@@ -421,6 +422,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.domain_id is not None:
         apply_ros_env_defaults(args.domain_id)
+    try:
+        executor_kind()
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     try:
         from fleet.config.loader import load_config
 

@@ -21,12 +21,15 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import (
     ConditionReachedException,
+    Executor,
     ShutdownException,
     SingleThreadedExecutor,
     TimeoutException,
     TimeoutObject,
 )
 from rclpy.signals import SignalHandlerOptions
+
+from fleet.ros.executors import make_executor
 
 
 class LockedExecutor(SingleThreadedExecutor):
@@ -76,8 +79,8 @@ class Shards:
         self.lock = threading.RLock()
         # one shard: rclpy's own executor, untouched (the demo over ROS lost 60 % of its laps
         # at 4x real time with the locked one even alone; not understood yet)
-        self.executors: list[SingleThreadedExecutor] = (
-            [SingleThreadedExecutor(context=self.contexts[0])]
+        self.executors: list[Executor] = (
+            [make_executor(self.contexts[0])]
             if count == 1
             else [LockedExecutor(self.lock, context=c) for c in self.contexts]
         )
@@ -91,7 +94,7 @@ class Shards:
             t.start()
             self._threads.append(t)
 
-    def _spin(self, ex: SingleThreadedExecutor) -> None:
+    def _spin(self, ex: Executor) -> None:
         while not self._stop.is_set() and ex.context.ok():
             ex.spin_once(timeout_sec=0.1)
 
