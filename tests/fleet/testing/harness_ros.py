@@ -20,7 +20,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -65,6 +65,9 @@ class _Spare:
 
     def _start(self) -> None:
         try:
+            # the servers of earlier cases, one of them on this domain, are gone first
+            for t in list(_stopping):
+                t.join()
             self.server = _start_server(self.domain_id)
         except BaseException as e:  # noqa: BLE001 - reported by take()
             self.error = e
@@ -86,9 +89,22 @@ class _Spare:
 _spare: list[_Spare] = []
 
 
+#: Servers of finished cases being stopped (SIGINT, up to 5 s to exit, then SIGKILL).
+_stopping: list[threading.Thread] = []
+
+
+def _stop_later(stop: Callable[[], object]) -> None:
+    """Run ``stop`` in a background thread: the next case need not wait for the exit."""
+    t = threading.Thread(target=stop, daemon=True)
+    t.start()
+    _stopping.append(t)
+
+
 def _discard_spare() -> None:
     while _spare:
         _spare.pop().discard()
+    while _stopping:
+        _stopping.pop().join()
 
 
 atexit.register(_discard_spare)
@@ -134,7 +150,7 @@ def ros_harness() -> Iterator[ConformanceHarness]:
     finally:
         if rb is not None:
             rb.close()
-        srv.stop()
+        _stop_later(srv.stop)
 
 
 def _serve(argv: list[str]) -> int:
