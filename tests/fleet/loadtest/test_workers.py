@@ -40,14 +40,14 @@ def _outcome(data: dict[str, Any]) -> dict[str, Any]:
 
 
 def test_two_workers_make_the_same_run_as_one_process(tmp_path: Path) -> None:
-    """16 robots, 10 simulated minutes, traffic management on: the same laps, collisions,
+    """16 robots, 5 simulated minutes, traffic management on: the same laps, collisions,
     deadlocks, reassignments, per-robot distances and batteries, and the same sampled series
     as the in-process run, exactly (the lockstep makes timing irrelevant). Workers tick every
     agent every period, so the in-process run it is compared with does too (``ticking="clock"``;
     the event-driven ticking makes the same moves but may see a goal end a period later, which
     shows in the goal metrics)."""
-    one = run_loadtest(16, 600, out_dir=tmp_path / "one", sample_s=10, ticking="clock")
-    two = run_loadtest(16, 600, out_dir=tmp_path / "two", sample_s=10, workers=2)
+    one = run_loadtest(16, 300, out_dir=tmp_path / "one", sample_s=10, ticking="clock")
+    two = run_loadtest(16, 300, out_dir=tmp_path / "two", sample_s=10, workers=2)
     assert not one.interrupted and not two.interrupted
     assert two.data["loadtest"]["workers"] == 2
     a, b = _outcome(one.data), _outcome(two.data)

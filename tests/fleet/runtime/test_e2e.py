@@ -1,7 +1,7 @@
 """End to end: the demo through ``fleet.cli.main`` (6 robots patrol every route, no
 collisions), a low-battery robot whose route is covered while it charges, ``fleet status
---once`` attached to a running ``fleet run``, and a SIGKILLed agent process whose route the
-coordinator reassigns (simulator, coordinator and agents in separate processes).
+--once`` attached to a running ``fleet run``, and (a scale run) a SIGKILLed agent process whose
+route the coordinator reassigns (simulator, coordinator and agents in separate processes).
 
 Real Zenoh on loopback (a free port per test), real py_trees trees, the real simulator.
 Every subprocess is terminated, then killed, in ``finally``. Waits are on conditions (a line
@@ -101,6 +101,11 @@ def test_status_once_sees_every_robot_of_a_run(tmp_path: Path) -> None:
         output(run).wait_line("interrupted: 6 robots", 30)
 
 
+# In the default suite the same behaviour is covered by tests/fleet/crash/test_agent_restart.py
+# (a kill -9'd agent's route goes to the idle robot under a new id, which drives it) and
+# tests/fleet/traffic/test_traffic_fleet.py (reason "dead", reassigned within 5 simulated s,
+# the route lapped after the death); this one, with its exact timing checks, runs with the scale runs.
+@pytest.mark.scale
 @pytest.mark.slow
 def test_killed_agent_process_route_is_reassigned_and_completed(tmp_path: Path) -> None:
     victim = "robot2"

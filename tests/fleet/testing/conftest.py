@@ -12,11 +12,15 @@ from __future__ import annotations
 import importlib.util
 import sys
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 from conformance_harness import BACKEND_FACTORIES, LACKS, MARKS
 
 from fleet.testing.conformance import CASES
+
+#: The harness plugin modules, in load order.
+PLUGINS: list[ModuleType] = []
 
 
 def _load_plugins() -> None:
@@ -24,12 +28,14 @@ def _load_plugins() -> None:
     for path in sorted(here.glob("harness_*.py")):
         mod_name = f"_conformance_{path.stem}"
         if mod_name in sys.modules:
+            PLUGINS.append(sys.modules[mod_name])
             continue
         spec = importlib.util.spec_from_file_location(mod_name, path)
         assert spec is not None and spec.loader is not None
         module = importlib.util.module_from_spec(spec)
         sys.modules[mod_name] = module
         spec.loader.exec_module(module)
+        PLUGINS.append(module)
 
 
 _load_plugins()
@@ -47,3 +53,14 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
         if not case.requires & set(LACKS[name])
     ]
     metafunc.parametrize(("backend_name", "case"), params)
+
+
+def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> None:
+    """Tells each harness plugin that defines ``between_cases(next_backend)`` which backend the
+    next test runs on (``None``: not a conformance test), so it can stop what it keeps ready."""
+    callspec = getattr(nextitem, "callspec", None)
+    next_backend = callspec.params.get("backend_name") if callspec is not None else None
+    for module in PLUGINS:
+        hook = getattr(module, "between_cases", None)
+        if hook is not None:
+            hook(next_backend)

@@ -6,14 +6,21 @@ script with ``--serve``) at :data:`SPEED` times real time; the backend under tes
 through real rclpy action clients on a private ROS domain. ``advance(s)`` sleeps ``s / SPEED``
 wall seconds while the backend's executor thread spins. Skipped when the ROS 2 wheels or the
 built nav2_msgs are missing.
+
+Every case still gets a fresh server process, but the next case's server starts (in a
+background thread) while the current case runs, on the other of two private ROS domains, so
+two servers never answer for the same ``/robot1``; the case mostly sleeps, so the start-up
+overlaps it instead of adding to it. The spare server is stopped after the last ROS case.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
 import sys
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +33,7 @@ from conformance_harness import register_backend  # noqa: E402
 
 from fleet.navigation import NavigationBackend  # noqa: E402
 from fleet.ros.env import apply_ros_env_defaults, ros_available  # noqa: E402
+from fleet.ros.launch import ServerProcess, private_domain_id  # noqa: E402
 from fleet.testing.conformance import ConformanceHarness, ConformanceWorld  # noqa: E402
 from fleet.testing.room import SIM_PARAMS, SIM_WORLD, conformance_grid  # noqa: E402
 
@@ -45,21 +53,94 @@ class RosHarness:
         time.sleep(max(0.0, seconds) / self.speed)
 
 
+class _Spare:
+    """A server for the next case, started in a background thread on the other domain."""
+
+    def __init__(self, domain_id: int) -> None:
+        self.domain_id = domain_id
+        self.server: ServerProcess | None = None
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._start, daemon=True)
+        self._thread.start()
+
+    def _start(self) -> None:
+        try:
+            # the servers of earlier cases, one of them on this domain, are gone first
+            for t in list(_stopping):
+                t.join()
+            self.server = _start_server(self.domain_id)
+        except BaseException as e:  # noqa: BLE001 - reported by take()
+            self.error = e
+
+    def take(self) -> ServerProcess:
+        """The started server (waits for its start-up to end); raises what the start raised."""
+        self._thread.join()
+        if self.error is not None:
+            raise self.error
+        assert self.server is not None
+        return self.server
+
+    def discard(self) -> None:
+        self._thread.join()
+        if self.server is not None:
+            self.server.stop()
+
+
+_spare: list[_Spare] = []
+
+
+#: Servers of finished cases being stopped (SIGINT, up to 5 s to exit, then SIGKILL).
+_stopping: list[threading.Thread] = []
+
+
+def _stop_later(stop: Callable[[], object]) -> None:
+    """Run ``stop`` in a background thread: the next case need not wait for the exit."""
+    t = threading.Thread(target=stop, daemon=True)
+    t.start()
+    _stopping.append(t)
+
+
+def _discard_spare() -> None:
+    while _spare:
+        _spare.pop().discard()
+    while _stopping:
+        _stopping.pop().join()
+
+
+atexit.register(_discard_spare)
+
+
+def between_cases(next_backend: str | None) -> None:
+    """Called by ``conftest.py`` after each conformance test: no spare server outlives the
+    last ROS case (it would publish in the background through the other backends' cases)."""
+    if next_backend != "ros":
+        _discard_spare()
+
+
+def _start_server(domain_id: int) -> ServerProcess:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+    return ServerProcess([sys.executable, str(Path(__file__).resolve()), "--serve", str(SPEED)], env=env)
+
+
 @register_backend("ros", marks=(pytest.mark.ros,))
 @contextmanager
 def ros_harness() -> Iterator[ConformanceHarness]:
     if not ros_available():
         pytest.skip("ROS 2 Jazzy wheels / nav2_msgs not installed (make setup-ros)")
-    from fleet.ros.launch import ServerProcess, private_domain_id
-
     os.environ.setdefault("ROS_DOMAIN_ID", str(private_domain_id()))
     apply_ros_env_defaults()
     from fleet.ros.backend import make_ros_backends
 
-    srv = ServerProcess([sys.executable, str(Path(__file__).resolve()), "--serve", str(SPEED)])
+    if _spare:
+        spare = _spare.pop()
+        domain_id, srv = spare.domain_id, spare.take()
+    else:
+        domain_id = int(os.environ["ROS_DOMAIN_ID"])
+        srv = _start_server(domain_id)
     rb = None
     try:
-        rb = make_ros_backends(["/robot1"], wait_s=20.0)
+        _spare.append(_Spare(domain_id ^ 1))  # the next case's server, on the other domain
+        rb = make_ros_backends(["/robot1"], domain_id=domain_id, wait_s=20.0)
         backend = rb["/robot1"]
         deadline = time.monotonic() + 30.0
         while backend.robot_state().pose is None:
@@ -69,7 +150,7 @@ def ros_harness() -> Iterator[ConformanceHarness]:
     finally:
         if rb is not None:
             rb.close()
-        srv.stop()
+        _stop_later(srv.stop)
 
 
 def _serve(argv: list[str]) -> int:

@@ -8,18 +8,23 @@ The conformance room (:data:`fleet.testing.room.SIM_WORLD`, the grid of
 process, connected as a client on a free loopback port. ``advance(s)`` waits (wall time)
 until the robot's state messages report ``s`` more simulated seconds, and for at least two
 state messages, so a request sent before the call has been applied and reported.
+
+Every case gets a fresh simulator process; the next case's one starts while the current case
+runs, and the spare is stopped after the last case of this backend.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
 import selectors
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -71,13 +76,27 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-@register_backend("zenoh-bridge")
-@contextmanager
-def zenoh_bridge_harness() -> Iterator[ConformanceHarness]:
-    pytest.importorskip("zenoh")
-    from fleet.bus.nav_client import ZenohNavBackend
-    from fleet.bus.session import open_session
+@dataclass
+class _Server:
+    """A running ``bus_peer.py navserver`` (it printed ``ready``) and its endpoint."""
 
+    proc: subprocess.Popen[str]
+    endpoint: str
+
+    def stop(self) -> None:
+        proc = self.proc
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(3)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        if proc.stdout is not None:
+            proc.stdout.close()
+
+
+def _start_server() -> _Server:
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     env = dict(
         os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
@@ -90,10 +109,87 @@ def zenoh_bridge_harness() -> Iterator[ConformanceHarness]:
         stderr=subprocess.DEVNULL,
         text=True,
     )
+    server = _Server(proc, endpoint)
     try:
         ready = _read_line(proc, START_TIMEOUT_S).strip()
         assert ready == "ready", f"the simulator process did not start within {START_TIMEOUT_S} s"
-        session = open_session(endpoint, "client")
+    except BaseException:
+        server.stop()
+        raise
+    return server
+
+
+class _Spare:
+    """The next case's server, started in a background thread while the current case runs
+    (each case still gets a fresh process; the start-up overlaps the case's waiting)."""
+
+    def __init__(self) -> None:
+        self.server: _Server | None = None
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._start, daemon=True)
+        self._thread.start()
+
+    def _start(self) -> None:
+        try:
+            self.server = _start_server()
+        except BaseException as e:  # noqa: BLE001 - raised again by take()
+            self.error = e
+
+    def take(self) -> _Server:
+        self._thread.join()
+        if self.error is not None:
+            raise self.error
+        assert self.server is not None
+        return self.server
+
+    def discard(self) -> None:
+        self._thread.join()
+        if self.server is not None:
+            self.server.stop()
+
+
+_spare: list[_Spare] = []
+
+
+#: Servers of finished cases being stopped (each takes a second or two to exit).
+_stopping: list[threading.Thread] = []
+
+
+def _stop_later(stop: Callable[[], object]) -> None:
+    """Run ``stop`` in a background thread: the next case need not wait for the exit."""
+    t = threading.Thread(target=stop, daemon=True)
+    t.start()
+    _stopping.append(t)
+
+
+def _discard_spare() -> None:
+    while _spare:
+        _spare.pop().discard()
+    while _stopping:
+        _stopping.pop().join()
+
+
+atexit.register(_discard_spare)
+
+
+def between_cases(next_backend: str | None) -> None:
+    """Called by ``conftest.py`` after each conformance test: no spare server outlives the
+    last case of this backend."""
+    if next_backend != "zenoh-bridge":
+        _discard_spare()
+
+
+@register_backend("zenoh-bridge")
+@contextmanager
+def zenoh_bridge_harness() -> Iterator[ConformanceHarness]:
+    pytest.importorskip("zenoh")
+    from fleet.bus.nav_client import ZenohNavBackend
+    from fleet.bus.session import open_session
+
+    server = _spare.pop().take() if _spare else _start_server()
+    try:
+        _spare.append(_Spare())
+        session = open_session(server.endpoint, "client")
         try:
             backend = ZenohNavBackend(session, "/robot1", timeout_s=2.0)
             try:
@@ -104,12 +200,4 @@ def zenoh_bridge_harness() -> Iterator[ConformanceHarness]:
         finally:
             session.close()
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(3)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
-        if proc.stdout is not None:
-            proc.stdout.close()
+        _stop_later(server.stop)

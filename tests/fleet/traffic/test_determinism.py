@@ -21,7 +21,7 @@ def _run(tmp_path: Path, hashseed: str) -> dict[str, Any]:
     report = tmp_path / f"r{hashseed}.json"
     env = dict(os.environ, PYTHONHASHSEED=hashseed, PYTHONPATH=str(ROOT))
     cmd = [sys.executable, "-m", "fleet.cli", "run", str(PATROL_30), "--speed", "0", "--no-live"]
-    cmd += ["--duration", "240", "--endpoint", free_endpoint(), "--report", str(report)]
+    cmd += ["--duration", "120", "--endpoint", free_endpoint(), "--report", str(report)]
     subprocess.run(cmd, env=env, cwd=ROOT, check=True, timeout=900, capture_output=True)
     d = dict(json.loads(report.read_text()))
     d.pop("wall_time_s")
