@@ -38,6 +38,12 @@ SPARE_CHARGERS = 0.1
 #: wants to top up and found no free charger.
 VACATE_ABOVE = 0.9
 
+#: A robot that needs a charger takes a free one at most this much (m, driving with the flow)
+#: farther than its nearest charger; otherwise it waits for one near it: a charger frees
+#: within about a minute (a charge from 30 % takes 33 s at 0.02 /s), a trip across a wide
+#: floor costs minutes in traffic and energy the robot may not have.
+CHARGE_REACH_M = 30.0
+
 #: Sends a robot along a node path for a purpose: ``drive(robot, nodes, purpose)``.
 Drive = Callable[[str, list[str], Purpose], None]
 
@@ -162,12 +168,25 @@ class Errands:
         for battery, name in sorted(requests):
             # a robot short of energy goes first at intersections and is never the one to yield
             self.manager.set_priority(name, CHARGE_PRIORITY * (2.0 - battery))
-            node = self._free_dock(name, self.chargers)
+            node = self._free_dock(name, self.chargers, reach=CHARGE_REACH_M)
             if node is not None:
                 self._go(name, node, Purpose.CHARGE)
             elif self.purposes.get(name) is not Purpose.CHARGE_WAIT:
+                # wait off the aisles for a charger near it; unless the waiting place is
+                # farther than a free charger (then it drives to that charger instead)
                 dock = self._free_dock(name, self.parking, self._to_charger())
-                self._go(name, dock, Purpose.CHARGE_WAIT)
+                far = self._free_dock(name, self.chargers)
+                if far is not None and (dock is None or self._cost(name, far) < self._cost(name, dock)):
+                    self._go(name, far, Purpose.CHARGE)
+                else:
+                    self._go(name, dock, Purpose.CHARGE_WAIT)
+
+    def _cost(self, robot: str, node: str) -> float:
+        """Roadmap cost (m, with the flow) from where ``robot`` stands to ``node``."""
+        path = self.manager.path(robot)
+        if not path:
+            return math.inf
+        return self.manager.costs_from(path[0]).get(node, math.inf)
 
     def _to_charger(self) -> dict[str, float]:
         """Roadmap distance (m) from every node to its nearest charger dock (cached)."""
@@ -194,11 +213,17 @@ class Errands:
         self.drive(name, [node], purpose)
 
     def _free_dock(
-        self, robot: str, docks: Sequence[str], first: Mapping[str, float] | None = None
+        self,
+        robot: str,
+        docks: Sequence[str],
+        first: Mapping[str, float] | None = None,
+        reach: float = math.inf,
     ) -> str | None:
         """The dock nearest ``robot`` (roadmap distance, driving with the fleet's flow:
         :meth:`TrafficManager.costs_from`; with ``first``, the dock of least
-        ``first[dock]``, then nearest) that nobody else holds or heads for."""
+        ``first[dock]``, then nearest) that nobody else holds or heads for; ``None`` when
+        there is none, or when the nearest free one is more than ``reach`` m farther than
+        the nearest of all ``docks`` (taken or not)."""
         m = self.manager
         taken = {n for r, n in self._target.items() if r != robot}
         free = [d for d in docks if m.holder(d) in (None, robot) and d not in taken]
@@ -208,5 +233,8 @@ class Errands:
         here = path[0] if path else self.roadmap.nearest_node(*m.node_pos(free[0]))
         dist = m.costs_from(here)  # the way the manager will drive it: with the flow
         if first is None:
-            return min(free, key=lambda d: (dist.get(d, math.inf), d))
+            best = min(free, key=lambda d: (dist.get(d, math.inf), d))
+            if reach < math.inf and dist.get(best, math.inf) > min(dist.get(d, math.inf) for d in docks) + reach:
+                return None  # a charger near it frees soon (charging takes about a minute)
+            return best
         return min(free, key=lambda d: (round(first.get(d, math.inf), 1), dist.get(d, math.inf), d))
