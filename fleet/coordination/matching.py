@@ -156,10 +156,11 @@ class ChargerAllocation:
         self.poses = list(poses)
         self.load = [0] * len(self.poses)
         self._distances = distances
-        self._nodes: list[int] = []
+        #: Each charger's column in the ``distances`` rows (its nearest roadmap node).
+        self.columns: list[int] = []
         if distances is not None:
             rm = distances.roadmap
-            self._nodes = [distances.index[rm.nearest_node(c.x, c.y)] for c in self.poses]
+            self.columns = [distances.index[rm.nearest_node(c.x, c.y)] for c in self.poses]
         #: The work (roadmap nodes) each robot's charger was chosen for.
         self._chosen_for: dict[str, tuple[str, ...]] = {}
 
@@ -186,16 +187,16 @@ class ChargerAllocation:
         robot's nearest node without work); straight line from the robot without a roadmap."""
         pose = v.obs.pose if v.obs is not None else None
         d = self._distances
-        if d is None or not self._nodes:
+        if d is None or not self.columns:
             return [pose.distance_to(c) if pose is not None else 0.0 for c in self.poses]
         sources = [n for n in work if n in d.index]
         if not sources and pose is not None:
             sources = [d.roadmap.nearest_node(pose.x, pose.y)]
         if not sources:
             return [0.0] * len(self.poses)
-        total = np.zeros(len(self._nodes))
+        total = np.zeros(len(self.columns))
         for n in sources:
-            total += d.row(n)[self._nodes]
+            total += d.row(n)[self.columns]
         return [float(x) for x in np.nan_to_num(total / len(sources), posinf=1e9)]
 
     def free(self, v: RobotView) -> None:
