@@ -57,9 +57,10 @@ Rules (all times in seconds of the fleet clock):
 * Idle robots standing on a charger are matched first (their cost is lowered by
   :data:`~fleet.coordination.matching.CHARGER_BONUS_M`), so that a charged spare leaves the
   charger to robots that need it.
-* Chargers: every order carries a charger pose. Each robot is given a charger when first seen:
-  the least-loaded charger, nearest first among equally loaded ones, so two robots share a
-  charger only when there are more robots than chargers.
+* Chargers: every order carries a charger pose. Each robot is given the charger near its task
+  (least roadmap travel distance from the task's nodes, plus a penalty per robot already given
+  that charger; :class:`~fleet.coordination.matching.ChargerAllocation`), chosen again when its
+  task changes; a robot without a task, the charger near where it stands.
 * Deadlocks: a robot whose status turns ``stuck`` with another live robot within
   :data:`~fleet.coordination.health.DEADLOCK_RADIUS_M` counts one deadlock.
 

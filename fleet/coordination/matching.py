@@ -10,9 +10,11 @@ charger each robot is given.
   the rest; infinite costs (unreachable) never match. :func:`rank` turns costs into the order
   the matcher uses: robots idling on a charger look :data:`CHARGER_BONUS_M` closer, robots in
   cool-down :data:`COOLDOWN_PENALTY` farther, a task's preferred robot comes first.
-* :class:`ChargerAllocation`: each robot is given a charger when first needed: the
-  least-loaded charger, nearest first among equally loaded ones, so two robots share a
-  charger only when there are more robots than chargers.
+* :class:`ChargerAllocation`: each robot is given a charger near its work: the charger of
+  least roadmap travel distance from the task's nodes (their mean; the robot's own node when
+  it has no task), plus :data:`SHARE_PENALTY_M` per robot already given that charger, so
+  neighbours spread over the chargers around them and nobody is named a charger across the
+  floor. A robot is given a charger anew when its work moves (a new task).
 """
 
 from __future__ import annotations
@@ -36,6 +38,11 @@ COOLDOWN_PENALTY = 1e6
 #: every task, so that they leave the charger to robots that need it.
 CHARGER_BONUS_M = 20.0
 ON_CHARGER_M = 0.5
+#: A charger already given to k robots looks k times this much (m) farther to the next robot:
+#: about the length of a shelf row, so robots share the chargers at their end of the floor
+#: rather than each taking the nearest one (a charger serves several robots: a working robot
+#: spends about a fifth of its time charging).
+SHARE_PENALTY_M = 12.0
 #: The rank (m) of a task's preferred robot: below any travel cost, so it is matched first.
 PREFERRED_RANK = -1e9
 #: Each level of a task's priority lowers its rank by this much (m): a higher-priority task
@@ -141,34 +148,63 @@ def greedy_match(ranks: FloatMatrix) -> list[tuple[int, int]]:
 
 class ChargerAllocation:
     """The charger of every robot (see the module docstring). ``poses`` are the chargers
-    (map frame); a robot's charger is its :attr:`RobotView.charger` index."""
+    (map frame); a robot's charger is its :attr:`RobotView.charger` index. ``distances``: the
+    roadmap's travel distances (without them, straight-line distance from the robot's pose).
+    """
 
-    def __init__(self, poses: Sequence[Pose2D]) -> None:
+    def __init__(self, poses: Sequence[Pose2D], distances: Distances | None = None) -> None:
         self.poses = list(poses)
         self.load = [0] * len(self.poses)
+        self._distances = distances
+        #: Each charger's column in the ``distances`` rows (its nearest roadmap node).
+        self.columns: list[int] = []
+        if distances is not None:
+            rm = distances.roadmap
+            self.columns = [distances.index[rm.nearest_node(c.x, c.y)] for c in self.poses]
+        #: The work (roadmap nodes) each robot's charger was chosen for.
+        self._chosen_for: dict[str, tuple[str, ...]] = {}
 
-    def charger_for(self, v: RobotView) -> Pose2D | None:
-        """``v``'s charger pose (``None`` without chargers); chosen now if it has none."""
+    def charger_for(self, v: RobotView, near: Sequence[str] = ()) -> Pose2D | None:
+        """``v``'s charger pose (``None`` without chargers). Chosen now if ``v`` has none, or
+        chosen again when ``near`` (the roadmap nodes of its new work) differs from the work
+        it was chosen for; ``()`` keeps the charger it has."""
         if not self.poses:
             return None
-        if v.charger is None:
-            pose = v.obs.pose if v.obs is not None else None
-            best: tuple[int, float, int] | None = None
-            for i, c in enumerate(self.poses):
-                d = pose.distance_to(c) if pose is not None else 0.0
-                key = (self.load[i], d, i)
-                if best is None or key < best:
-                    best = key
-            assert best is not None
-            v.charger = best[2]
-            self.load[v.charger] += 1
-        return self.poses[v.charger]
+        work = tuple(near)
+        if v.charger is not None and (not work or self._chosen_for.get(v.name) == work):
+            return self.poses[v.charger]
+        if v.charger is not None:
+            self.load[v.charger] -= 1
+        dist = self._travel(v, work)
+        best = min(range(len(self.poses)), key=lambda i: (dist[i] + SHARE_PENALTY_M * self.load[i], i))
+        v.charger = best
+        self.load[best] += 1
+        self._chosen_for[v.name] = work
+        return self.poses[best]
+
+    def _travel(self, v: RobotView, work: tuple[str, ...]) -> list[float]:
+        """Distance (m) to every charger: mean roadmap distance from ``work``'s nodes (the
+        robot's nearest node without work); straight line from the robot without a roadmap."""
+        pose = v.obs.pose if v.obs is not None else None
+        d = self._distances
+        if d is None or not self.columns:
+            return [pose.distance_to(c) if pose is not None else 0.0 for c in self.poses]
+        sources = [n for n in work if n in d.index]
+        if not sources and pose is not None:
+            sources = [d.roadmap.nearest_node(pose.x, pose.y)]
+        if not sources:
+            return [0.0] * len(self.poses)
+        total = np.zeros(len(self.columns))
+        for n in sources:
+            total += d.row(n)[self.columns]
+        return [float(x) for x in np.nan_to_num(total / len(sources), posinf=1e9)]
 
     def free(self, v: RobotView) -> None:
         """``v`` (dead) gives its charger back."""
         if v.charger is not None:
             self.load[v.charger] -= 1
             v.charger = None
+        self._chosen_for.pop(v.name, None)
 
     def on_charger(self, v: RobotView) -> bool:
         """``v`` stands within :data:`ON_CHARGER_M` of a charger."""

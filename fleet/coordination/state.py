@@ -96,9 +96,9 @@ class CoordinatorState:
         self.robots: dict[str, RobotView] = {}
         self.deadlocks = 0
         self.events: deque[tuple[float, str]] = deque(maxlen=MAX_EVENTS)
-        self.chargers = ChargerAllocation(chargers)
-        self.blocked = health.BlockedWaypoints()
         self.book = TaskBook(Distances(roadmap), first_id)
+        self.chargers = ChargerAllocation(chargers, self.book.distances)
+        self.blocked = health.BlockedWaypoints()
         tasks: list[Task] = [*routes, *(pick_task(p, roadmap) for p in picks)]
         for t in tasks:
             self.book.add(t)
@@ -497,7 +497,9 @@ class CoordinatorState:
         return self._order(v, a)
 
     def _order(self, v: RobotView, a: Assignment) -> TaskOrder:
-        return self.book.tasks[a.name].order(v.name, a, self.chargers.charger_for(v))
+        task = self.book.tasks[a.name]
+        work = [n for n, _ in task.entries(self.roadmap)]
+        return task.order(v.name, a, self.chargers.charger_for(v, work))
 
     def _idle_order(self, v: RobotView) -> TaskOrder:
         return TaskOrder(

@@ -94,6 +94,13 @@ def resolve(st: TrafficState, comp: set[str], now: float) -> bool:
     members = sorted((st.robots[n] for n in comp), key=lambda r: (st.priority(r, now), -r.rank))
     for v in members:
         others = [m for m in members if m is not v]
+        if v.claims & {x for m in others for x in m.blocked_on}:
+            # a starving robot claimed what one ahead of it needs (a follower claiming the
+            # node beyond the robot it follows): the claim, not the road, is the cycle
+            st.drop_claims(v)
+            after_yield(st, v, others, now)
+            st.log(now, f"{v.name} gave up its claims to break a deadlock")
+            return True
         avoid = _held_nodes(st, others)
         if reroute(st, v, avoid, now, bounded=True):
             st.metrics.reroutes += 1

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import networkx as nx
 
@@ -37,6 +37,20 @@ SPARE_CHARGERS = 0.1
 #: An idle robot on a charger above this battery fraction leaves it to an idle robot that
 #: wants to top up and found no free charger.
 VACATE_ABOVE = 0.9
+
+#: A robot that needs a charger takes a free one at most this much (m, driving with the flow)
+#: farther than its nearest charger; otherwise it waits for one near it: a charger frees
+#: within about a minute (a charge from 30 % takes 33 s at 0.02 /s), a trip across a wide
+#: floor costs minutes in traffic and energy the robot may not have.
+CHARGE_REACH_M = 30.0
+
+#: A robot on a dock errand (to a charger, or to a parking dock to wait or park) that has
+#: waited this long (s) on the same robots takes the nearest free dock of the same kind it can
+#: reach without passing them (two robots head-on in a corridor, each heading for a charger
+#: behind the other, swap chargers instead of waiting for a step-aside that has no room).
+RETARGET_AFTER_S = 10.0
+#: ... within this much driving (m) of where it stands.
+RETARGET_REACH_M = 60.0
 
 #: Sends a robot along a node path for a purpose: ``drive(robot, nodes, purpose)``.
 Drive = Callable[[str, list[str], Purpose], None]
@@ -77,11 +91,15 @@ class Errands:
         # idle robots that wanted to top up and found no free charger: this cycle, last cycle
         self._wanting = 0
         self._wanted = 0
+        # robots on dock errands waiting on the same robots: name -> (blockers, since)
+        self._stuck: dict[str, tuple[frozenset[str], float]] = {}
+        self._waiting: tuple[float, set[str]] = (-math.inf, set())
 
     def forget(self, robot: str) -> None:
         """``robot`` got a patrol: drop its dock target and its place in the charger queue."""
         self._target.pop(robot, None)
         self._charge_wait.discard(robot)
+        self._stuck.pop(robot, None)
 
     def step(self, name: str, view: RobotViewLike, now: float, requests: list[tuple[float, str]]) -> None:
         """Charging and parking trips of the live robot ``name`` at ``now``. A robot that needs
@@ -101,6 +119,14 @@ class Errands:
             elif purpose is Purpose.PARK:
                 self._go(name, self._free_dock(name, self.parking), Purpose.PARK)
                 return
+        if target is not None and purpose in (Purpose.CHARGE, Purpose.CHARGE_WAIT, Purpose.PARK):
+            path = self.manager.path(name)
+            if path and path[-1] != target:
+                # nudged aside to a node of its own (a parked robot makes room): its errand
+                # still stands, or it would stop there with charging to do and no way on
+                self.drive(name, [target], purpose)
+            elif self._blocked_long(name, now):
+                self._retarget(name, purpose)
         if mode == Mode.CHARGING:
             self._idle_since.pop(name, None)
             if purpose is not Purpose.CHARGE:
@@ -162,12 +188,69 @@ class Errands:
         for battery, name in sorted(requests):
             # a robot short of energy goes first at intersections and is never the one to yield
             self.manager.set_priority(name, CHARGE_PRIORITY * (2.0 - battery))
-            node = self._free_dock(name, self.chargers)
+            node = self._free_dock(name, self.chargers, reach=CHARGE_REACH_M)
             if node is not None:
                 self._go(name, node, Purpose.CHARGE)
             elif self.purposes.get(name) is not Purpose.CHARGE_WAIT:
+                # wait off the aisles for a charger near it; unless the waiting place is
+                # farther than a free charger (then it drives to that charger instead)
                 dock = self._free_dock(name, self.parking, self._to_charger())
-                self._go(name, dock, Purpose.CHARGE_WAIT)
+                far = self._free_dock(name, self.chargers)
+                if far is not None and (dock is None or self._cost(name, far) < self._cost(name, dock)):
+                    self._go(name, far, Purpose.CHARGE)
+                else:
+                    self._go(name, dock, Purpose.CHARGE_WAIT)
+
+    def _blocked_long(self, name: str, now: float) -> bool:
+        """``name`` has waited :data:`RETARGET_AFTER_S` on the same robots (then the clock
+        starts again)."""
+        if self._waiting[0] != now:
+            self._waiting = (now, self.manager.waiting())
+        if name not in self._waiting[1]:
+            self._stuck.pop(name, None)
+            return False
+        blockers = frozenset(self.manager.blockers(name))
+        prev = self._stuck.get(name)
+        if prev is None or prev[0] != blockers:
+            self._stuck[name] = (blockers, now)
+            return False
+        if now - prev[1] < RETARGET_AFTER_S:
+            return False
+        self._stuck[name] = (blockers, now)
+        return bool(blockers)
+
+    def _retarget(self, name: str, purpose: Purpose) -> None:
+        """Send ``name`` to the nearest free dock of its errand's kind (chargers for
+        :attr:`Purpose.CHARGE`, else parking) that it reaches within :data:`RETARGET_REACH_M`
+        without entering a node its blockers hold; its current target counts too."""
+        m = self.manager
+        path = m.path(name)
+        if not path:
+            return
+        here = path[0]
+        avoid = {x for b in m.blockers(name) for x in m.held(b) if isinstance(x, str)}
+        avoid.discard(here)
+
+        def weight(u: str, v: str, d: dict[str, float]) -> float | None:
+            return None if v in avoid else float(d.get("length", 1.0))
+
+        found = nx.single_source_dijkstra(self.roadmap.graph, here, cutoff=RETARGET_REACH_M, weight=weight)
+        dist, paths = cast("tuple[dict[str, float], dict[str, list[str]]]", found)
+        docks = self.chargers if purpose is Purpose.CHARGE else self.parking
+        taken = {n for r, n in self._target.items() if r != name}
+        free = [d for d in docks if d in dist and d not in taken and m.holder(d) in (None, name)]
+        if not free:
+            return
+        best = min(free, key=lambda d: (dist[d], d))
+        self._target[name] = best
+        self.drive(name, [str(n) for n in paths[best]], purpose)
+
+    def _cost(self, robot: str, node: str) -> float:
+        """Roadmap cost (m, with the flow) from where ``robot`` stands to ``node``."""
+        path = self.manager.path(robot)
+        if not path:
+            return math.inf
+        return self.manager.costs_from(path[0]).get(node, math.inf)
 
     def _to_charger(self) -> dict[str, float]:
         """Roadmap distance (m) from every node to its nearest charger dock (cached)."""
@@ -194,11 +277,17 @@ class Errands:
         self.drive(name, [node], purpose)
 
     def _free_dock(
-        self, robot: str, docks: Sequence[str], first: Mapping[str, float] | None = None
+        self,
+        robot: str,
+        docks: Sequence[str],
+        first: Mapping[str, float] | None = None,
+        reach: float = math.inf,
     ) -> str | None:
         """The dock nearest ``robot`` (roadmap distance, driving with the fleet's flow:
         :meth:`TrafficManager.costs_from`; with ``first``, the dock of least
-        ``first[dock]``, then nearest) that nobody else holds or heads for."""
+        ``first[dock]``, then nearest) that nobody else holds or heads for; ``None`` when
+        there is none, or when the nearest free one is more than ``reach`` m farther than
+        the nearest of all ``docks`` (taken or not)."""
         m = self.manager
         taken = {n for r, n in self._target.items() if r != robot}
         free = [d for d in docks if m.holder(d) in (None, robot) and d not in taken]
@@ -208,5 +297,11 @@ class Errands:
         here = path[0] if path else self.roadmap.nearest_node(*m.node_pos(free[0]))
         dist = m.costs_from(here)  # the way the manager will drive it: with the flow
         if first is None:
-            return min(free, key=lambda d: (dist.get(d, math.inf), d))
+            best = min(free, key=lambda d: (dist.get(d, math.inf), d))
+            if (
+                reach < math.inf
+                and dist.get(best, math.inf) > min(dist.get(d, math.inf) for d in docks) + reach
+            ):
+                return None  # a charger near it frees soon (charging takes about a minute)
+            return best
         return min(free, key=lambda d: (round(first.get(d, math.inf), 1), dist.get(d, math.inf), d))

@@ -177,8 +177,14 @@ def expire_yields(st: TrafficState, r: TrackedRobot, now: float) -> None:
 
 
 def claim(st: TrafficState, r: TrackedRobot, res: list[Resource]) -> None:
-    """``r`` (starving) claims every resource of ``res`` no live robot has claimed."""
+    """``r`` (starving) claims every resource of ``res`` no live robot has claimed, except
+    what it leaves to robots it yields to (a claim on those would undo the yield)."""
+    yielded: set[Resource] = set()
+    for conf, _ in r.yield_to.values():
+        yielded |= conf
     for x in res:
+        if x in yielded:
+            continue
         c = st.claims.get(x)
         if c is None or c not in st.robots or not st.robots[c].alive:
             st.claims[x] = r.name

@@ -77,14 +77,38 @@ def test_rank_charger_bonus_cooldown_and_preferred_robot() -> None:
     assert costs[1, 0] == 1.0  # the costs are not modified
 
 
-def test_chargers_least_loaded_then_nearest() -> None:
-    chargers = ChargerAllocation([Pose2D(0, 0), Pose2D(100, 0)])
-    a, b, c = view("a", 90), view("b", 95), view("c", 99)
-    assert chargers.charger_for(a) == Pose2D(100, 0)
-    assert chargers.charger_for(b) == Pose2D(0, 0)  # the near one is taken
-    assert chargers.charger_for(a) == Pose2D(100, 0)  # kept
+def test_chargers_near_the_work_by_travel_distance_shared_with_a_penalty() -> None:
+    # a U: chargers at both tips (0, 0) and (0, 20); the straight line from x to the far tip
+    # is short (20 m), the way along the roadmap long (100 m)
+    rm = Roadmap.from_config_dict(
+        {
+            "nodes": {"c1": [0, 0], "p": [40, 0], "q": [40, 20], "c2": [0, 20], "w": [38, 20]},
+            "edges": [["c1", "p"], ["p", "q"], ["q", "w"], ["w", "c2"]],
+        }
+    )
+    chargers = ChargerAllocation([Pose2D(0, 0), Pose2D(0, 20)], Distances(rm))
+    a, b, c = view("a", 38, 20), view("b", 38, 20), view("c", 38, 20)
+    assert chargers.charger_for(a, ["p"]) == Pose2D(0, 0)  # 40 m, not 80 m by the way
+    assert chargers.charger_for(a) == Pose2D(0, 0)  # kept without new work
+    assert chargers.charger_for(a, ["p"]) == Pose2D(0, 0) and chargers.load == [1, 0]
+    # the work's mean distance: w is 38 m from c2 and 62 m from c1, q 40 / 60
+    assert chargers.charger_for(b, ["q", "w"]) == Pose2D(0, 20)
+    # a second robot near c1: the shared charger looks SHARE_PENALTY_M farther, still nearer
+    assert chargers.charger_for(c, ["c1"]) == Pose2D(0, 0) and chargers.load == [2, 1]
+    # new work: a gives its charger back and takes the one near its new work
+    assert chargers.charger_for(a, ["w"]) == Pose2D(0, 20) and chargers.load == [1, 2]
     chargers.free(a)
-    assert a.charger is None and chargers.load == [1, 0]
-    assert chargers.charger_for(c) == Pose2D(100, 0)
+    assert a.charger is None and chargers.load == [1, 1]
+    # without work: the robot's nearest node (w, 38 m from c2)
+    assert chargers.charger_for(view("d", 38, 20)) == Pose2D(0, 20)
+
+
+def test_chargers_without_a_roadmap_go_by_straight_line_and_load() -> None:
+    chargers = ChargerAllocation([Pose2D(0, 0), Pose2D(100, 0)])
+    a, b, c = view("a", 90), view("b", 95), view("c", 50)
+    assert chargers.charger_for(a) == Pose2D(100, 0)
+    assert chargers.charger_for(b) == Pose2D(100, 0)  # 5 m + one robot's penalty < 95 m
+    assert chargers.charger_for(c) == Pose2D(0, 0)  # 50 m < 50 m + two robots' penalty
+    assert chargers.load == [1, 2]
     assert ChargerAllocation([]).charger_for(c) is None
     assert chargers.on_charger(view("x", 100.4)) and not chargers.on_charger(view("x", 100.6))

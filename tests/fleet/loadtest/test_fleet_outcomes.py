@@ -84,9 +84,10 @@ def test_picks_under_traffic_management_keep_up_with_picks_without(tmp_path: Pat
 @pytest.mark.timeout(3600)
 @pytest.mark.xfail(
     strict=True,
-    reason="not met: in the load test every robot now patrols, and with traffic management the "
-    "100-robot floor jams and robots run flat in the charger queues (37 of 100 in 1800 s; "
-    "docs/performance.md, Fleet outcomes)",
+    reason="not met: in the load test every robot patrols, and with traffic management the "
+    "100-robot floor jams (mean wait over half the hour); robots on their way to a charger run "
+    "flat in the jam (38 of 100 below 5 % in 3600 s, 13 deadlock episodes; docs/performance.md, "
+    "Fleet outcomes, Charging)",
 )
 def test_no_robot_runs_flat_in_an_hour_with_100_robots(tmp_path: Path) -> None:
     res = run_loadtest(100, 3600.0, out_dir=tmp_path / "lt", endpoint=free_endpoint())
@@ -94,4 +95,4 @@ def test_no_robot_runs_flat_in_an_hour_with_100_robots(tmp_path: Path) -> None:
     lowest = min(r["battery_min"] for r in d["per_robot"])
     assert d["min_battery"] == pytest.approx(lowest)
     assert lowest > 0.05, sorted((r["battery_min"], r["name"]) for r in d["per_robot"])[:5]
-    assert d["collisions"] == 0
+    assert d["collisions"] == 0 and d["deadlocks"] == 0
