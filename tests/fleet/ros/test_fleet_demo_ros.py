@@ -17,7 +17,7 @@ from fleet.runtime.runner import FleetRunner
 
 WAREHOUSE = Path(__file__).resolve().parents[3] / "configs" / "warehouse_patrol.yaml"
 
-#: Each test takes 25-45 s on an idle 2-core machine (two fleet runs and a server).
+#: Each test takes 30-50 s on an idle 2-core machine (two fleet runs and a server).
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.timeout(600)]
 
 DURATION_S = 150.0
@@ -45,16 +45,25 @@ def _run(backend: str, **kw: Any) -> Any:
     ).run()
 
 
+def _driven(report: Any) -> float:
+    """The fleet's distance driven (m): the throughput measure that does not jump by a whole
+    lap (each robot laps only about twice in the run, and the ROS run's robots start a few
+    simulated seconds late, so a lap count ratio is mostly rounding)."""
+    return float(sum(r.distance_m for r in report.per_robot))
+
+
 def test_demo_over_ros_completes_patrols_like_in_process() -> None:
     # without traffic management (the next test runs the default, with it)
     in_process = _run("sim", traffic=False)
-    with ServerProcess.for_config(WAREHOUSE, "--speed", "10", "--odom-hz", "20", "--amcl-hz", "2"):
+    # at 5x real time: the server's clock does not wait for its client, so on a machine loaded
+    # many times over its cores a faster server outruns the client's ticks and laps are lost
+    with ServerProcess.for_config(WAREHOUSE, "--speed", "5", "--odom-hz", "20", "--amcl-hz", "2"):
         over_ros = _run("ros", listen=True, traffic=False)
     assert over_ros.sim_time_s >= DURATION_S - 1.0
     assert over_ros.patrols_completed >= 1
     assert over_ros.laps_completed >= 1
     # same trees, same coordinator, same simulator behind Nav2: comparable throughput
-    assert over_ros.laps_completed >= 0.6 * in_process.laps_completed
+    assert _driven(over_ros) >= 0.6 * _driven(in_process)
 
 
 def test_traffic_managed_demo_over_ros_follows_grants_like_in_process() -> None:
@@ -69,4 +78,5 @@ def test_traffic_managed_demo_over_ros_follows_grants_like_in_process() -> None:
     assert over_ros.traffic is not None and over_ros.traffic["robots_managed"] == 6
     assert over_ros.deadlocks == 0
     assert over_ros.patrols_completed >= 1 and over_ros.laps_completed >= 1
-    assert over_ros.laps_completed >= 0.6 * in_process.laps_completed
+    # measured 2026-11-24: 525 m over ROS against 671 m in-process (0.78), 8 laps against 12
+    assert _driven(over_ros) >= 0.6 * _driven(in_process)
