@@ -4,6 +4,8 @@ the direction of the patrol loops (``TrafficParams.flow_penalty``)."""
 from __future__ import annotations
 
 import networkx as nx
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fleet.traffic.roads import RoadIndex
 
@@ -39,3 +41,33 @@ def test_a_shipped_config_gives_its_patrol_loops_direction() -> None:
     costs = policy.manager.costs_from("a1_s")
     # aisle 1 is driven north in its loop: south-bound costs more than its length
     assert policy.manager.costs_from("a1_n")["a1_s"] > costs["a1_n"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(min_value=0, max_value=2**31 - 1),
+    st.integers(min_value=2, max_value=30),
+    st.floats(min_value=0.0, max_value=3.0),
+)
+def test_the_nearest_candidate_is_the_least_of_the_full_costs(seed: int, n: int, penalty: float) -> None:
+    """``RoadIndex.nearest`` stops its search early: it must pick what the whole-roadmap costs
+    pick, ties (equal lengths on a grid) and unreachable candidates included."""
+    import math
+    import random
+
+    rng = random.Random(seed)
+    g: nx.Graph[str] = nx.Graph()
+    names = [f"n{i}" for i in range(n)]
+    for name in names:  # integer grid positions: many equal path lengths
+        g.add_node(name, pos=(rng.randint(0, 4), rng.randint(0, 4)))
+    for _ in range(2 * n):
+        a, b = rng.sample(names, 2)
+        g.add_edge(a, b)
+    roads = RoadIndex(g)
+    roads.set_flow([(a, b) for a, b in g.edges if rng.random() < 0.5], penalty)
+    for _ in range(5):
+        start = rng.choice(names)
+        cands = rng.sample(names, rng.randint(0, n))
+        costs = roads.costs_from(start)
+        want = min(cands, key=lambda c: (costs.get(c, math.inf), c)) if cands else None
+        assert roads.nearest(start, cands) == want
