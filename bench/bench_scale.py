@@ -96,11 +96,14 @@ def compare(n: int, mode: str, args: argparse.Namespace, tmp: Path) -> None:
             print(row(n, f"{mode} ({label})", args.traffic, d), flush=True)
     if base and new:
         cpu_b, cpu_n = base["loadtest"]["loop_cpu_s"], new["loadtest"]["loop_cpu_s"]
-        same = outcome(base) == outcome(new)
+        ob, on = outcome(base), outcome(new)
+        same = ob == on
+        moved = sum(1 for a, b in zip(ob[3], on[3], strict=False) if a != b)
         print(
             f"<!-- {n} robots, {mode}: loop CPU s before / after = {cpu_b / max(cpu_n, 1e-9):.2f}x, "
             f"wall x real time {base['loadtest']['real_time_factor']:.2f} -> "
-            f"{new['loadtest']['real_time_factor']:.2f}; same decisions: {'yes' if same else 'NO'} -->",
+            f"{new['loadtest']['real_time_factor']:.2f}; same decisions: "
+            f"{'yes' if same else f'NO ({moved} robots drove another distance)'} -->",
             flush=True,
         )
 
