@@ -15,12 +15,19 @@ period (1.0 when every tree ticks every period).
     python bench/bench_scale.py                                   # 1000 robots, 60 s, both modes
     python bench/bench_scale.py --sizes 1000 10000 --duration 30 --modes event
     python bench/bench_scale.py --sizes 100 --duration 30         # a quick look
+    python bench/bench_scale.py --modes event --against /tmp/base # this checkout against another
+
+``--against DIR`` runs every row twice, first with the code of another checkout ``DIR`` (e.g.
+``git archive <commit> | tar -x -C DIR``), then with this one, one after the other on the
+same machine, and prints the ratio of their loop CPU seconds and whether the two runs made the
+same decisions (laps, collisions, deadlocks and each robot's distance driven equal).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -35,8 +42,9 @@ HEAD = (
 )
 
 
-def run_one(n: int, mode: str, args: argparse.Namespace, out: Path) -> dict[str, Any]:
-    """One load test in a subprocess; its report as a dict (``{}`` if it failed)."""
+def run_one(n: int, mode: str, args: argparse.Namespace, out: Path, code: Path = ROOT) -> dict[str, Any]:
+    """One load test in a subprocess running the checkout ``code``; its report as a dict
+    (``{}`` if it failed)."""
     cmd = [
         sys.executable,
         "-m",
@@ -62,13 +70,42 @@ def run_one(n: int, mode: str, args: argparse.Namespace, out: Path) -> dict[str,
     if not args.traffic:
         cmd.append("--no-traffic")
     t0 = time.monotonic()
-    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    env = {**os.environ, "PYTHONPATH": str(code)}
+    done = subprocess.run(cmd, cwd=code, env=env, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         print(f"<!-- {n} robots, {mode}: exit {done.returncode}: {done.stderr[-500:]} -->", flush=True)
         return {}
     data: dict[str, Any] = json.loads((out / "report.json").read_text())
     data["_wall_total"] = time.monotonic() - t0
     return data
+
+
+def outcome(d: dict[str, Any]) -> tuple[object, ...]:
+    """What a run decided: laps, collisions, deadlocks and each robot's distance driven (m)."""
+    per = d.get("per_robot", [])
+    dist = tuple(sorted((str(r["name"]), round(float(r.get("distance_m", 0.0)), 6)) for r in per))
+    return (d["laps_completed"], d["collisions"], d["deadlocks"], dist)
+
+
+def compare(n: int, mode: str, args: argparse.Namespace, tmp: Path) -> None:
+    """Run ``--against``'s code and this checkout's for one row; print both and the ratio."""
+    base = run_one(n, mode, args, tmp / f"{n}-{mode}-base", Path(args.against).resolve())
+    new = run_one(n, mode, args, tmp / f"{n}-{mode}-new")
+    for label, d in (("before", base), ("after", new)):
+        if d:
+            print(row(n, f"{mode} ({label})", args.traffic, d), flush=True)
+    if base and new:
+        cpu_b, cpu_n = base["loadtest"]["loop_cpu_s"], new["loadtest"]["loop_cpu_s"]
+        ob, on = outcome(base), outcome(new)
+        same = ob == on
+        moved = sum(1 for a, b in zip(ob[3], on[3], strict=False) if a != b)
+        print(
+            f"<!-- {n} robots, {mode}: loop CPU s before / after = {cpu_b / max(cpu_n, 1e-9):.2f}x, "
+            f"wall x real time {base['loadtest']['real_time_factor']:.2f} -> "
+            f"{new['loadtest']['real_time_factor']:.2f}; same decisions: "
+            f"{'yes' if same else f'NO ({moved} robots drove another distance)'} -->",
+            flush=True,
+        )
 
 
 def row(n: int, mode: str, traffic: bool, d: dict[str, Any]) -> str:
@@ -93,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--status-hz", type=float, default=1.0, help="status publishing rate (default 1)")
     p.add_argument("--no-traffic", dest="traffic", action="store_false", help="without traffic management")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--against", metavar="DIR", help="also run another checkout's code, before this one's")
     args = p.parse_args(argv)
     print(
         f"tick {args.tick_hz:g} Hz, status {args.status_hz:g} Hz, {args.duration:g} s simulated per run",
@@ -102,6 +140,10 @@ def main(argv: list[str] | None = None) -> int:
     print("|" + "---|" * (HEAD.count("|") - 1), flush=True)
     with tempfile.TemporaryDirectory(prefix="bench-scale-") as tmp:
         for n in args.sizes:
+            if args.against:
+                for mode in args.modes:
+                    compare(n, mode, args, Path(tmp))
+                continue
             factors: dict[str, float] = {}
             per_cpu: dict[str, float] = {}
             for mode in args.modes:

@@ -62,7 +62,7 @@ from sim.planner import GridPlanner, PlanResult
 from sim.robot import Robot
 from sim.safety import STOP_GAP_M, Contacts, Safety
 from sim.snapshots import GoalTable, RobotTable, make_robot_state
-from sim.spatial import NeighborPairs
+from sim.spatial import NeighborPairs, near_any
 from sim.state import FleetState
 
 #: A robot that moved this far (m) from where it last made progress has made progress.
@@ -556,8 +556,7 @@ class Simulator:
                 x, y = s.x[:n], s.y[:n]
                 cx = self._chargers[:, 0]
                 cy = self._chargers[:, 1]
-                near = np.hypot(cx[None, :] - x[idle, None], cy[None, :] - y[idle, None])
-                charging[idle] = (near <= self.params.charger_radius).any(axis=1)
+                charging[idle] = near_any(x[idle], y[idle], cx, cy, self.params.charger_radius)
         s.battery[:n] = self.params.battery.integrate(s.battery[:n], adist, dt, charging)
         s.charging[:n] = charging
 

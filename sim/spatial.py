@@ -61,6 +61,36 @@ def neighbor_pairs(x: np.ndarray, y: np.ndarray, radius: float) -> tuple[np.ndar
 PAIR_REUSE_STEPS = 4
 
 
+def near_any(
+    px: np.ndarray, py: np.ndarray, sites_x: np.ndarray, sites_y: np.ndarray, radius: float
+) -> np.ndarray:
+    """For each point ``(px[i], py[i])``: whether some site lies within ``radius``
+    (``hypot(site - point) <= radius``, the very test of the all-pairs expression
+    ``(np.hypot(sx[None, :] - px[:, None], sy[None, :] - py[:, None]) <= radius).any(axis=1)``,
+    so the answer is bit-identical). Only the sites whose ``x`` is within ``radius`` (plus a
+    margin) of the point are tested (sites sorted by ``x``, one range per point): O((n + m)
+    log m + candidates) instead of n x m."""
+    n = int(px.shape[0])
+    out = np.zeros(n, dtype=bool)
+    if n == 0 or sites_x.shape[0] == 0:
+        return out
+    order = np.argsort(sites_x, kind="stable")
+    sx, sy = sites_x[order], sites_y[order]
+    margin = radius + 1e-9 * (1.0 + abs(radius))
+    lo = np.searchsorted(sx, px - margin, side="left")
+    hi = np.searchsorted(sx, px + margin, side="right")
+    counts = hi - lo
+    total = int(counts.sum())
+    if total == 0:
+        return out
+    owner = np.repeat(np.arange(n), counts)
+    starts = np.repeat(lo - np.cumsum(counts) + counts, counts)
+    j = starts + np.arange(total)
+    hit = np.hypot(sx[j] - px[owner], sy[j] - py[owner]) <= radius
+    out[owner[hit]] = True
+    return out
+
+
 class NeighborPairs:
     """The directed neighbor pairs of the fleet and their offsets at the start of the step.
 

@@ -88,7 +88,11 @@ def _join(
     near, d = roads.nearest_node(x, y)
     if near is not None and d < clearance:
         return near
-    for j, other in enumerate(docks):  # a dock on this very spot already
+    # a dock on this very spot already (the array test only narrows down the candidates,
+    # with a margin; the exact test is the same as before)
+    close = np.flatnonzero(np.hypot(xy[:, 0] - x, xy[:, 1] - y) < clearance + 1e-6)
+    for j in close.tolist():
+        other = docks[j]
         if j != i and other[0] in node_of and math.hypot(xy[j, 0] - x, xy[j, 1] - y) < clearance:
             return node_of[other[0]]
     name = f"dock:{label}"

@@ -31,6 +31,9 @@ from fleet.types import Pose2D
 #: Vehicle class whose edges a ``roadmap.net`` network contributes unless ``vclass`` says otherwise.
 DEFAULT_VCLASS = "passenger"
 
+#: How many shortest paths a roadmap remembers (the oldest is forgotten first).
+PATH_MEMO = 65536
+
 _Node = TypeVar("_Node", bound=Hashable)
 
 
@@ -55,6 +58,9 @@ class Roadmap:
             if self._names
             else np.zeros((0, 2))
         )
+        #: Shortest paths already found (the graph is read-only): route copies and patrol
+        #: loops ask for the same legs again and again. Bounded by :data:`PATH_MEMO`.
+        self._paths: dict[tuple[str, str], tuple[str, ...]] = {}
 
     # ------------------------------------------------------------------ constructors
 
@@ -287,13 +293,20 @@ class Roadmap:
         Returns ``[a]`` when ``a == b`` and ``[]`` when ``b`` cannot be reached from ``a``.
         Raises ``KeyError`` for an unknown node.
         """
+        known = self._paths.get((a, b))
+        if known is not None:
+            return list(known)
         for n in (a, b):
             if n not in self._g:
                 raise KeyError(f"unknown roadmap node {n!r}")
         try:
-            return [str(n) for n in nx.shortest_path(self._g, a, b, weight="length")]
+            path = tuple(str(n) for n in nx.shortest_path(self._g, a, b, weight="length"))
         except nx.NetworkXNoPath:
-            return []
+            path = ()
+        if len(self._paths) >= PATH_MEMO:
+            self._paths.pop(next(iter(self._paths)))
+        self._paths[(a, b)] = path
+        return list(path)
 
     def distance(self, a: str, b: str) -> float:
         """Length in meters of a shortest path from ``a`` to ``b``; ``inf`` if unreachable."""

@@ -295,13 +295,13 @@ class Errands:
             return None
         path = m.path(robot)
         here = path[0] if path else self.roadmap.nearest_node(*m.node_pos(free[0]))
-        dist = m.costs_from(here)  # the way the manager will drive it: with the flow
-        if first is None:
-            best = min(free, key=lambda d: (dist.get(d, math.inf), d))
-            if (
-                reach < math.inf
-                and dist.get(best, math.inf) > min(dist.get(d, math.inf) for d in docks) + reach
-            ):
-                return None  # a charger near it frees soon (charging takes about a minute)
-            return best
-        return min(free, key=lambda d: (round(first.get(d, math.inf), 1), dist.get(d, math.inf), d))
+        if first is not None:  # the least ``first`` (to 0.1 m) first, then the nearest of those
+            least = min(round(first.get(d, math.inf), 1) for d in free)
+            free = [d for d in free if round(first.get(d, math.inf), 1) == least]
+        if first is not None or reach == math.inf:
+            return m.nearest(here, free)  # the way the manager will drive it: with the flow
+        dist = m.costs_from(here)
+        best = min(free, key=lambda d: (dist.get(d, math.inf), d))
+        if dist.get(best, math.inf) > min(dist.get(d, math.inf) for d in docks) + reach:
+            return None  # a charger near it frees soon (charging takes about a minute)
+        return best

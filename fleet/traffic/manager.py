@@ -110,6 +110,10 @@ class TrafficManager:
         """Every registered robot, in registration order."""
         return list(self._st.robots)
 
+    def knows(self, robot: str) -> bool:
+        """Whether ``robot`` is registered (``robot in robots`` without copying the list)."""
+        return robot in self._st.robots
+
     def add_robot(self, robot: str, pose: Pose2D, now: float, priority: float = 0.0) -> str:
         """Register ``robot`` standing at ``pose``; it holds its nearest roadmap node, which is
         returned. Raises :class:`TrafficError` if the robot is known or the node is held by
@@ -153,6 +157,11 @@ class TrafficManager:
         """Cost (m, against-the-flow edges weighted) of the cheapest path from ``node`` to every
         node, as the manager plans its own paths (:meth:`RoadIndex.costs_from`)."""
         return self._st.roads.costs_from(node)
+
+    def nearest(self, node: str, candidates: Iterable[str]) -> str | None:
+        """The candidate node of least :meth:`costs_from` ``node`` (ties: the least name);
+        ``None`` for none (:meth:`RoadIndex.nearest`: stops at the nearest)."""
+        return self._st.roads.nearest(node, candidates)
 
     def set_priority(self, robot: str, priority: float) -> None:
         """Base priority of ``robot`` (higher goes first and yields last; default 0)."""
@@ -338,6 +347,10 @@ class TrafficManager:
     def waiting(self) -> set[str]:
         """Robots that have a path left but no grant beyond the node they stand on."""
         return set(self._st.waiting)
+
+    def is_waiting(self, robot: str) -> bool:
+        """Whether ``robot`` is in :meth:`waiting` (without copying the set)."""
+        return robot in self._st.waiting
 
     def blockers(self, robot: str) -> set[str]:
         """Robots ``robot`` waits for (holders or claimants of what it needs next)."""

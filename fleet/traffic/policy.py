@@ -127,7 +127,7 @@ class ReservationTraffic:
         self._task[robot] = None
         if self._purpose.get(robot) in (Purpose.PATROL, Purpose.TASK):
             self._purpose.pop(robot, None)
-        if robot in self.manager.robots and self.manager.is_alive(robot):
+        if self.manager.knows(robot) and self.manager.is_alive(robot):
             self.manager.clear_path(robot, self._now)
 
     def waiting(self, robot: str) -> bool:
@@ -136,11 +136,11 @@ class ReservationTraffic:
         held up by a dead robot is not "waiting": the coordinator's stuck rule then gives its
         route to a robot that can reach it."""
         m = self.manager
-        if robot not in m.robots:
+        if not m.knows(robot):
             return robot in self._pending or robot in self._task and self._task[robot] is not None
-        if robot not in m.waiting():
+        if not m.is_waiting(robot):
             return False
-        return not any(b in m.robots and not m.is_alive(b) for b in m.blockers(robot))
+        return not any(m.knows(b) and not m.is_alive(b) for b in m.blockers(robot))
 
     def cycle(self, now: float, robots: Mapping[str, RobotViewLike]) -> tuple[()]:
         """One policy cycle at ``now`` over every robot's view (see the class docstring);
@@ -192,7 +192,7 @@ class ReservationTraffic:
         obs = v.obs
         pose = obs.pose if obs is not None else None
         alive = bool(v.alive)
-        if name not in m.robots:
+        if not m.knows(name):
             if pose is None or not alive:
                 return False
             try:
@@ -239,10 +239,10 @@ class ReservationTraffic:
 
     def _apply_pending(self, robot: str) -> None:
         m = self.manager
-        if robot in m.robots:
+        if m.knows(robot):
             m.set_priority(robot, 0.0)
         nodes = self._pending.get(robot)
-        if nodes is None or robot not in m.robots or robot in self._coord_dead:
+        if nodes is None or not m.knows(robot) or robot in self._coord_dead:
             return
         del self._pending[robot]
         self.errands.forget(robot)

@@ -87,6 +87,36 @@ class RoadIndex:
                 total += lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0))
         return total
 
+    def nearest(self, a: str, candidates: Iterable[str]) -> str | None:
+        """The candidate of least :meth:`costs_from` ``a`` (ties: the least name; one that
+        cannot be reached only if none can: then the least name); ``None`` for none. The same
+        answer as ``min(candidates, key=lambda c: (costs_from(a).get(c, inf), c))``, but the
+        search stops at the nearest candidate instead of costing the whole roadmap."""
+        want = set(candidates)
+        if not want:
+            return None
+        adj, lens, against = self.adj, self.length, self.against
+        dist = {a: 0.0}
+        heap = [(0.0, a)]
+        done: set[str] = set()
+        best: str | None = None
+        best_d = math.inf
+        while heap:
+            d, u = heapq.heappop(heap)
+            if d > best_d:
+                break
+            if u in done:
+                continue
+            done.add(u)
+            if u in want and (best is None or d < best_d or u < best):
+                best, best_d = u, d
+            for v in adj[u]:
+                nd = d + lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0))
+                if nd < dist.get(v, math.inf):
+                    dist[v] = nd
+                    heapq.heappush(heap, (nd, v))
+        return best if best is not None else min(want)
+
     def shortest(
         self,
         a: str,

@@ -63,6 +63,17 @@ def test_unreachable_node_gives_empty_path_and_infinite_cost() -> None:
     assert not rm.is_connected()
     with pytest.raises(KeyError):
         rm.shortest_path("a", "nope")
+    assert rm.shortest_path("a", "b") == []  # remembered: still empty, still no error
+
+
+def test_remembered_paths_are_the_same_and_not_shared(ladder: Roadmap) -> None:
+    """Shortest paths are remembered (route copies ask for the same legs): asking again gives
+    an equal path, and changing a returned list does not change the next answer."""
+    first = ladder.shortest_path("a1_n", "spur")
+    first.append("junk")
+    assert ladder.shortest_path("a1_n", "spur") == ["a1_n", "a2_n", "a2_m", "a2_s", "spur"]
+    with pytest.raises(KeyError):
+        ladder.shortest_path("nope", "spur")
 
 
 def test_nearest_node_and_travel_cost(ladder: Roadmap) -> None:

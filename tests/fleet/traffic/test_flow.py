@@ -7,6 +7,8 @@ import math
 from typing import Any
 
 import networkx as nx
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fleet.traffic.roads import RoadIndex
 
@@ -93,3 +95,33 @@ def test_an_errand_keeps_the_flow_when_a_robot_comes_the_other_way_or_without_tu
     # no head-on in the aisle: on through its far end (then down aisle 2, where nobody comes)
     assert m.path("r1")[:3] == ["a3_1", "a3_2", "a3_n"]
     assert "a3_s" not in m.path("r1")
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(min_value=0, max_value=2**31 - 1),
+    st.integers(min_value=2, max_value=30),
+    st.floats(min_value=0.0, max_value=3.0),
+)
+def test_the_nearest_candidate_is_the_least_of_the_full_costs(seed: int, n: int, penalty: float) -> None:
+    """``RoadIndex.nearest`` stops its search early: it must pick what the whole-roadmap costs
+    pick, ties (equal lengths on a grid) and unreachable candidates included."""
+    import math
+    import random
+
+    rng = random.Random(seed)
+    g: nx.Graph[str] = nx.Graph()
+    names = [f"n{i}" for i in range(n)]
+    for name in names:  # integer grid positions: many equal path lengths
+        g.add_node(name, pos=(rng.randint(0, 4), rng.randint(0, 4)))
+    for _ in range(2 * n):
+        a, b = rng.sample(names, 2)
+        g.add_edge(a, b)
+    roads = RoadIndex(g)
+    roads.set_flow([(a, b) for a, b in g.edges if rng.random() < 0.5], penalty)
+    for _ in range(5):
+        start = rng.choice(names)
+        cands = rng.sample(names, rng.randint(0, n))
+        costs = roads.costs_from(start)
+        want = min(cands, key=lambda c: (costs.get(c, math.inf), c)) if cands else None
+        assert roads.nearest(start, cands) == want
