@@ -8,6 +8,7 @@ import math
 import pytest
 from sim_testworld import advance, corridor_grid, make_sim, room_grid, run_goal
 
+import sim.planner as planner_module
 from fleet.errors import BackendError
 from fleet.maps import OCCUPIED, OccupancyGrid
 from fleet.navigation import NavigationBackend
@@ -22,7 +23,6 @@ from fleet.types import (
     Wait,
 )
 from sim.backend import NamespacedBackend
-import sim.planner as planner_module
 from sim.planner import GridPlanner
 
 
