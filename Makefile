@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip
 FLEET  := $(VENV)/bin/fleet
 
-.PHONY: setup setup-core setup-sumo setup-ros setup-browser demo test test-scale bench lint clean
+.PHONY: setup setup-core setup-sumo setup-ros setup-browser demo test test-scale soak bench lint clean
 
 setup: setup-core setup-sumo setup-ros setup-browser
 
@@ -38,6 +38,13 @@ test: setup lint
 # long scale and soak runs (hundreds of robots, simulated hours); CI runs them after `make test`
 test-scale: setup
 	$(PY) -m pytest -q -m scale
+
+# 8 simulated hours of 200 robots in one process (about 25 min wall on an idle 2-core machine),
+# RSS every 10 simulated minutes; SOAK_ARGS=--no-traffic soaks a fleet that keeps driving.
+# Outside `make test` and `make test-scale`; figures in docs/performance.md ("Soak").
+SOAK_ARGS ?=
+soak: setup-core
+	$(PY) bench/soak.py --robots 200 --duration 28800 --every 600 $(SOAK_ARGS)
 
 bench: setup
 	$(PY) bench/run_all.py

@@ -8,6 +8,8 @@ second). Figures: docs/performance.md ("Soak").
 
     python bench/soak.py --robots 200 --duration 1800
     python bench/soak.py --robots 200 --duration 3600 --json
+    python bench/soak.py --robots 200 --duration 3600 --no-traffic   # a fleet that keeps driving
+    make soak                                                        # 8 simulated hours
 """
 
 from __future__ import annotations
@@ -35,7 +37,11 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
 
     def show(s: RssSample) -> None:
-        print(f"t={s.t:7.0f} s sim  {s.wall_s:7.1f} s wall  RSS {s.rss_mb:7.1f} MB", flush=True)
+        left = f"about {(a.duration - s.t) * s.wall_s / s.t / 60:.1f} min wall left" if s.t > 0 else ""
+        print(
+            f"t={s.t:7.0f} s sim  {s.wall_s:7.1f} s wall  RSS {s.rss_mb:7.1f} MB  {s.laps:6d} laps  {left}",
+            flush=True,
+        )
 
     with tempfile.TemporaryDirectory() as tmp:
         out = a.out or Path(tmp)

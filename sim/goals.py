@@ -64,8 +64,11 @@ from sim.snapshots import make_goal_state
 
 #: The goal types a world executes (one per Nav2 action): the members of :data:`fleet.types.Goal`.
 GOAL_TYPES: tuple[type, ...] = get_args(Goal)
-#: Finished goals kept per robot for ``goal_state`` (older ones are forgotten).
-KEEP_FINISHED = 4096
+#: Finished goals kept per robot for ``goal_state`` (older ones are forgotten). A robot on
+#: patrol ends about 170 goals an hour: a limit of thousands was never reached in a soak and
+#: the book grew for as long as the fleet drove (docs/performance.md, "Soak"). Clients poll
+#: the goal they sent until it ends; Nav2's action servers forget results too (after 15 min).
+KEEP_FINISHED = 32
 #: The goal statuses by their small-integer code (the codes of the batch status arrays:
 #: :meth:`GoalBook.status_codes`, ``sim.simulator.Simulator.goal_table``).
 STATUS_CODES: tuple[GoalStatus, ...] = tuple(GoalStatus)

@@ -20,7 +20,7 @@ cell at their center; the cell path is then shortened by line-of-sight checks on
 ``plan`` grid. Every segment of the result is checked on the ``footprint`` grid (the legs from
 the start and to the goal join the coarse grid outside the search, and a thin wall must not be
 crossed there); a path that fails the check is ``NO_VALID_PATH``. A* results are cached by
-``(start cell, goal cell)``. On a 40 x 30 m map at
+``(start cell, goal cell)`` (the last :data:`PATH_CACHE` used). On a 40 x 30 m map at
 0.1 m a plan takes a few milliseconds (about 20 ms in the worst case measured).
 
 Learned obstacles (:meth:`GridPlanner.plan_avoiding`): a robot's costmap adds round obstacles
@@ -55,6 +55,10 @@ COARSE_CELL_M = 0.3
 PLAN_MARGIN_M = 0.15
 #: Plan results kept for repeated requests (oldest dropped first).
 RESULT_CACHE = 4096
+#: Coarse A* cell paths kept by ``(start cell, goal cell)`` (the least recently used dropped
+#: first). A cell path is a few kB; a fleet that keeps driving starts goals from ever new
+#: cells, so an unbounded cache grew for as long as the run (docs/performance.md, "Soak").
+PATH_CACHE = 1024
 _SQRT2 = math.sqrt(2.0)
 
 
@@ -124,6 +128,11 @@ class GridPlanner:
         self._cw, self._ch = cw, ch
         self._cache: dict[tuple[tuple[int, int], tuple[int, int]], tuple[Point, ...] | None] = {}
         self._results: dict[tuple[float, ...], PlanResult] = {}
+
+    @property
+    def cached_paths(self) -> int:
+        """Coarse cell paths kept now (at most :data:`PATH_CACHE`)."""
+        return len(self._cache)
 
     # -- cell queries -------------------------------------------------------------------
 
@@ -212,11 +221,14 @@ class GridPlanner:
         sc = self._coarse_cell(sx, sy)
         gc = self._coarse_cell(gx, gy)
         key = (sc, gc)
-        if key in self._cache:
-            cells = self._cache[key]
+        cache = self._cache
+        if key in cache:
+            cells = cache[key] = cache.pop(key)  # the most recently used goes last
         else:
             cells = self._astar(sc, gc)
-            self._cache[key] = cells
+            if len(cache) >= PATH_CACHE:
+                del cache[next(iter(cache))]
+            cache[key] = cells
         if cells is None:
             return PlanResult(
                 (),

@@ -73,7 +73,9 @@ class _ServedGoal:
     goal_id: str
     kind: str
     sim_id: str | None = None
-    fixed: GoalState | None = None  # a state decided by the bridge (never executed)
+    # a state decided by the bridge (never executed), or the final state of an ended goal (kept
+    # while it lingers: the simulator forgets old finished goals, sim.goals.KEEP_FINISHED)
+    fixed: GoalState | None = None
     ended_wall: float | None = None
 
 
@@ -222,6 +224,7 @@ class SimNavServer:
             for g in list(shown.values()):
                 st = self._state_of(g)
                 if st.status.terminal:
+                    g.fixed = st
                     if g.ended_wall is None:
                         g.ended_wall = now_wall
                     elif now_wall - g.ended_wall > self.linger_s:

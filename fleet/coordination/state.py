@@ -327,23 +327,33 @@ class CoordinatorState:
 
     @property
     def by_id(self) -> dict[str, Assignment]:
-        """Every assignment (patrols and picks) by task id."""
+        """The assignments kept (patrols and picks) by task id (old ones are archived:
+        :mod:`fleet.coordination.archive`)."""
         return self.book.by_id
 
     @property
     def reassignments(self) -> list[Reassignment]:
-        """Every task taken back from a robot, in order."""
+        """The tasks taken back from a robot, in order (the newest kept; all of them:
+        :meth:`reassignment_count`)."""
         return self.book.reassignments
 
     @property
     def assignments(self) -> list[Assignment]:
-        """The patrol assignments, in the order made."""
+        """The patrol assignments kept, in the order made (all of them: :meth:`assigned`)."""
         return self._records(TaskKind.PATROL)
 
     @property
     def pick_assignments(self) -> list[Assignment]:
-        """The pick assignments, in the order made."""
+        """The pick assignments kept, in the order made (all of them: :meth:`assigned`)."""
         return self._records(TaskKind.PICK)
+
+    def assigned(self, kind: TaskKind) -> int:
+        """Assignments of ``kind`` made over the run (those archived included)."""
+        return self.book.archive.assigned[kind] + sum(1 for a in self.book.records if a.kind is kind)
+
+    def reassignment_count(self) -> int:
+        """Tasks taken back from a robot over the run (those archived included)."""
+        return self.book.archive.reassignments + len(self.book.reassignments)
 
     @property
     def waiting_routes(self) -> list[str]:
@@ -362,33 +372,36 @@ class CoordinatorState:
 
     def laps_completed(self) -> int:
         """Laps over every patrol assignment."""
-        return sum(a.laps for a in self.assignments)
+        return self.book.archive.laps + sum(a.laps for a in self.assignments)
 
     def patrols_completed(self) -> int:
         """Patrol assignments with at least one lap."""
-        return sum(1 for a in self.assignments if a.completed)
+        done = self.book.archive.completed[TaskKind.PATROL]
+        return done + sum(1 for a in self.assignments if a.completed)
 
     def laps_by_route(self) -> dict[str, int]:
         """Laps per route (every route, 0 if none)."""
         out = dict.fromkeys(self.routes, 0)
+        out.update(self.book.archive.laps_by_route)
         for a in self.assignments:
             out[a.name] = out.get(a.name, 0) + a.laps
         return out
 
     def laps_by_robot(self) -> dict[str, int]:
         """Laps per robot that held a patrol."""
-        out: dict[str, int] = {}
+        out: dict[str, int] = dict(self.book.archive.laps_by_robot)
         for a in self.assignments:
             out[a.robot] = out.get(a.robot, 0) + a.laps
         return out
 
     def picks_completed(self) -> int:
         """Picks done."""
-        return sum(1 for a in self.pick_assignments if a.completed)
+        done = self.book.archive.completed[TaskKind.PICK]
+        return done + sum(1 for a in self.pick_assignments if a.completed)
 
     def picks_by_robot(self) -> dict[str, int]:
         """Picks done per robot that did any."""
-        out: dict[str, int] = {}
+        out: dict[str, int] = dict(self.book.archive.picks_by_robot)
         for a in self.pick_assignments:
             if a.completed:
                 out[a.robot] = out.get(a.robot, 0) + 1

@@ -41,6 +41,8 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from fleet.coordination import archive
+from fleet.coordination.archive import Archive
 from fleet.coordination.lifecycle import TaskListener, TaskState
 from fleet.coordination.views import Assignment, Observation, Reassignment, TaskOrder
 from fleet.messages import Step
@@ -276,8 +278,10 @@ class TaskBook:
 
     Attributes (read them, change them through the methods): ``tasks`` by name in the order
     added; ``holder`` task name -> robot (``None``: nobody); ``done`` finished task names
-    (completed, failed or canceled: never handed out again); ``records`` every assignment in
-    the order made; ``by_id`` the same by task id; ``reassignments`` every task taken back;
+    (completed, failed or canceled: never handed out again); ``records`` the assignments in
+    the order made; ``by_id`` the same by task id; ``reassignments`` the tasks taken back;
+    ``archive`` the totals of the old assignments and reassignments no longer kept one by one
+    (bounded logs: :mod:`fleet.coordination.archive`);
     ``pending`` task name -> its reassignment while the task waits for a new robot;
     ``laps`` task name -> laps driven over all its assignments; ``listener`` told about every
     lifecycle transition (:class:`~fleet.coordination.lifecycle.TaskListener`).
@@ -295,6 +299,7 @@ class TaskBook:
         self.records: list[Assignment] = []
         self.by_id: dict[str, Assignment] = {}
         self.reassignments: list[Reassignment] = []
+        self.archive = Archive()
         self.pending: dict[str, Reassignment] = {}
         self.laps: dict[str, int] = {}
         self.listener: TaskListener | None = None
@@ -380,6 +385,8 @@ class TaskBook:
         a = Assignment(task_id=task_id, name=name, kind=task.kind, robot=robot, t_assigned=now, poses=poses)
         self.records.append(a)
         self.by_id[task_id] = a
+        if len(self.records) > 2 * archive.KEEP_RECORDS:  # amortized: a pass every KEEP_RECORDS
+            self._archive_old(now)
         self.holder[name] = robot
         r = self.pending.pop(name, None)
         if r is not None:
@@ -407,10 +414,22 @@ class TaskBook:
         self.holder[a.name] = None
         r = Reassignment(t=now, route=a.name, from_robot=a.robot, reason=reason, old_task_id=a.task_id)
         self.reassignments.append(r)
+        if len(self.reassignments) > 2 * archive.KEEP_RECORDS:
+            drop = len(self.reassignments) - archive.KEEP_RECORDS
+            del self.reassignments[:drop]
+            self.archive.reassignments += drop
         self.pending[a.name] = r
         if self.listener is not None:
             self.listener.released(a.name, a, now, reason)
         return r
+
+    def _archive_old(self, now: float) -> None:
+        """Fold the old ended assignments into :attr:`archive` (:func:`archive.split_old`)."""
+        self.records, old = archive.split_old(self.records, now)
+        for a in old:
+            self.archive.add(a)
+            if self.by_id.get(a.task_id) is a:
+                del self.by_id[a.task_id]
 
     def finish(
         self, name: str, a: Assignment | None, now: float, state: TaskState, message: str = ""

@@ -48,11 +48,13 @@ def rss_mb() -> float:
 
 @dataclass(frozen=True)
 class RssSample:
-    """RSS ``rss_mb`` (MB) at simulated time ``t`` (s from the run's start), ``wall_s`` into the run."""
+    """RSS ``rss_mb`` (MB) at simulated time ``t`` (s from the run's start), ``wall_s`` into the
+    run; ``laps`` the fleet had completed by then (-1: no coordinator here)."""
 
     t: float
     wall_s: float
     rss_mb: float
+    laps: int = -1
 
 
 @dataclass
@@ -139,14 +141,15 @@ def run_soak(
     t0: list[float] = []
     next_t = [0.0]
 
-    def sample(now: float, _: FleetRunner) -> None:
+    def sample(now: float, run: FleetRunner) -> None:
         if not t0:
             t0.append(now)
         t = now - t0[0]
         if t + 1e-9 < next_t[0]:
             return
         next_t[0] = t + every_s
-        s = RssSample(t, time.monotonic() - wall0, rss_mb())
+        st = run.coordinator.state if run.coordinator is not None else None
+        s = RssSample(t, time.monotonic() - wall0, rss_mb(), st.laps_completed() if st is not None else -1)
         result.samples.append(s)
         if on_sample is not None:
             on_sample(s)

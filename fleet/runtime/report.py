@@ -16,8 +16,10 @@ JSON fields (``RunReport.to_dict``), units in the names:
   robot was reported stuck with another robot within 1.5 m; ``reassignments``: routes (or
   picks) taken back from a robot (dead, stuck, charging); ``reassignment_events``: one entry per reassignment (``t``, ``route``,
   ``from_robot``, ``reason``, ``old_task_id``, ``to_robot``, ``new_task_id``,
-  ``t_reassigned``); ``assignments``: every assignment (``task_id``, ``route``, ``robot``,
-  ``t_assigned``, ``laps``, ``t_first_lap``, ``ended``, ``end_reason``);
+  ``t_reassigned``); ``assignments``: one entry per patrol assignment (``task_id``, ``route``, ``robot``,
+  ``t_assigned``, ``laps``, ``t_first_lap``, ``ended``, ``end_reason``). Over a long run
+  these two lists hold the newest thousands only (:mod:`fleet.coordination.archive`); the
+  counts and laps above cover the whole run;
 * ``min_battery``: the lowest battery fraction any robot reported during the run;
   ``idle_fraction``: share of the local robots' agent ticks spent idle (no work, not charging);
   ``p95_wait_s`` (traffic management only): 95th percentile over robots of their total wait;
@@ -63,6 +65,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from fleet.messages import StatusRecord
+from fleet.types import TaskKind
 
 if TYPE_CHECKING:
     from fleet.config.model import FleetConfig
@@ -252,12 +255,12 @@ class ReportBuilder:
             sim_time_s=float(now - self.t0),  # the run's own time, not the robots' clock
             wall_time_s=float(wall_s),
             speed=self.speed,
-            patrols_assigned=len(state.assignments) if state is not None else 0,
+            patrols_assigned=state.assigned(TaskKind.PATROL) if state is not None else 0,
             patrols_completed=state.patrols_completed() if state is not None else 0,
             laps_completed=laps,
             collisions=int(collisions),
             deadlocks=int(deadlocks),
-            reassignments=len(state.reassignments) if state is not None else 0,
+            reassignments=state.reassignment_count() if state is not None else 0,
             per_robot=rows,
             laps_by_route=state.laps_by_route() if state is not None else {},
             reassignment_events=[reassignment_dict(r) for r in state.reassignments]
@@ -271,7 +274,7 @@ class ReportBuilder:
             throughput_laps_per_robot_hour=laps / robot_hours if robot_hours > 0 else 0.0,
             mean_wait_s=traffic.mean_wait_s(now) if traffic is not None else None,
             traffic=tblock,
-            picks_assigned=len(state.pick_assignments) if state is not None else 0,
+            picks_assigned=state.assigned(TaskKind.PICK) if state is not None else 0,
             picks_completed=state.picks_completed() if state is not None else 0,
             goals=fleet_goals.to_dict() if goals else {},
             safety_stops=sum(r.safety_stops for r in rows),

@@ -21,7 +21,7 @@ from fleet.types import (
     Spin,
     Wait,
 )
-from sim.goals import GoalBook, preempt, reject_if_invalid, reject_reason, start_error
+from sim.goals import KEEP_FINISHED, GoalBook, preempt, reject_if_invalid, reject_reason, start_error
 
 
 class NotAGoal:
@@ -91,3 +91,17 @@ def test_simulator_raises_for_a_non_goal_and_keeps_the_running_goal() -> None:
     advance(sim, 0.5)
     assert sim.goal_state(gid).status is GoalStatus.EXECUTING
     assert sim.send_goal("/r1", Wait(1.0)) == "/r1#2"
+
+
+def test_the_default_book_stays_bounded_over_a_long_run_of_goals() -> None:
+    """A robot on patrol ends about 170 goals an hour: over thousands the book keeps only
+    its live goal and the last :data:`KEEP_FINISHED` finished ones per robot."""
+    book = GoalBook()
+    live = {ns: book.open(ns, Wait(1.0)) for ns in ("/a", "/b")}
+    for _ in range(2000):
+        for ns in live:
+            live[ns].finish(GoalStatus.SUCCEEDED)
+            live[ns] = book.open(ns, Wait(1.0))
+    assert sum(1 for _ in book.records()) == 2 * (KEEP_FINISHED + 1)
+    assert book.live("/a#2001") is live["/a"]
+    assert book.get(f"/b#{2001 - KEEP_FINISHED}").status is GoalStatus.SUCCEEDED

@@ -8,6 +8,7 @@ import math
 import pytest
 from sim_testworld import advance, corridor_grid, make_sim, room_grid, run_goal
 
+import sim.planner as planner_module
 from fleet.errors import BackendError
 from fleet.maps import OCCUPIED, OccupancyGrid
 from fleet.navigation import NavigationBackend
@@ -385,3 +386,20 @@ def test_a_fleet_of_400_robots_drives_to_its_goals_without_contacts() -> None:
     advance(sim, 6.0)
     assert sum(sim.robot_state(ns).distance_m for ns in sim.namespaces) > 400 * 1.5
     assert sim.collisions == 0
+
+
+def test_planner_keeps_at_most_path_cache_cell_paths_and_plans_the_same_after_forgetting(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A fleet that keeps driving starts goals from ever new cells: the coarse path cache is
+    bounded (the least recently used path goes), and a forgotten path is planned again the same."""
+    monkeypatch.setattr(planner_module, "PATH_CACHE", 4)
+    planner = GridPlanner(room_grid(), 0.3)
+    goal = (8.0, 1.5)  # behind the shelf (x 5-6, y 0-5): every plan needs the A* search
+    starts = [(3.0 + 0.35 * i, 1.0 + 0.35 * j) for i in range(3) for j in range(4)]
+    first = [planner.plan(s, goal).path for s in starts]
+    assert all(len(p) > 2 for p in first)
+    assert planner.cached_paths == 4
+    again = GridPlanner(room_grid(), 0.3)  # the other way round: other paths forgotten
+    assert [again.plan(s, goal).path for s in reversed(starts)][::-1] == first
+    assert again.cached_paths == 4

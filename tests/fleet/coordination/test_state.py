@@ -10,6 +10,7 @@ import pytest
 
 from fleet.config.loader import load_config
 from fleet.config.model import FleetConfig
+from fleet.coordination import archive
 from fleet.coordination.state import MAX_EVENTS, CoordinatorState, state_from_config
 from fleet.coordination.tasks import PatrolRoute
 from fleet.coordination.views import (
@@ -22,7 +23,7 @@ from fleet.coordination.views import (
     TaskOrder,
 )
 from fleet.roadmap.graph import Roadmap
-from fleet.types import Pose2D
+from fleet.types import Pose2D, TaskKind
 
 PATROL = Path(__file__).resolve().parents[3] / "configs" / "warehouse_patrol.yaml"
 
@@ -356,3 +357,31 @@ def test_an_order_never_acknowledged_is_reissued_under_a_new_id() -> None:
         s.observe("b", t + dt, patrol(99 - dt, 0, issued[-1]))
         assert patrols(s.step(t + dt)).get("b") is None
     assert len(s.reassignments) == 2
+
+
+def test_a_long_run_keeps_the_newest_assignments_and_every_total(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Hours of hand-overs (robots going to charge) keep only the newest assignment and
+    reassignment records (:mod:`fleet.coordination.archive`); laps, completions and counts
+    still cover the whole run, and a lap reported late for a recent assignment still counts."""
+    monkeypatch.setattr(archive, "KEEP_RECORDS", 4)
+    monkeypatch.setattr(archive, "ARCHIVE_AFTER_S", 10.0)
+    st = line_state()
+    book = st.book
+    laps = dict.fromkeys(("r1", "r2"), 0)
+    t = 0.0
+    for k in range(60):
+        robot = ("r1", "r2")[k % 2]
+        a, _ = book.assign("west", robot, book.next_id("p"), (), t)
+        if k % 3:  # two hand-overs in three drive a lap or two before going to charge
+            book.record(robot, patrol(0.0, 0.0, a.task_id, laps=1 + k % 2), t + 1.0, a)
+            laps[robot] += 1 + k % 2
+        book.release(a, t + 2.0, "charging")
+        t += 3.0
+    book.record(robot, patrol(0.0, 0.0, a.task_id, laps=3), t, None)  # late news of the last one
+    laps[robot] += 3 - (1 + 59 % 2)
+    assert len(book.records) <= 2 * 4 + 1 and len(book.by_id) == len(book.records)
+    assert len(book.reassignments) <= 2 * 4
+    assert st.assigned(TaskKind.PATROL) == 60 and st.reassignment_count() == 60
+    assert st.laps_completed() == sum(laps.values()) and st.laps_by_robot() == laps
+    assert st.laps_by_route() == {"west": sum(laps.values()), "east": 0}
+    assert st.patrols_completed() == 40
