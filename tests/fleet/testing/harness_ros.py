@@ -15,12 +15,10 @@ overlaps it instead of adding to it. The spare server is stopped after the last 
 
 from __future__ import annotations
 
-import atexit
 import os
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +28,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from conformance_harness import register_backend  # noqa: E402
+from prestart import Pool  # noqa: E402
 
 from fleet.navigation import NavigationBackend  # noqa: E402
 from fleet.ros.env import apply_ros_env_defaults, ros_available  # noqa: E402
@@ -53,68 +52,15 @@ class RosHarness:
         time.sleep(max(0.0, seconds) / self.speed)
 
 
-class _Spare:
-    """A server for the next case, started in a background thread on the other domain."""
-
-    def __init__(self, domain_id: int) -> None:
-        self.domain_id = domain_id
-        self.server: ServerProcess | None = None
-        self.error: BaseException | None = None
-        self._thread = threading.Thread(target=self._start, daemon=True)
-        self._thread.start()
-
-    def _start(self) -> None:
-        try:
-            # the servers of earlier cases, one of them on this domain, are gone first
-            for t in list(_stopping):
-                t.join()
-            self.server = _start_server(self.domain_id)
-        except BaseException as e:  # noqa: BLE001 - reported by take()
-            self.error = e
-
-    def take(self) -> ServerProcess:
-        """The started server (waits for its start-up to end); raises what the start raised."""
-        self._thread.join()
-        if self.error is not None:
-            raise self.error
-        assert self.server is not None
-        return self.server
-
-    def discard(self) -> None:
-        self._thread.join()
-        if self.server is not None:
-            self.server.stop()
+#: The spare server (on the other domain) and the ones being stopped.
+_POOL: Pool[ServerProcess] = Pool("ros")
+between_cases = _POOL.between_cases
 
 
-_spare: list[_Spare] = []
-
-
-#: Servers of finished cases being stopped (SIGINT, up to 5 s to exit, then SIGKILL).
-_stopping: list[threading.Thread] = []
-
-
-def _stop_later(stop: Callable[[], object]) -> None:
-    """Run ``stop`` in a background thread: the next case need not wait for the exit."""
-    t = threading.Thread(target=stop, daemon=True)
-    t.start()
-    _stopping.append(t)
-
-
-def _discard_spare() -> None:
-    while _spare:
-        _spare.pop().discard()
-    while _stopping:
-        _stopping.pop().join()
-
-
-atexit.register(_discard_spare)
-
-
-def between_cases(next_backend: str | None) -> None:
-    """Called by ``conftest.py`` after each conformance test: no spare server outlives the
-    last ROS case (it would publish in the background through the other backends' cases)."""
-    if next_backend != "ros":
-        _discard_spare()
+def _start_spare(domain_id: int) -> ServerProcess:
+    # the servers of earlier cases, one of them on this domain, are gone first
+    _POOL.wait_stopped()
+    return _start_server(domain_id)
 
 
 def _start_server(domain_id: int) -> ServerProcess:
@@ -131,15 +77,16 @@ def ros_harness() -> Iterator[ConformanceHarness]:
     apply_ros_env_defaults()
     from fleet.ros.backend import make_ros_backends
 
-    if _spare:
-        spare = _spare.pop()
-        domain_id, srv = spare.domain_id, spare.take()
+    spare = _POOL.take()
+    if spare is not None:
+        domain_id, srv = spare.tag, spare.take()
     else:
         domain_id = int(os.environ["ROS_DOMAIN_ID"])
         srv = _start_server(domain_id)
     rb = None
     try:
-        _spare.append(_Spare(domain_id ^ 1))  # the next case's server, on the other domain
+        nxt = domain_id ^ 1  # the next case's server, on the other domain
+        _POOL.prepare(lambda: _start_spare(nxt), nxt)
         rb = make_ros_backends(["/robot1"], domain_id=domain_id, wait_s=20.0)
         backend = rb["/robot1"]
         deadline = time.monotonic() + 30.0
@@ -150,7 +97,7 @@ def ros_harness() -> Iterator[ConformanceHarness]:
     finally:
         if rb is not None:
             rb.close()
-        _stop_later(srv.stop)
+        _POOL.stop_later(srv)
 
 
 def _serve(argv: list[str]) -> int:

@@ -15,22 +15,21 @@ runs, and the spare is stopped after the last case of this backend.
 
 from __future__ import annotations
 
-import atexit
 import os
 import selectors
 import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 from conformance_harness import register_backend
+from prestart import Pool
 
 from fleet.navigation import NavigationBackend
 from fleet.testing.conformance import ConformanceHarness, ConformanceWorld
@@ -119,64 +118,9 @@ def _start_server() -> _Server:
     return server
 
 
-class _Spare:
-    """The next case's server, started in a background thread while the current case runs
-    (each case still gets a fresh process; the start-up overlaps the case's waiting)."""
-
-    def __init__(self) -> None:
-        self.server: _Server | None = None
-        self.error: BaseException | None = None
-        self._thread = threading.Thread(target=self._start, daemon=True)
-        self._thread.start()
-
-    def _start(self) -> None:
-        try:
-            self.server = _start_server()
-        except BaseException as e:  # noqa: BLE001 - raised again by take()
-            self.error = e
-
-    def take(self) -> _Server:
-        self._thread.join()
-        if self.error is not None:
-            raise self.error
-        assert self.server is not None
-        return self.server
-
-    def discard(self) -> None:
-        self._thread.join()
-        if self.server is not None:
-            self.server.stop()
-
-
-_spare: list[_Spare] = []
-
-
-#: Servers of finished cases being stopped (each takes a second or two to exit).
-_stopping: list[threading.Thread] = []
-
-
-def _stop_later(stop: Callable[[], object]) -> None:
-    """Run ``stop`` in a background thread: the next case need not wait for the exit."""
-    t = threading.Thread(target=stop, daemon=True)
-    t.start()
-    _stopping.append(t)
-
-
-def _discard_spare() -> None:
-    while _spare:
-        _spare.pop().discard()
-    while _stopping:
-        _stopping.pop().join()
-
-
-atexit.register(_discard_spare)
-
-
-def between_cases(next_backend: str | None) -> None:
-    """Called by ``conftest.py`` after each conformance test: no spare server outlives the
-    last case of this backend."""
-    if next_backend != "zenoh-bridge":
-        _discard_spare()
+#: The spare simulator process and the ones being stopped.
+_POOL: Pool[_Server] = Pool("zenoh-bridge")
+between_cases = _POOL.between_cases
 
 
 @register_backend("zenoh-bridge")
@@ -186,9 +130,10 @@ def zenoh_bridge_harness() -> Iterator[ConformanceHarness]:
     from fleet.bus.nav_client import ZenohNavBackend
     from fleet.bus.session import open_session
 
-    server = _spare.pop().take() if _spare else _start_server()
+    spare = _POOL.take()
+    server = spare.take() if spare is not None else _start_server()
     try:
-        _spare.append(_Spare())
+        _POOL.prepare(_start_server)
         session = open_session(server.endpoint, "client")
         try:
             backend = ZenohNavBackend(session, "/robot1", timeout_s=2.0)
@@ -200,4 +145,4 @@ def zenoh_bridge_harness() -> Iterator[ConformanceHarness]:
         finally:
             session.close()
     finally:
-        _stop_later(server.stop)
+        _POOL.stop_later(server)
