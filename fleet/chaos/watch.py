@@ -6,6 +6,7 @@ from __future__ import annotations
 import sqlite3
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,6 +17,10 @@ FRESH_S = 1.0
 #: A status this many simulated seconds behind the fleet's time comes from a restarted fleet
 #: (``fleet run`` starts its clock at 0 again): the elapsed time goes on from there.
 RESTART_BACK_S = 5.0
+#: Simulated seconds (of the fleet time summed over restarts) between two battery samples.
+TIMELINE_EVERY_S = 10.0
+#: Battery samples kept per robot (about 3 hours at one every 10 s).
+TIMELINE_MAX = 1200
 
 
 @dataclass
@@ -36,6 +41,9 @@ class Watch:
     elapsed: float = 0.0
     #: The lowest battery fraction any robot reported, and which robot.
     min_battery: tuple[float, str] = (1.0, "")
+    #: Per robot, (fleet time elapsed s, battery fraction, mode) every
+    #: :data:`TIMELINE_EVERY_S` simulated seconds, the newest :data:`TIMELINE_MAX`.
+    timeline: dict[str, deque[tuple[float, float, str]]] = field(default_factory=dict)
     _last_t: float | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -52,6 +60,9 @@ class Watch:
             self.collisions_seen[rec.robot] = rec.collisions
             self._advance(rec.t)
             self.min_battery = min(self.min_battery, (rec.battery, rec.robot))
+            line = self.timeline.setdefault(rec.robot, deque(maxlen=TIMELINE_MAX))
+            if not line or self.elapsed >= line[-1][0] + TIMELINE_EVERY_S:
+                line.append((self.elapsed, rec.battery, "charging" if rec.charging else rec.mode))
             self.latest[rec.robot] = (now, rec)
             live: dict[str, list[str]] = {}
             for name, (w, r) in self.latest.items():
