@@ -59,10 +59,8 @@ class Watch:
             self.collisions[rec.robot] = self.collisions.get(rec.robot, 0) + rec.collisions - seen
             self.collisions_seen[rec.robot] = rec.collisions
             self._advance(rec.t)
-            self.min_battery = min(self.min_battery, (rec.battery, rec.robot))
-            line = self.timeline.setdefault(rec.robot, deque(maxlen=TIMELINE_MAX))
-            if not line or self.elapsed >= line[-1][0] + TIMELINE_EVERY_S:
-                line.append((self.elapsed, rec.battery, "charging" if rec.charging else rec.mode))
+            if rec.pose is not None:  # before its robot's first state an agent knows no battery
+                self._battery(rec)
             self.latest[rec.robot] = (now, rec)
             live: dict[str, list[str]] = {}
             for name, (w, r) in self.latest.items():
@@ -79,6 +77,13 @@ class Watch:
         elif t > self._last_t:
             self.elapsed += t - self._last_t
             self._last_t = t
+
+    def _battery(self, rec: StatusRecord) -> None:
+        # caller holds the lock
+        self.min_battery = min(self.min_battery, (rec.battery, rec.robot))
+        line = self.timeline.setdefault(rec.robot, deque(maxlen=TIMELINE_MAX))
+        if not line or self.elapsed >= line[-1][0] + TIMELINE_EVERY_S:
+            line.append((self.elapsed, rec.battery, "charging" if rec.charging else rec.mode))
 
     def on_control(self, _sample: object) -> None:
         with self.lock:
