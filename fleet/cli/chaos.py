@@ -8,7 +8,16 @@ import tempfile
 from pathlib import Path
 
 from fleet.cli.argtypes import non_negative_float, positive_float
-from fleet.cli.common import EXIT_ERROR, EXIT_OK, SubParsers, add_command, add_config, add_traffic, load, secure_of
+from fleet.cli.common import (
+    EXIT_ERROR,
+    EXIT_OK,
+    SubParsers,
+    add_command,
+    add_config,
+    add_traffic,
+    load,
+    secure_of,
+)
 
 EXIT_FOUND = 1
 
