@@ -35,7 +35,7 @@ from typing import IO, Literal
 
 from fleet.bus.session import Secure, open_session, undeclare_all
 from fleet.bus.status_bus import StatusBus
-from fleet.chaos.watch import Watch, book_checks
+from fleet.chaos.watch import Sample, Watch, book_checks
 from fleet.errors import BusError
 
 #: The ``fleet`` command line of the processes (this interpreter, this source tree).
@@ -146,7 +146,7 @@ class ChaosResult:
     #: The lowest battery fraction a robot reported (not part of the verdict), and which robot.
     min_battery: tuple[float, str] = (1.0, "")
     #: Per robot, (fleet time s, battery, mode) samples (:attr:`Watch.timeline`).
-    timeline: dict[str, list[tuple[float, float, str]]] = field(default_factory=dict)
+    timeline: dict[str, list[Sample]] = field(default_factory=dict)
 
     @property
     def flat(self) -> bool:
@@ -237,10 +237,18 @@ def run_chaos(spec: ChaosSpec, say: Callable[[str], None] = print) -> ChaosResul
     return result
 
 
-def write_timeline(path: Path, timeline: dict[str, list[tuple[float, float, str]]]) -> None:
-    """Write the battery samples as CSV: ``robot,t_s,battery,mode`` (t the fleet time)."""
-    rows = [f"{r},{t:.1f},{b:.4f},{m}" for r, line in sorted(timeline.items()) for t, b, m in line]
-    path.write_text("\n".join(["robot,t_s,battery,mode", *rows]) + "\n")
+#: The header of ``battery.csv`` (:func:`write_timeline`).
+TIMELINE_HEADER = "robot,t_s,battery,mode,charging,x,y,leaf"
+
+
+def write_timeline(path: Path, timeline: dict[str, list[Sample]]) -> None:
+    """Write the battery samples as CSV (:data:`TIMELINE_HEADER`; t the fleet time, s)."""
+    rows = [
+        f"{r},{p.t:.1f},{p.battery:.4f},{p.mode},{int(p.charging)},{p.x:.2f},{p.y:.2f},{p.leaf.replace(',', ' ')}"
+        for r, line in sorted(timeline.items())
+        for p in line
+    ]
+    path.write_text("\n".join([TIMELINE_HEADER, *rows]) + "\n")
 
 
 def _wait_start(spec: ChaosSpec, watch: Watch, robots: list[str]) -> None:

@@ -9,6 +9,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 from fleet.messages import StatusRecord
 
@@ -21,6 +22,19 @@ RESTART_BACK_S = 5.0
 TIMELINE_EVERY_S = 10.0
 #: Battery samples kept per robot (about 3 hours at one every 10 s).
 TIMELINE_MAX = 1200
+
+
+class Sample(NamedTuple):
+    """One robot at one moment: fleet time elapsed (s), battery (fraction), the agent's mode,
+    whether the simulator charges it, its pose (m, ``map``) and the tree's active leaf."""
+
+    t: float
+    battery: float
+    mode: str
+    charging: bool
+    x: float
+    y: float
+    leaf: str
 
 
 @dataclass
@@ -41,9 +55,9 @@ class Watch:
     elapsed: float = 0.0
     #: The lowest battery fraction any robot reported, and which robot.
     min_battery: tuple[float, str] = (1.0, "")
-    #: Per robot, (fleet time elapsed s, battery fraction, mode) every
-    #: :data:`TIMELINE_EVERY_S` simulated seconds, the newest :data:`TIMELINE_MAX`.
-    timeline: dict[str, deque[tuple[float, float, str]]] = field(default_factory=dict)
+    #: Per robot, a :class:`Sample` every :data:`TIMELINE_EVERY_S` simulated seconds, the
+    #: newest :data:`TIMELINE_MAX`.
+    timeline: dict[str, deque[Sample]] = field(default_factory=dict)
     _last_t: float | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -83,7 +97,9 @@ class Watch:
         self.min_battery = min(self.min_battery, (rec.battery, rec.robot))
         line = self.timeline.setdefault(rec.robot, deque(maxlen=TIMELINE_MAX))
         if not line or self.elapsed >= line[-1][0] + TIMELINE_EVERY_S:
-            line.append((self.elapsed, rec.battery, "charging" if rec.charging else rec.mode))
+            assert rec.pose is not None
+            x, y = rec.pose[0], rec.pose[1]
+            line.append(Sample(self.elapsed, rec.battery, rec.mode, rec.charging, x, y, rec.leaf))
 
     def on_control(self, _sample: object) -> None:
         with self.lock:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import msgspec
 import pytest
 
 from fleet.bus.keyring import init_keyring
@@ -59,7 +60,9 @@ def test_a_battery_run_flat_fails_the_run(tmp_path: Path) -> None:
         w.on_status(status("robot1", 100.0 + i * TIMELINE_EVERY_S, battery=battery, mode="charging"))
         w.on_status(status("robot2", 100.0 + i * TIMELINE_EVERY_S, battery=0.6))
     assert w.min_battery == (0.04, "robot1")
-    assert [round(b, 2) for _, b, _ in w.timeline["robot1"]] == [0.5, 0.2, 0.04, 0.3]
+    assert [round(p.battery, 2) for p in w.timeline["robot1"]] == [0.5, 0.2, 0.04, 0.3]
+    w.on_status(msgspec.structs.replace(status("robot3", 200.0, battery=1.0), pose=None))
+    assert "robot3" not in w.timeline and w.min_battery == (0.04, "robot1")  # no state: no battery
     spec = ChaosSpec(config=PATROL, robots=2, duration=30.0, endpoint="tcp/127.0.0.1:7447", out=tmp_path)
     res = ChaosResult(spec, min_battery=w.min_battery, timeline={r: list(x) for r, x in w.timeline.items()})
     assert res.flat and not res.ok
@@ -68,7 +71,8 @@ def test_a_battery_run_flat_fails_the_run(tmp_path: Path) -> None:
     assert "flat batteries: 1" in lines[-1]
     write_timeline(tmp_path / "battery.csv", res.timeline)
     rows = (tmp_path / "battery.csv").read_text().splitlines()
-    assert rows[0] == "robot,t_s,battery,mode" and "robot1,20.0,0.0400,charging" in rows
+    assert rows[0] == "robot,t_s,battery,mode,charging,x,y,leaf"
+    assert "robot1,20.0,0.0400,charging,0,1.00,2.00," in rows
     ok = ChaosResult(spec, min_battery=(0.06, "robot2"))
     assert ok.ok and "(at least 5%)" in report_lines(ok)[-2]
 
