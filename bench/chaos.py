@@ -4,7 +4,7 @@ Kills a random process of the split fleet (``fleet sim --state``, ``fleet coordi
 --state``, one ``fleet agent`` per robot) with ``kill -9`` every ``--every`` wall seconds and
 restarts it, until the fleet has run ``--duration`` simulated seconds; prints the table of kills
 and recovery times and exits 1 unless tasks lost, done twice, collisions and tracebacks are all
-0. Figures: docs/faults.md.
+0 and no battery went below 5 %. Figures: docs/faults.md.
 
     python bench/chaos.py --robots 6 --duration 1800 --speed 10 --every 8 --seed 1
 """

@@ -23,6 +23,10 @@ class BatteryLow(py_trees.behaviour.Behaviour):
     until the battery is back at or above ``resume`` (charging, typically), so the battery
     guard is not released half-way through a charge. FAILURE otherwise (and when the
     backend reports no state). Fractions in [0, 1].
+
+    A charge under way when the guard first sees its robot (the robot localized, standing on
+    a charger and charging below ``resume``: the agent was restarted mid-charge) latches it
+    too, so a restarted agent finishes the charge instead of taking work half charged.
     """
 
     def __init__(
@@ -43,12 +47,18 @@ class BatteryLow(py_trees.behaviour.Behaviour):
         self.threshold = threshold
         #: True between falling below ``low`` and reaching ``resume``.
         self.latched = False
+        #: Whether the guard has seen a state of its localized robot yet.
+        self.seen = False
 
     wake_aware = True
 
     def update(self) -> Status:
-        battery = self.backend.robot_state().battery
+        state = self.backend.robot_state()
+        battery = state.battery
         low = self.low if self.threshold is None else min(self.resume, self.threshold())
+        if not self.seen and state.pose is not None:
+            self.seen = True
+            self.latched = state.charging and battery < self.resume  # a charge under way goes on
         if battery < low:
             self.latched = True
         elif battery >= self.resume:

@@ -35,7 +35,7 @@ from typing import IO, Literal
 
 from fleet.bus.session import Secure, open_session, undeclare_all
 from fleet.bus.status_bus import StatusBus
-from fleet.chaos.watch import Watch, book_checks
+from fleet.chaos.watch import Sample, Watch, book_checks
 from fleet.errors import BusError
 
 #: The ``fleet`` command line of the processes (this interpreter, this source tree).
@@ -45,6 +45,9 @@ ROOT = Path(__file__).resolve().parents[2]
 PROGRESS_S = 10.0
 
 Mode = Literal["split", "run"]
+#: The lowest battery fraction a chaos run accepts: below it a robot ran (nearly) flat and the
+#: run fails (issue 13's target for a fleet that manages its charging).
+MIN_BATTERY = 0.05
 
 
 @dataclass(frozen=True)
@@ -69,6 +72,9 @@ class ChaosSpec:
     secure: Path | None = None
     mode: Mode = "split"
     routes: tuple[str, ...] = ()
+    #: Which kinds of process may be killed (``sim``, ``coordinator``, ``agent``, ``run``);
+    #: empty: every kind.
+    kinds: tuple[str, ...] = ()
 
 
 @dataclass
@@ -139,10 +145,17 @@ class ChaosResult:
     tracebacks: list[str] = field(default_factory=list)
     #: The lowest battery fraction a robot reported (not part of the verdict), and which robot.
     min_battery: tuple[float, str] = (1.0, "")
+    #: Per robot, (fleet time s, battery, mode) samples (:attr:`Watch.timeline`).
+    timeline: dict[str, list[Sample]] = field(default_factory=dict)
+
+    @property
+    def flat(self) -> bool:
+        """Whether a robot's battery went below :data:`MIN_BATTERY` (the fleet ran flat)."""
+        return self.min_battery[0] < MIN_BATTERY
 
     @property
     def ok(self) -> bool:
-        return not (self.lost or self.twice or self.collisions or self.tracebacks)
+        return not (self.lost or self.twice or self.collisions or self.tracebacks or self.flat)
 
 
 def processes(spec: ChaosSpec) -> list[Proc]:
@@ -217,8 +230,25 @@ def run_chaos(spec: ChaosSpec, say: Callable[[str], None] = print) -> ChaosResul
         procs[0].stop()
     result.collisions = sum(watch.collisions.values())
     result.min_battery = watch.min_battery
+    with watch.lock:
+        result.timeline = {r: list(line) for r, line in watch.timeline.items()}
+    write_timeline(spec.out / "battery.csv", result.timeline)
     result.tracebacks = [p.name for p in procs if "Traceback" in p.log.read_text(errors="replace")]
     return result
+
+
+#: The header of ``battery.csv`` (:func:`write_timeline`).
+TIMELINE_HEADER = "robot,t_s,battery,mode,charging,x,y,leaf"
+
+
+def write_timeline(path: Path, timeline: dict[str, list[Sample]]) -> None:
+    """Write the battery samples as CSV (:data:`TIMELINE_HEADER`; t the fleet time, s)."""
+    rows = [
+        f"{r},{p.t:.1f},{p.battery:.4f},{p.mode},{int(p.charging)},{p.x:.2f},{p.y:.2f},{p.leaf.replace(',', ' ')}"
+        for r, line in sorted(timeline.items())
+        for p in line
+    ]
+    path.write_text("\n".join([TIMELINE_HEADER, *rows]) + "\n")
 
 
 def _wait_start(spec: ChaosSpec, watch: Watch, robots: list[str]) -> None:
@@ -239,6 +269,7 @@ def _kill_loop(
 ) -> tuple[Kill, Proc] | None:
     """Kill and restart until the fleet ran ``spec.duration``; the last kill and its process."""
     rng = random.Random(spec.seed)
+    victims = [p for p in procs if not spec.kinds or p.name.split(":", 1)[0] in spec.kinds]
     next_kill = time.monotonic() + spec.every
     pending: tuple[Kill, Proc] | None = None
     last_say = time.monotonic()
@@ -249,7 +280,7 @@ def _kill_loop(
         if now >= next_kill and (
             pending is None or pending[0].settled or now - pending[0].wall > spec.settle
         ):
-            victim = rng.choice(procs)
+            victim = rng.choice(victims)
             kill = Kill(victim.name, now, watch.fleet_elapsed())
             pending = (kill, victim)
             result.kills.append(kill)
@@ -338,10 +369,11 @@ def report_lines(res: ChaosResult) -> list[str]:
     counts = ", ".join(f"{n} {sum(k.what.startswith(n) for k in kills)}" for n in kinds)
     lines.append(f"fleet time {res.elapsed:.0f} s, {len(kills)} kills ({counts})")
     low, robot = res.min_battery
-    lines.append(f"lowest battery seen: {low:.0%}{f' ({robot})' if robot else ''}")
+    verdict = f"below {MIN_BATTERY:.0%}: ran flat" if res.flat else f"at least {MIN_BATTERY:.0%}"
+    lines.append(f"lowest battery seen: {low:.1%}{f' ({robot})' if robot else ''} ({verdict})")
     lines.append(
         f"tasks lost: {len(res.lost)}   tasks done twice: {len(res.twice)}   collisions: {res.collisions}   "
-        f"tracebacks: {len(res.tracebacks)}"
+        f"tracebacks: {len(res.tracebacks)}   flat batteries: {int(res.flat)}"
     )
     lines += [f"  {line}" for line in [*res.lost, *res.twice, *res.tracebacks]]
     return lines

@@ -6,8 +6,10 @@ from __future__ import annotations
 import sqlite3
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 from fleet.messages import StatusRecord
 
@@ -16,6 +18,23 @@ FRESH_S = 1.0
 #: A status this many simulated seconds behind the fleet's time comes from a restarted fleet
 #: (``fleet run`` starts its clock at 0 again): the elapsed time goes on from there.
 RESTART_BACK_S = 5.0
+#: Simulated seconds (of the fleet time summed over restarts) between two battery samples.
+TIMELINE_EVERY_S = 10.0
+#: Battery samples kept per robot (about 3 hours at one every 10 s).
+TIMELINE_MAX = 1200
+
+
+class Sample(NamedTuple):
+    """One robot at one moment: fleet time elapsed (s), battery (fraction), the agent's mode,
+    whether the simulator charges it, its pose (m, ``map``) and the tree's active leaf."""
+
+    t: float
+    battery: float
+    mode: str
+    charging: bool
+    x: float
+    y: float
+    leaf: str
 
 
 @dataclass
@@ -36,6 +55,9 @@ class Watch:
     elapsed: float = 0.0
     #: The lowest battery fraction any robot reported, and which robot.
     min_battery: tuple[float, str] = (1.0, "")
+    #: Per robot, a :class:`Sample` every :data:`TIMELINE_EVERY_S` simulated seconds, the
+    #: newest :data:`TIMELINE_MAX`.
+    timeline: dict[str, deque[Sample]] = field(default_factory=dict)
     _last_t: float | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -51,7 +73,8 @@ class Watch:
             self.collisions[rec.robot] = self.collisions.get(rec.robot, 0) + rec.collisions - seen
             self.collisions_seen[rec.robot] = rec.collisions
             self._advance(rec.t)
-            self.min_battery = min(self.min_battery, (rec.battery, rec.robot))
+            if rec.pose is not None:  # before its robot's first state an agent knows no battery
+                self._battery(rec)
             self.latest[rec.robot] = (now, rec)
             live: dict[str, list[str]] = {}
             for name, (w, r) in self.latest.items():
@@ -68,6 +91,15 @@ class Watch:
         elif t > self._last_t:
             self.elapsed += t - self._last_t
             self._last_t = t
+
+    def _battery(self, rec: StatusRecord) -> None:
+        # caller holds the lock
+        self.min_battery = min(self.min_battery, (rec.battery, rec.robot))
+        line = self.timeline.setdefault(rec.robot, deque(maxlen=TIMELINE_MAX))
+        if not line or self.elapsed >= line[-1][0] + TIMELINE_EVERY_S:
+            assert rec.pose is not None
+            x, y = rec.pose[0], rec.pose[1]
+            line.append(Sample(self.elapsed, rec.battery, rec.mode, rec.charging, x, y, rec.leaf))
 
     def on_control(self, _sample: object) -> None:
         with self.lock:

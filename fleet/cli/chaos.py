@@ -3,11 +3,21 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 from pathlib import Path
 
 from fleet.cli.argtypes import non_negative_float, positive_float
-from fleet.cli.common import EXIT_OK, SubParsers, add_command, add_config, add_traffic, load, secure_of
+from fleet.cli.common import (
+    EXIT_ERROR,
+    EXIT_OK,
+    SubParsers,
+    add_command,
+    add_config,
+    add_traffic,
+    load,
+    secure_of,
+)
 
 EXIT_FOUND = 1
 
@@ -19,7 +29,8 @@ examples:
       one `fleet run` process killed and restarted from its durable task book
   fleet chaos configs/warehouse_patrol.yaml --duration 600 --secure out/keys   # on a secured bus
 
-exit codes: 0 nothing lost, done twice, collided or crashed with a traceback; 1 something was;
+exit codes: 0 nothing lost, done twice, collided, crashed with a traceback or ran flat (a battery
+below 5 %); 1 something was;
 2 bad usage / config / keys, or the fleet did not start; 130 interrupted
 """
 
@@ -60,8 +71,21 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
     p.add_argument("--secure", type=Path, metavar="DIR",
                    help="run every process on a secured bus with the keys of DIR (`fleet keys init CONFIG DIR "
                    "--robots N`; default: the config's bus.secure); the run watches as the observer")  # fmt: skip
+    p.add_argument("--kill", type=_kinds, default=(), metavar="KINDS",
+                   help="which processes may be killed, comma-separated of sim, coordinator, agent "
+                   "(split) or run (default: all)")  # fmt: skip
     add_traffic(p)
     return p
+
+
+def _kinds(text: str) -> tuple[str, ...]:
+    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
+    bad = [k for k in kinds if k not in ("sim", "coordinator", "agent", "run")]
+    if not kinds or bad:
+        raise argparse.ArgumentTypeError(
+            f"expected a comma-separated list of sim, coordinator, agent, run; got {text!r}"
+        )
+    return kinds
 
 
 def handle(args: argparse.Namespace) -> int:
@@ -71,6 +95,14 @@ def handle(args: argparse.Namespace) -> int:
 
     config = load(args)
     robots = len(config.robots)
+    kinds = ("run",) if args.mode == "run" else ("sim", "coordinator", "agent")
+    if args.kill and not set(args.kill) & set(kinds):
+        print(
+            f"fleet chaos: error: --kill {','.join(args.kill)}: --mode {args.mode} has only the "
+            f"{' / '.join(kinds)} process to kill",
+            file=sys.stderr,
+        )
+        return EXIT_ERROR
     secure = secure_of(args, config, "observer")
     if secure is not None:
         for identity in robot_names(robots) if args.mode == "split" else []:
@@ -81,7 +113,7 @@ def handle(args: argparse.Namespace) -> int:
         config=config.path, robots=robots, duration=args.duration, endpoint=args.endpoint or free_endpoint(),
         out=out, speed=args.speed, every=args.every, seed=args.seed, restart_after=args.restart_after,
         settle=args.settle, traffic=config.traffic.enabled if args.traffic is None else args.traffic,
-        secure=None if secure is None else secure.keys, mode=args.mode, routes=tuple(r.name for r in config.routes),
+        secure=None if secure is None else secure.keys, mode=args.mode, routes=tuple(r.name for r in config.routes), kinds=args.kill,
     )  # fmt: skip
     print(
         f"fleet chaos: {config.name}, {robots} robots, mode {spec.mode}, {spec.duration:.0f} simulated s at speed "

@@ -112,9 +112,11 @@ class CoordinatorState:
         self._pending_orders: list[TaskOrder] = []
 
     def expect(self, robots: Iterable[str], settle_s: float) -> None:
-        """Hold the first assignment until every robot in ``robots`` has reported or
-        ``settle_s`` seconds passed since the first cycle, so that robots starting in other
-        processes a moment later are matched too (and get their preferred routes)."""
+        """Hold the first assignment and the first traffic cycle until every robot in
+        ``robots`` has reported or ``settle_s`` seconds passed since the first cycle, so that
+        robots starting in other processes a moment later are matched too (and get their
+        preferred routes), and a restarted coordinator's charger queue counts the robots
+        already on chargers."""
         self.expected = set(robots)
         self.settle_s = float(settle_s)
 
@@ -240,8 +242,11 @@ class CoordinatorState:
             r in self.robots and self.robots[r].obs is not None for r in self.expected
         )
         if settled:
+            # the traffic cycle waits too: its charger queue, built from scratch by a restarted
+            # coordinator, must know where every robot stands (a charger taken by a robot that
+            # has not reported yet is not free)
             out.extend(self._assign(now))
-        out.extend(self.traffic.cycle(now, self.robots))
+            out.extend(self.traffic.cycle(now, self.robots))
         out.extend(self._reconcile(now, {o.robot for o in out}))
         return self._sent(out, now)
 

@@ -3,6 +3,8 @@ simulator."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import py_trees
 import pytest
 from nodes_world import BOX, CHARGER, RING_PLUG, Loop, make_ring_world, make_world, pose_of
@@ -36,6 +38,28 @@ def test_battery_low_has_hysteresis(fast_battery) -> None:  # type: ignore[no-un
     assert low.status == Status.FAILURE and not low.latched
     with pytest.raises(ValueError):
         BatteryLow(sim.backend(NS), 0.9, 0.3)
+
+
+def test_a_restarted_battery_guard_finishes_the_charge_under_way(fast_battery) -> None:  # type: ignore[no-untyped-def]
+    """A guard that first sees its robot charging (its agent was restarted mid-charge) holds
+    it on the charger until ``resume``; one that first sees it elsewhere does not latch."""
+    sim = make_world(
+        {NS: (CHARGER, 0.5), "/robot2": (Pose2D(2.0, 3.0), 0.5)},
+        battery=replace(fast_battery, charge_per_s=0.01),
+    )
+    sim.step()  # the simulator has seen robot1 stand on the charger
+    assert sim.robot_state(NS).charging and not sim.robot_state("/robot2").charging
+    restarted = BatteryLow(sim.backend(NS), fast_battery.low, fast_battery.resume)
+    restarted.tick_once()
+    assert restarted.status == Status.SUCCESS and restarted.latched  # 0.5 >= low, but charging
+    away = BatteryLow(sim.backend("/robot2"), fast_battery.low, fast_battery.resume)
+    away.tick_once()
+    assert away.status == Status.FAILURE
+    sim.run_until(lambda: sim.robot_state(NS).battery >= fast_battery.resume, 60.0)
+    restarted.tick_once()
+    assert restarted.status == Status.FAILURE and not restarted.latched
+    restarted.tick_once()  # only the first look latches: charging again later does not
+    assert restarted.status == Status.FAILURE
 
 
 def test_charge_threshold_grows_with_the_way_to_the_charger() -> None:

@@ -159,15 +159,18 @@ def test_grants_go_to_local_agents_at_once_and_are_resent_to_remote_robots(confi
     assert policy.deliver is not None  # the coordinator delivers the policy's grants
     mine: list[Grant] = []
     c.local_grant_deliver = {local: mine.append}
-    c.feed_local(status(config, local, 0.0))
-    bus.status(status(config, remote, 0.0))
+    c.cycle()
+    t0 = config.coordinator.status_timeout_s  # the other robots never report: traffic starts then
+    clock.set(t0)
+    c.feed_local(status(config, local, t0))
+    bus.status(status(config, remote, t0))
     c.cycle()
     assert [g.robot for g in mine] == [local]
     assert [g.robot for g in bus.grants] == [remote]  # published once for the remote robot
-    clock.set(RESEND_S / 2)
+    clock.set(t0 + RESEND_S / 2)
     c.cycle()
     assert len(bus.grants) == 1
-    clock.set(RESEND_S)
+    clock.set(t0 + RESEND_S)
     c.cycle()
     assert [g.robot for g in bus.grants] == [remote, remote]  # Zenoh keeps nothing: sent again
     assert len(mine) == 1

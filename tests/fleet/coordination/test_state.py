@@ -4,6 +4,7 @@ count, and a bounded event log."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import pytest
@@ -20,6 +21,7 @@ from fleet.coordination.views import (
     CoordinatorParams,
     Observation,
     Reason,
+    RobotView,
     TaskOrder,
 )
 from fleet.roadmap.graph import Roadmap
@@ -385,3 +387,48 @@ def test_a_long_run_keeps_the_newest_assignments_and_every_total(monkeypatch: py
     assert st.laps_completed() == sum(laps.values()) and st.laps_by_robot() == laps
     assert st.laps_by_route() == {"west": sum(laps.values()), "east": 0}
     assert st.patrols_completed() == 40
+
+
+class CountingTraffic:
+    """A traffic policy that only counts its cycles and the robots each one saw."""
+
+    def __init__(self) -> None:
+        self.cycles: list[set[str]] = []
+
+    def on_assign(
+        self, robot: str, route: object, poses: tuple[Pose2D, ...], task_id: str | None = None
+    ) -> tuple[Pose2D, ...]:
+        return poses
+
+    def on_release(self, robot: str) -> None:
+        pass
+
+    def waiting(self, robot: str) -> bool:
+        return False
+
+    def cycle(self, now: float, robots: Mapping[str, RobotView]) -> tuple[()]:
+        self.cycles.append({n for n, v in robots.items() if v.obs is not None})
+        return ()
+
+
+def test_the_first_traffic_cycle_waits_for_every_robot() -> None:
+    """A restarted coordinator's traffic (its charger queue) starts only once every robot has
+    reported, or ``settle_s`` passed: a charger taken by a silent robot is not handed out."""
+    st = line_state()
+    st.traffic = traffic = CountingTraffic()
+    st.expect(["r1", "r2"], settle_s=3.0)
+    st.observe("r1", 0.0, Observation(t=0.0, pose=Pose2D(50, 0), battery=0.3, mode="charging"))
+    st.step(0.0)
+    st.step(1.0)
+    assert traffic.cycles == []
+    st.observe("r2", 1.5, idle(0, 1, t=1.5, battery=0.6))  # on the west charger
+    st.step(1.5)
+    assert traffic.cycles == [{"r1", "r2"}]
+    late = line_state()
+    late.traffic = late_traffic = CountingTraffic()
+    late.expect(["r1", "r2"], settle_s=3.0)
+    late.observe("r1", 0.0, idle(50, 0))
+    late.step(0.0)
+    late.step(2.9)
+    late.step(3.0)  # r2 never reported: the fleet goes on without it
+    assert late_traffic.cycles == [{"r1"}]
