@@ -127,11 +127,19 @@ def test_goals_refused_until_startup_which_stops_at_the_failing_node(
         nav.spin_until(lambda: pub.get_subscription_count() > 0, DISCOVERY_S, "sim_fault subscriber")
         pub.publish(String(data="fail:planner_server"))
         assert _manage(nav, "lifecycle_manager_localization", ManageLifecycleNodes.Request.STARTUP)
-        # again (the fault is a set, so twice is once): the first sample can be lost when the
-        # server's reader has not yet matched this writer (the writer matches first); after the
-        # service round trip above both sides know each other
-        pub.publish(String(data="fail:planner_server"))
-        assert not _manage(nav, "lifecycle_manager_navigation", ManageLifecycleNodes.Request.STARTUP)
+        # The fault and the manager's request travel on different channels: the first sample
+        # can be lost while the server's reader has not matched this writer yet, and the server
+        # may take a request before a sample sent just ahead of it. A STARTUP that succeeded
+        # means the fault was not armed in time: take navigation back down (RESET) and arm it
+        # again (the fault is a set, so twice is once).
+        for _ in range(5):
+            pub.publish(String(data="fail:planner_server"))
+            _state(nav, "planner_server")  # a round trip after the sample
+            if not _manage(nav, "lifecycle_manager_navigation", ManageLifecycleNodes.Request.STARTUP):
+                break
+            assert _manage(nav, "lifecycle_manager_navigation", ManageLifecycleNodes.Request.RESET)
+        else:
+            pytest.fail("the planner server's injected fault was never armed before STARTUP")
         states = {n: _state(nav, n) for n in NAVIGATION}
         # configured in order up to the failing node, which stopped the bring-up
         assert states == {
