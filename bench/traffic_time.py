@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import socket
 import sys
 from collections import Counter, defaultdict
 from pathlib import Path
@@ -23,14 +22,9 @@ ROOT = Path(__file__).resolve().parent.parent
 if not os.environ.get("PYTHONPATH"):
     sys.path.insert(0, str(ROOT))  # run from a checkout; PYTHONPATH chooses another
 
+from fleet.bus.session import free_endpoint  # noqa: E402
 from fleet.config.loader import load_config  # noqa: E402
 from fleet.runtime.runner import FleetRunner  # noqa: E402
-
-
-def _free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -69,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         config,
         duration=a.duration,
         speed=0.0,
-        endpoint=_free_endpoint(),
+        endpoint=free_endpoint(),
         live=False,
         traffic=not a.no_traffic,
         tree_kind=a.tree,

@@ -33,7 +33,6 @@ import dataclasses
 import json
 import math
 import re
-import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -72,12 +71,6 @@ ROBOTS_PER_CHARGER = 2
 #: Default of ``--status-max-period``: a robot's status goes on the bus when it changed, and at
 #: least this often (simulated s; below the coordinator's 3 s silence timeout).
 DEFAULT_STATUS_MAX_PERIOD_S = 2.0
-
-
-def _free_endpoint() -> str:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
 def prepare_config(
@@ -381,12 +374,13 @@ def _run(
     """The fleet run of a load test, sampled by ``sampler`` (its final state included); with
     ``spec`` the agents run in its workers. ``ticks`` gets the trees ticked (``tree_ticks``)
     and the agent periods (``agent_periods``: periods x agents)."""
+    from fleet.bus.session import free_endpoint
     from fleet.runtime.runner import FleetRunner
 
     kw: dict[str, Any] = {
         "duration": duration,
         "speed": speed,
-        "endpoint": endpoint or _free_endpoint(),
+        "endpoint": endpoint or free_endpoint(),
         "backend": backend,
         "live": False,
         "display": NullDisplay(),  # the sampler reports the progress

@@ -117,7 +117,8 @@ def run_soak(
     and sample RSS every ``every_s`` simulated seconds (``on_sample`` gets each sample).
     Raises :class:`~fleet.errors.ConfigError` for a non-positive duration or period, or a
     warm-up share outside [0, 1)."""
-    from fleet.loadtest.run import _free_endpoint, prepare_config
+    from fleet.bus.session import free_endpoint
+    from fleet.loadtest.run import prepare_config
     from fleet.runtime.runner import FleetRunner
     from fleet.viz.display import NullDisplay
 
@@ -132,7 +133,7 @@ def run_soak(
         cfg,
         duration=duration,
         speed=0.0,
-        endpoint=_free_endpoint(),
+        endpoint=free_endpoint(),
         live=False,
         display=NullDisplay(),
         traffic=traffic,
