@@ -19,7 +19,11 @@ and turns them into a :class:`~fleet.types.RobotState`:
 * ``pose``: ``map -> odom ∘ odom -> base_link`` at the robots' time ``now()`` (the odometry
   interpolated there when it is newer; else the newest; ``None`` until both are known; before
   any odometry, a navigation feedback's ``current_pose``);
-* ``pose_age_s``: the robot's time (newest stamp) minus the correction's stamp;
+* ``pose_age_s``: the robot's time (newest stamp) minus the correction's stamp; a
+  ``map -> odom`` from ``tf`` is aged against the newest ``odom -> base_link`` that came on
+  ``tf`` too, so a client whose ``tf`` queue runs behind its ``odom`` queue (a loaded
+  machine: ``tf`` keeps 100 messages, ``odom`` 10) does not take its backlog for a lost
+  localizer, while a localizer that stops publishing beside running odometry still ages;
 * ``distance_m``: the odometry's path length (steps faster than 5 m/s are not counted:
   :class:`~fleet.ros.frames.OdomHistory`);
 * ``stuck``: Nav2's progress checker, done here: while the backend has a goal that drives the
@@ -114,6 +118,7 @@ class RobotStateTracker:
         self._correction: Pose2D | None = None
         self._correction_t = 0.0
         self._tf_correction = False
+        self._tf_odom_t = 0.0  # newest odom -> base_link stamp that came on tf
         self._amcl: Pose2D | None = None
         self._amcl_t = 0.0
         self._feedback_pose: Pose2D | None = None
@@ -154,9 +159,17 @@ class RobotStateTracker:
                 stuck=self._stuck,
                 distance_m=self.odom.distance_m,
                 localized=self._localized and self._correction is not None,
-                pose_age_s=max(0.0, now - self._correction_t) if self._correction is not None else 0.0,
+                pose_age_s=self._pose_age(now),
                 battery_known=self._battery is not None,
             )
+
+    def _pose_age(self, now: float) -> float:
+        """How old the correction is (s of the robot's time; lock held): see the module docstring."""
+        if self._correction is None:
+            return 0.0
+        if self._tf_correction and self._tf_odom_t > 0.0:
+            now = min(now, self._tf_odom_t)
+        return max(0.0, now - self._correction_t)
 
     def feedback_pose(self, pose: Pose2D) -> None:
         """A navigation feedback's ``current_pose``: the map pose while no odometry and
@@ -195,6 +208,7 @@ class RobotStateTracker:
                 self._saw_stamp(tf.header.stamp)
                 with self._lock:
                     self.odom.add(t, transform_to_pose2d(tf.transform))
+                    self._tf_odom_t = max(self._tf_odom_t, t)
                 self._saw_odom(t)
             elif parent == MAP_FRAME and child == ODOM_FRAME:
                 self._saw_stamp(tf.header.stamp)
