@@ -1,24 +1,67 @@
-"""Compiled kernels of the simulator's step (numba): loops over neighbor pairs that NumPy can
-only do as many whole-array passes.
+"""Compiled kernels of the simulator's step (numba): loops over robots and neighbor pairs that
+NumPy can only do as many whole-array passes, and the switch that chooses them.
 
-Each kernel computes exactly what the NumPy expression it replaces computes, with the same
+Each kernel computes exactly what the NumPy code it replaces computes, with the same
 floating-point operations in the same order on the same values: plain IEEE double arithmetic,
-no fast-math (no fused multiply-add, no reassociation), and ``math.cos`` / ``math.sin`` /
-``math.sqrt``, which on the project's machines give the very bits NumPy's ``cos`` / ``sin`` /
-``sqrt`` give (``tests/sim/test_kernels.py`` checks both). Kernels are compiled on first use
-and cached next to this module (``cache=True``); :func:`warm_up` compiles them up front so a
-simulator's first step does not pay for it.
+no fast-math (no fused multiply-add, no reassociation), ``math.cos`` / ``math.sin`` /
+``math.sqrt`` / ``math.hypot`` (the C library's, which on the project's machines give the very
+bits NumPy's give; ``tests/sim/test_kernels.py`` checks them), and NumPy's own rule for
+``minimum`` / ``maximum`` (the second operand when they compare equal, which decides the sign
+of a zero). ``arctan2`` is the exception: NumPy's vectorized one differs from the C library's
+in the last bit for about 8 % of inputs here, so the follower calls NumPy's between two
+kernels.
+
+**Compiled or NumPy.** numba is a dependency of the project (``make setup`` installs it), but
+the simulator runs without it: :func:`enabled` tells whether the compiled kernels are used
+(numba importable and ``FLEET_SIM_KERNELS`` not set to ``numpy``); otherwise every stage runs
+its NumPy code, with bit-identical results (``tests/sim/test_kernels.py`` runs a fleet both
+ways and compares every state). Kernels are compiled on first use and cached next to this
+module (``cache=True``, in ``__pycache__``); :func:`warm_up` compiles them (or loads them from
+the cache) up front so a simulator's first step does not pay for it.
 """
 
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
-from numba import njit
+
+try:
+    import numba
+except ImportError:  # pragma: no cover - the NumPy code runs instead
+    numba = None
+
+#: Set to ``numpy`` to run the simulator's NumPy code even where numba is installed.
+ENV_VAR = "FLEET_SIM_KERNELS"
+
+_F = TypeVar("_F", bound=Callable[..., Any])
 
 
-@njit(cache=True, nogil=True)
+def available() -> bool:
+    """Whether numba is installed, so the kernels can be compiled."""
+    return numba is not None
+
+
+def enabled() -> bool:
+    """Whether a simulator built now uses the compiled kernels: numba is installed and
+    ``FLEET_SIM_KERNELS`` is not ``numpy``."""
+    return available() and os.environ.get(ENV_VAR, "").strip().lower() != "numpy"
+
+
+def jit(fn: _F) -> _F:
+    """Compile ``fn`` with numba (no-Python mode, cached, releasing the GIL) where numba is
+    installed; without numba ``fn`` stays a plain Python function (never called by the
+    simulator then: it runs its NumPy code)."""
+    if numba is None:  # pragma: no cover
+        return fn
+    compiled: _F = numba.njit(cache=True, nogil=True)(fn)
+    return compiled
+
+
+@jit
 def pair_blocks(
     a_all: np.ndarray,
     dx_all: np.ndarray,
@@ -78,7 +121,7 @@ def pair_blocks(
         blocked[r] = m
 
 
-@njit(cache=True, nogil=True)
+@jit
 def corridor_min(
     a: np.ndarray,
     dx: np.ndarray,

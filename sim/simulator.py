@@ -49,6 +49,7 @@ from fleet.maps import OccupancyGrid
 from fleet.navigation import NavBatch
 from fleet.robots import RobotSpec, SimParams
 from fleet.types import ErrorCode, GoalState, Pose2D, RobotState, normalize_angle
+from sim import kernels
 from sim.avoidance import AVOID_CLEAR_M, AVOID_LOOKAHEAD_M, CORRIDOR_MARGIN_M, Avoidance
 from sim.backend import NamespacedBackend
 from sim.batch import SimBatch
@@ -109,9 +110,13 @@ class Simulator:
         params: step, tolerances, stuck time, chargers, robot and battery models.
         clock: the simulated clock; :meth:`step` advances it. Pass a fresh ``SimClock()``
             unless several components must share one clock.
+        compiled: the step's loops compiled or NumPy (default :func:`sim.kernels.enabled`);
+            both give bit-identical runs.
     """
 
-    def __init__(self, grid: OccupancyGrid, params: SimParams, clock: SimClock) -> None:
+    def __init__(
+        self, grid: OccupancyGrid, params: SimParams, clock: SimClock, *, compiled: bool | None = None
+    ) -> None:
         if params.step_s <= 0:
             raise BackendError(f"SimParams.step_s must be positive, got {params.step_s}")
         self.grid = grid
@@ -133,8 +138,9 @@ class Simulator:
         radius, short = pair_radii(params)
         self._pairs = NeighborPairs(radius, short, params.model.max_linear_speed)
         footprints = FootprintGrid(grid, self.planner.footprint, AVOID_CLEAR_M)
-        avoidance = Avoidance(self.state, self._pairs, footprints, params.model.radius)
-        self._follower = PathFollower(self.state, params, avoidance)
+        self.compiled = kernels.enabled() if compiled is None else compiled
+        avoidance = Avoidance(self.state, self._pairs, footprints, params.model.radius, self.compiled)
+        self._follower = PathFollower(self.state, params, avoidance, self.compiled)
         self._safety = Safety(self.state, params, avoidance, footprints, self.planner)
         self._contacts = Contacts(self.state, params, self._pairs)
         self.costmaps = Costmaps(grid, params.model.radius)
