@@ -161,7 +161,6 @@ class Avoidance:
         self.compiled = kernels.enabled() if compiled is None else compiled
         if self.compiled:
             kernels.warm_up()  # compiled (or loaded from the cache) here, not in the first step
-        self._corridor_min = kernels.corridor_min if self.compiled else corridor_min_numpy
         self._pair_blocks_fn = kernels.pair_blocks if self.compiled else pair_blocks_numpy
 
     def corridor_free(
@@ -177,7 +176,6 @@ class Avoidance:
         n = s.n
         contact, lat = self.contact, self.lat
         reach = math.hypot(float(cap.max()) + contact, lat)
-        a, dx, dy, _ = self.pairs.within(reach)
         if idx.size == n:
             hxf, hyf, capf = hx, hy, cap
         else:
@@ -188,9 +186,16 @@ class Avoidance:
             hyf[idx] = hy
             capf[idx] = cap
         best = capf.copy()
-        if a.size:
-            # only what is ahead, in the corridor and closer than the cap can limit
-            self._corridor_min(a, dx, dy, hxf, hyf, capf, contact, lat, best)
+        # only what is ahead, in the corridor and closer than the cap can limit
+        if self.compiled:
+            a, dx, dy, d2 = self.pairs.candidates(reach)
+            # within() keeps every pair once the reach passes the pair radius
+            reach2 = reach * reach if reach < self.pairs.radius else math.inf
+            kernels.corridor_min(a, dx, dy, d2, reach2, hxf, hyf, capf, contact, lat, best)
+        else:
+            a, dx, dy, _ = self.pairs.within(reach)
+            if a.size:
+                corridor_min_numpy(a, dx, dy, hxf, hyf, capf, contact, lat, best)
         if idx.size != n:
             best = best[idx]
         if obst.size:
@@ -226,7 +231,9 @@ class Avoidance:
         n = self.state.n
         contact, lat, cap = self.contact, self.lat, AVOID_CLEAR_M
         reach = math.hypot(cap + contact, lat)
-        a_all, dx_all, dy_all, d2_all = self.pairs.within(reach)
+        # the compiled loop tests d2 itself
+        pick = self.pairs.candidates if self.compiled else self.pairs.within
+        a_all, dx_all, dy_all, d2_all = pick(reach)
         if not a_all.size:
             return
         loc = np.full(n, -1, dtype=np.int64)

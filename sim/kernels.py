@@ -126,6 +126,8 @@ def corridor_min(
     a: np.ndarray,
     dx: np.ndarray,
     dy: np.ndarray,
+    d2: np.ndarray,
+    reach2: float,
     hx: np.ndarray,
     hy: np.ndarray,
     cap: np.ndarray,
@@ -134,10 +136,14 @@ def corridor_min(
     best: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """Lower ``best[i]`` to the corridor gap of every pair ``(i = a[p], offset dx[p], dy[p])``
-    whose neighbor is ahead along ``(hx[i], hy[i])``, inside the corridor and closer than
-    ``cap[i] + contact`` (what ``Avoidance.corridor_free`` does with ``np.minimum.at``)."""
+    with ``d2[p] < reach2`` whose neighbor is ahead along ``(hx[i], hy[i])``, inside the
+    corridor and closer than ``cap[i] + contact`` (what ``np.minimum.at`` does in
+    :func:`sim.avoidance.corridor_min_numpy`). A pair the reach leaves out cannot be in the
+    corridor when ``reach2 >= max(cap + contact)**2 + lat**2``."""
     cc = contact * contact
     for p in range(a.shape[0]):
+        if not d2[p] < reach2:
+            continue
         i = a[p]
         hxa = hx[i]
         hya = hy[i]
@@ -176,4 +182,43 @@ def warm_up() -> None:
         0.8,
         ints,
     )
-    corridor_min(ints, floats, floats, floats, floats, floats, 0.6, 0.65, floats)
+    corridor_min(ints, floats, floats, floats, 1.0, floats, floats, floats, 0.6, 0.65, floats)
+    pair_offsets(ints, ints, floats, floats, 1.0, floats, floats, floats, ints, ints, floats, floats, floats)
+
+
+@jit
+def pair_offsets(
+    pi: np.ndarray,
+    pj: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    short2: float,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    d2: np.ndarray,
+    si: np.ndarray,
+    sj: np.ndarray,
+    sdx: np.ndarray,
+    sdy: np.ndarray,
+    sd2: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """The offsets ``dx = x[pj] - x[pi]``, ``dy``, ``d2 = dx * dx + dy * dy`` of every pair,
+    and the pairs with ``d2 < short2`` in order into ``si .. sd2``; returns how many."""
+    k = 0
+    for p in range(pi.shape[0]):
+        a = pi[p]
+        b = pj[p]
+        ex = x[b] - x[a]
+        ey = y[b] - y[a]
+        e2 = ex * ex + ey * ey
+        dx[p] = ex
+        dy[p] = ey
+        d2[p] = e2
+        if e2 < short2:
+            si[k] = a
+            sj[k] = b
+            sdx[k] = ex
+            sdy[k] = ey
+            sd2[k] = e2
+            k += 1
+    return k

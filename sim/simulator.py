@@ -135,10 +135,10 @@ class Simulator:
         self._traj_start: list[tuple[float, float, float, int]] = []
         self._backends: dict[str, NamespacedBackend] = {}
         self._chargers = np.array([(c.x, c.y) for c in params.chargers], dtype=float).reshape(-1, 2)
-        radius, short = pair_radii(params)
-        self._pairs = NeighborPairs(radius, short, params.model.max_linear_speed)
-        footprints = FootprintGrid(grid, self.planner.footprint, AVOID_CLEAR_M)
         self.compiled = kernels.enabled() if compiled is None else compiled
+        radius, short = pair_radii(params)
+        self._pairs = NeighborPairs(radius, short, params.model.max_linear_speed, self.compiled)
+        footprints = FootprintGrid(grid, self.planner.footprint, AVOID_CLEAR_M)
         avoidance = Avoidance(self.state, self._pairs, footprints, params.model.radius, self.compiled)
         self._follower = PathFollower(self.state, params, avoidance, self.compiled)
         self._safety = Safety(self.state, params, avoidance, footprints, self.planner)

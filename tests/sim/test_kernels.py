@@ -84,7 +84,7 @@ def test_corridor_min_is_the_numpy_minimum(seed: int, n: int, span: float) -> No
     cap = rng.uniform(0.1, 2.0, n)
     contact, lat = 0.6, 0.65
     got = cap.copy()
-    kernels.corridor_min(a, dx, dy, hx, hy, cap, contact, lat, got)
+    kernels.corridor_min(a, dx, dy, dx * dx + dy * dy, math.inf, hx, hy, cap, contact, lat, got)
     want = cap.copy()
     along = dx * hx[a] + dy * hy[a]
     lateral = np.abs(dx * hy[a] - dy * hx[a])
