@@ -25,14 +25,16 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from typing import Any, TypeVar
+from types import ModuleType
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
+_numba: ModuleType | None
 try:
-    import numba
+    import numba as _numba
 except ImportError:  # pragma: no cover - the NumPy code runs instead
-    numba = None
+    _numba = None
 
 #: Set to ``numpy`` to run the simulator's NumPy code even where numba is installed.
 ENV_VAR = "FLEET_SIM_KERNELS"
@@ -42,7 +44,7 @@ _F = TypeVar("_F", bound=Callable[..., Any])
 
 def available() -> bool:
     """Whether numba is installed, so the kernels can be compiled."""
-    return numba is not None
+    return _numba is not None
 
 
 def enabled() -> bool:
@@ -55,10 +57,9 @@ def jit(fn: _F) -> _F:
     """Compile ``fn`` with numba (no-Python mode, cached, releasing the GIL) where numba is
     installed; without numba ``fn`` stays a plain Python function (never called by the
     simulator then: it runs its NumPy code)."""
-    if numba is None:  # pragma: no cover
+    if _numba is None:  # pragma: no cover
         return fn
-    compiled: _F = numba.njit(cache=True, nogil=True)(fn)
-    return compiled
+    return cast(_F, _numba.njit(cache=True, nogil=True)(fn))
 
 
 @jit

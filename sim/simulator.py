@@ -110,8 +110,7 @@ class Simulator:
         params: step, tolerances, stuck time, chargers, robot and battery models.
         clock: the simulated clock; :meth:`step` advances it. Pass a fresh ``SimClock()``
             unless several components must share one clock.
-        compiled: the step's loops compiled or NumPy (default :func:`sim.kernels.enabled`);
-            both give bit-identical runs.
+        compiled: the step's loops compiled or NumPy (default :func:`sim.kernels.enabled`): same bits.
     """
 
     def __init__(
