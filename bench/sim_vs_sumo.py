@@ -14,10 +14,14 @@ warm-up. What each side computes per step:
   ``Simulator.query_batch()`` call (the navigation contract's batch query).
 * **SUMO** (``bench/sumo_steps.py``, ``sim/sumo/world.py``): the warehouse roadmap converted
   to a SUMO network, one vehicle per robot, ``libsumo.simulationStep()`` plus the backend's
-  per-step bookkeeping (positions of every vehicle, arrivals, collisions, teleports). Each
-  robot gets NavigateThroughPoses through random roadmap nodes, re-sent when it ends, polled at
-  10 Hz of simulated time inside the timed loop, every goal's status in one call of the world's
-  goal book (``GoalBook.status_codes``).
+  per-step bookkeeping (positions of every vehicle, arrivals, collisions, teleports). Robot
+  ``i`` patrols the same route as on the simulator's side (NavigateThroughPoses of
+  ``config.route_poses(route i mod R)``, snapped to lanes and routed by SUMO), re-sent when it
+  ends, polled at 10 Hz of simulated time inside the timed loop, every goal's status in one
+  call of the world's goal book (``GoalBook.status_codes``). (Until this change SUMO's robots
+  drove NavigateThroughPoses through random roadmap nodes, each goal's poses found by
+  networkx shortest paths: at 10,000 robots that and snapping every pose by a scan of every
+  lane kept SUMO's set-up from finishing in 30 minutes.)
 
 The simulator runs again after SUMO on the same world and the ratio uses the mean of its two
 runs: on a shared machine the load drifts while SUMO sets up and runs (minutes at 5000 robots),
@@ -60,6 +64,7 @@ def compare(n_robots: int, steps: int, step_s: float) -> dict[str, object]:
         robots=list(cfg.robots),
         params=replace(cfg.sim, step_s=step_s),
         cache_dir=out / "sumo",
+        routes=[cfg.route_poses(r) for r in cfg.routes],
     )
     print(
         f"SUMO: {sumo_res.robots} robots x {sumo_res.steps} steps of {sumo_res.step_s:g} s on the same "
