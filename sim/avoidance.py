@@ -205,6 +205,19 @@ class Avoidance:
                 best = np.minimum(best, corridor_gaps(qx - sx, qy - sy, hx, hy, self.radius + qr, best))
         return best
 
+    def corridor_min_all(
+        self, hx: np.ndarray, hy: np.ndarray, cap: np.ndarray, longest: float, best: np.ndarray
+    ) -> None:
+        """:meth:`corridor_free` of every robot, compiled, without dynamic obstacles: lower
+        ``best`` (one entry per robot, in place) to the distance to the first robot in the
+        corridor along ``(hx, hy)`` (``(0, 0)``: none), capped at ``cap``; ``longest`` is
+        ``cap.max()`` of the robots with a heading."""
+        contact, lat = self.contact, self.lat
+        reach = math.hypot(longest + contact, lat)
+        a, dx, dy, d2 = self.pairs.candidates(reach)
+        reach2 = reach * reach if reach < self.pairs.radius else math.inf
+        kernels.corridor_min(a, dx, dy, d2, reach2, hx, hy, cap, contact, lat, best)
+
     def detour(self, fb: np.ndarray, db: np.ndarray, side: np.ndarray, obst: np.ndarray) -> np.ndarray:
         """The detour of each blocked robot ``fb[r]`` that wants to go along ``db[r]`` (rad):
         the index in ``OFFSETS`` of the first offset, in the order ``_ORDERS[side[r] + 1]``,

@@ -510,11 +510,13 @@ class Simulator:
             stopped, arrived = self._follower.follow(fol, now, obst)
             if stopped.size:
                 self._dispatch.path_events(stopped, arrived, now)
-        # 2. acceleration and speed limits, faults
-        v, w = self._limits(vd, wd, dt)
-        # 3. safety: be able to stop before whatever is ahead; refuse moves into obstacles
-        self._safety.reactive_stop(v, dt, obst)
-        ds, dth, moved = self._safety.move(v, w, dt, obst)
+        # 2. speed limits, faults; 3. safety: stop before what is ahead, not into obstacles
+        if self.compiled and not obst.size:
+            w, ds, dth, moved = self._safety.limit_stop_move(vd, wd, dt)
+        else:
+            v, w = self._limits(vd, wd, dt)
+            self._safety.reactive_stop(v, dt, obst)
+            ds, dth, moved = self._safety.move(v, w, dt, obst)
         self._dispatch.after_move(py_robots, ds, dth)
         # 4. battery and stuck detector
         self._battery(moved, w, np.abs(ds), dt)
@@ -526,15 +528,12 @@ class Simulator:
         self._sample(now)
 
     def _limits(self, vd: np.ndarray, wd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """The commands ``vd``, ``wd`` within the acceleration and speed limits; zero for a
-        stalled robot or an empty battery."""
+        """``vd``, ``wd`` within the acceleration and speed limits; 0 when stalled or flat."""
         s = self.state
         n = vd.size
         m = self.params.model
-        dv = m.max_linear_accel * dt
-        dw = m.max_angular_accel * dt
-        v0 = s.v[:n]
-        w0 = s.w[:n]
+        dv, dw = m.max_linear_accel * dt, m.max_angular_accel * dt
+        v0, w0 = s.v[:n], s.w[:n]
         v = np.maximum(vd, v0 - dv)
         np.minimum(v, v0 + dv, out=v)
         np.maximum(v, -m.max_linear_speed, out=v)
