@@ -158,9 +158,7 @@ class Avoidance:
         self.radius = radius
         self.contact = contact = 2.0 * radius
         self.lat = contact + CORRIDOR_MARGIN_M
-        self.compiled = kernels.enabled() if compiled is None else compiled
-        if self.compiled:
-            kernels.warm_up()  # compiled (or loaded from the cache) here, not in the first step
+        self.compiled = kernels.enabled() if compiled is None else compiled and kernels.ready()
         self._pair_blocks_fn = kernels.pair_blocks if self.compiled else pair_blocks_numpy
 
     def corridor_free(

@@ -58,9 +58,7 @@ class PathFollower:
         self.state = state
         self.params = params
         self.avoidance = avoidance
-        self.compiled = kernels.enabled() if compiled is None else compiled
-        if self.compiled:
-            follower_kernels.warm_up()
+        self.compiled = kernels.enabled() if compiled is None else compiled and kernels.ready()
 
     def follow(self, F: np.ndarray, now: float, obst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Command every robot in ``F`` (increasing indices) at time ``now`` (s), with the

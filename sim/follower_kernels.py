@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from sim.kernels import jit
+from sim.kernels import jit, register_warm_up
 
 
 @jit
@@ -327,3 +327,6 @@ def warm_up() -> None:
         1.0, 1.0, 1.0, 1.0, 0.8, 2.5, 0.1, 0.0, 20.0,
         ints, ints, ints, floats, floats, floats, flags, floats, floats, flags, flags,
     )  # fmt: skip
+
+
+register_warm_up(warm_up)

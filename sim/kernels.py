@@ -16,12 +16,14 @@ the simulator runs without it: :func:`enabled` tells whether the compiled kernel
 (numba importable and ``FLEET_SIM_KERNELS`` not set to ``numpy``); otherwise every stage runs
 its NumPy code, with bit-identical results (``tests/sim/test_kernels.py`` runs a fleet both
 ways and compares every state). Kernels are compiled on first use and cached next to this
-module (``cache=True``, in ``__pycache__``); :func:`warm_up` compiles them (or loads them from
-the cache) up front so a simulator's first step does not pay for it.
+module (``cache=True``, in ``__pycache__``); :func:`ready` compiles them all (or loads them
+from the cache) once per process when the first simulator is made, so no step pays for it, and
+turns them off with a warning if they cannot compile here.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from collections.abc import Callable
@@ -39,6 +41,19 @@ except ImportError:  # pragma: no cover - the NumPy code runs instead
 #: Set to ``numpy`` to run the simulator's NumPy code even where numba is installed.
 ENV_VAR = "FLEET_SIM_KERNELS"
 
+log = logging.getLogger(__name__)
+#: Whether every kernel compiled (or loaded from the cache) in this process; None: not tried.
+_ready: bool | None = None
+#: The warm-ups :func:`ready` runs: this module's and those the other kernel modules register.
+_warm_ups: list[Callable[[], None]] = []
+
+
+def register_warm_up(fn: Callable[[], None]) -> None:
+    """Have :func:`ready` run ``fn`` (a kernel module's warm-up, which calls its kernels with
+    the simulator's argument types on empty inputs)."""
+    _warm_ups.append(fn)
+
+
 _F = TypeVar("_F", bound=Callable[..., Any])
 
 
@@ -48,9 +63,30 @@ def available() -> bool:
 
 
 def enabled() -> bool:
-    """Whether a simulator built now uses the compiled kernels: numba is installed and
-    ``FLEET_SIM_KERNELS`` is not ``numpy``."""
-    return available() and os.environ.get(ENV_VAR, "").strip().lower() != "numpy"
+    """Whether a simulator built now uses the compiled kernels: numba is installed,
+    ``FLEET_SIM_KERNELS`` is not ``numpy`` and the kernels compile here (:func:`ready`)."""
+    return available() and os.environ.get(ENV_VAR, "").strip().lower() != "numpy" and ready()
+
+
+def ready() -> bool:
+    """Compile every kernel of the simulator (or load it from the cache) once per process, so
+    no step pays for it; False, with a warning, when that fails (numba installed but unable to
+    compile here): the simulator then runs its NumPy code."""
+    global _ready
+    if _ready is None:
+        if _numba is None:  # pragma: no cover
+            _ready = False
+            return False
+        try:
+            for fn in _warm_ups:
+                fn()
+            _ready = True
+        except Exception as exc:  # e.g. a broken llvmlite: the NumPy code gives the same run
+            log.warning(
+                "the simulator's compiled kernels are not available (%s); running its NumPy code", exc
+            )
+            _ready = False
+    return _ready
 
 
 def jit(fn: _F) -> _F:
@@ -223,3 +259,6 @@ def pair_offsets(
             sd2[k] = e2
             k += 1
     return k
+
+
+register_warm_up(warm_up)

@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from sim.kernels import jit
+from sim.kernels import jit, register_warm_up
 
 
 @jit
@@ -191,3 +191,6 @@ def warm_up() -> None:
     cells = np.zeros(9, dtype=bool)
     limit_and_look(f, f, f, f, b, b, f, f, 0.05, 1.0, 1.0, 1.0, 1.0, 0.1, f, f, f, f, f)
     stop_and_move(f, f, f, f, f, f, f, f, f, f, 0.05, 1.0, 0.1, 0.0, 0.0, 0.1, 1, 1, cells, f, f, b)
+
+
+register_warm_up(warm_up)

@@ -52,8 +52,6 @@ class Safety:
         self.avoidance = avoidance
         self.footprints = footprints
         self.planner = planner
-        if avoidance.compiled:
-            motion_kernels.warm_up()
 
     def reactive_stop(self, v: np.ndarray, dt: float, obst: np.ndarray) -> None:
         """Limit the commanded speeds ``v`` (m/s, one per robot, in place) so each robot can

@@ -134,7 +134,7 @@ class Simulator:
         self._traj_start: list[tuple[float, float, float, int]] = []
         self._backends: dict[str, NamespacedBackend] = {}
         self._chargers = np.array([(c.x, c.y) for c in params.chargers], dtype=float).reshape(-1, 2)
-        self.compiled = kernels.enabled() if compiled is None else compiled
+        self.compiled = kernels.enabled() if compiled is None else compiled and kernels.ready()
         radius, short = pair_radii(params)
         self._pairs = NeighborPairs(radius, short, params.model.max_linear_speed, self.compiled)
         footprints = FootprintGrid(grid, self.planner.footprint, AVOID_CLEAR_M)

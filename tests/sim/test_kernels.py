@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -187,12 +188,33 @@ def test_compiled_and_numpy_fleets_run_bit_identical(tmp_path: object) -> None:
     assert moved > 100.0  # the fleet drove: the comparison covered motion, not robots at rest
 
 
-def test_numpy_code_is_chosen_by_the_environment(monkeypatch: object) -> None:
-    import pytest
-
-    mp = monkeypatch
-    assert isinstance(mp, pytest.MonkeyPatch)
-    mp.setenv(kernels.ENV_VAR, "numpy")
+def test_numpy_code_is_chosen_by_the_environment(monkeypatch: pytest.MonkeyPatch, tmp_path: object) -> None:
+    monkeypatch.setenv(kernels.ENV_VAR, "numpy")
     assert not kernels.enabled()
-    mp.setenv(kernels.ENV_VAR, "")
+    cfg = load_config(generate_warehouse(str(tmp_path), "env", 2), robots=2)
+    assert not Simulator(cfg.grid, cfg.sim, SimClock()).compiled
+    monkeypatch.setenv(kernels.ENV_VAR, "")
     assert kernels.enabled() == kernels.available()
+    assert Simulator(cfg.grid, cfg.sim, SimClock()).compiled == kernels.available()
+
+
+def test_kernels_that_cannot_compile_leave_the_numpy_code_running(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture, tmp_path: object
+) -> None:
+    """numba installed but unable to compile here: a warning, and simulators run NumPy."""
+    from sim import follower_kernels
+
+    def broken() -> None:
+        raise RuntimeError("no LLVM here")
+
+    monkeypatch.setattr(kernels, "_ready", None)
+    monkeypatch.setattr(kernels, "_warm_ups", [follower_kernels.warm_up, broken])
+    with caplog.at_level("WARNING", logger="sim.kernels"):
+        sim, nss, routes = _fleet(str(tmp_path), compiled=True)
+    assert not sim.compiled and not kernels.enabled()
+    assert "no LLVM here" in caplog.text and "NumPy" in caplog.text
+    for i, ns in enumerate(nss):
+        sim.send_goal(ns, NavigateThroughPoses(routes[i % len(routes)]))
+    for _ in range(60):
+        sim.step()
+    assert sim.robot_table().distance_m.sum() > 10.0
