@@ -155,7 +155,8 @@ def run_sim_steps(
         parts = ", ".join(f"{k} {v / steps * 1000:.2f}" for k, v in stage_s.items())
         print(
             "  stage ms/step (nested: follow includes corridor_free, detour (which includes pair blocks) and "
-            f"footprint free; pairs.update includes neighbor_pairs; move includes footprint free): {parts}",
+            "footprint free; pairs.update includes neighbor_pairs; move includes footprint free; compiled runs "
+            f"limit_stop_move instead of reactive_stop and move): {parts}",
             file=sys.stderr,
         )
     xmin, xmax, ymin, ymax = cfg.grid.extent
@@ -206,6 +207,8 @@ def _time_stages(sim: Any, stage_s: dict[str, float]) -> None:
     timed(avoidance.footprints, "free", "footprint free")
     timed(sim._safety, "reactive_stop", "reactive_stop")
     timed(sim._safety, "move", "move")
+    # compiled, without dynamic obstacles: the limits, the reactive stop and the move in one
+    timed(sim._safety, "limit_stop_move", "limit_stop_move")
     timed(sim._contacts, "count", "contacts")
     timed(sim.costmaps, "sense", "costmaps.sense")
 

@@ -14,10 +14,14 @@ warm-up. What each side computes per step:
   ``Simulator.query_batch()`` call (the navigation contract's batch query).
 * **SUMO** (``bench/sumo_steps.py``, ``sim/sumo/world.py``): the warehouse roadmap converted
   to a SUMO network, one vehicle per robot, ``libsumo.simulationStep()`` plus the backend's
-  per-step bookkeeping (positions of every vehicle, arrivals, collisions, teleports). Each
-  robot gets NavigateThroughPoses through random roadmap nodes, re-sent when it ends, polled at
-  10 Hz of simulated time inside the timed loop, every goal's status in one call of the world's
-  goal book (``GoalBook.status_codes``).
+  per-step bookkeeping (positions of every vehicle, arrivals, collisions, teleports). Robot
+  ``i`` patrols the same route as on the simulator's side (NavigateThroughPoses of
+  ``config.route_poses(route i mod R)``, snapped to lanes and routed by SUMO), re-sent when it
+  ends, polled at 10 Hz of simulated time inside the timed loop, every goal's status in one
+  call of the world's goal book (``GoalBook.status_codes``). (Until this change SUMO's robots
+  drove NavigateThroughPoses through random roadmap nodes, each goal's poses found by
+  networkx shortest paths: at 10,000 robots that and snapping every pose by a scan of every
+  lane kept SUMO's set-up from finishing in 30 minutes.)
 
 The simulator runs again after SUMO on the same world and the ratio uses the mean of its two
 runs: on a shared machine the load drifts while SUMO sets up and runs (minutes at 5000 robots),
@@ -28,6 +32,12 @@ Command line::
     python bench/sim_vs_sumo.py --robots 1000 --steps 400
     python bench/sim_vs_sumo.py --robots 1000 5000 10000 --steps 200   # the issue's three sizes
     python bench/sim_vs_sumo.py --robots 30 --steps 2000 --json
+    python bench/sim_vs_sumo.py --robots 1000 5000 --steps 200 --cpu-time   # CPU s, not wall s
+
+``--cpu-time`` times both sides in CPU seconds of this process (libsumo runs inside it): on a
+machine shared with other jobs the wall time of either side is mostly waiting for a core, and
+how much moves from minute to minute (SUMO's 1000-robot step took 9.9-38.9 ms of wall time in
+three runs within 20 minutes, 3.5 ms of CPU).
 """
 
 from __future__ import annotations
@@ -36,6 +46,7 @@ import argparse
 import json
 import sys
 import tempfile
+import time
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -60,6 +71,7 @@ def compare(n_robots: int, steps: int, step_s: float) -> dict[str, object]:
         robots=list(cfg.robots),
         params=replace(cfg.sim, step_s=step_s),
         cache_dir=out / "sumo",
+        routes=[cfg.route_poses(r) for r in cfg.routes],
     )
     print(
         f"SUMO: {sumo_res.robots} robots x {sumo_res.steps} steps of {sumo_res.step_s:g} s on the same "
@@ -111,7 +123,16 @@ def main(argv: list[str] | None = None) -> int:
         "--step-s", type=float, default=0.05, help="step length in s on both sides (default 0.05)"
     )
     ap.add_argument("--json", action="store_true", help="print every result and ratio as JSON at the end")
+    ap.add_argument(
+        "--cpu-time",
+        action="store_true",
+        help="time both sides in this process's CPU seconds instead of wall seconds (both run in this "
+        "process): on a shared machine wall time is mostly waiting for a core",
+    )
     args = ap.parse_args(argv)
+    if args.cpu_time:
+        # bench_sim and sumo_steps read time.perf_counter at each call
+        time.perf_counter = time.process_time
     results = [compare(n, args.steps, args.step_s) for n in args.robots]
     print(
         "\n| robots | sim robot-steps/s (with polling), before / after SUMO | sim step only | "

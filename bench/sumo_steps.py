@@ -3,7 +3,8 @@
 Runs ``N`` robots as SUMO vehicles through :class:`sim.sumo.world.SumoWorld` (the same
 backend protocol the behavior trees use) for ``K`` steps and reports robot-steps per wall
 second (``N * K / elapsed``). Every robot patrols: it gets a NavigateThroughPoses through
-``poses_per_goal`` random roadmap nodes and a new one whenever its goal ends; goals are polled
+``poses_per_goal`` random roadmap nodes (or, with ``routes``, its patrol route as the
+simulator's side does) and a new one whenever its goal ends; goals are polled
 at ``poll_hz`` of simulated time, like agents ticking their trees (every goal's status in one
 call by default, as the simulator's side of ``bench/sim_vs_sumo.py`` does). As for patrol routes, the
 goal's poses are every node of the shortest roadmap paths between the random nodes, each facing
@@ -124,6 +125,7 @@ def run_sumo_steps(
     cache_dir: str | Path | None = None,
     progress: bool = False,
     batch: bool = True,
+    routes: list[tuple[Pose2D, ...]] | None = None,
 ) -> SumoBenchResult:
     """Run the benchmark once and return its figures (see the module docstring).
 
@@ -131,7 +133,9 @@ def run_sumo_steps(
     ``spacing`` m apart; ``robots`` default to :func:`grid_starts`; ``params`` default to
     ``SimParams(step_s=0.1, seed=seed)``. ``batch``: poll every goal's status in one call
     (``sim.goals.GoalBook.status_codes`` of the world's goal book); else one ``goal_state``
-    snapshot per goal.
+    snapshot per goal. ``routes``: robot ``i`` patrols ``routes[i mod len(routes)]`` (a
+    NavigateThroughPoses of its poses, as the simulator's side of ``bench/sim_vs_sumo.py``)
+    instead of random roadmap nodes.
     """
     from sim.goals import STATUS_CODES, TERMINAL
     from sim.sumo.net import as_graph, grid_roadmap
@@ -168,9 +172,11 @@ def run_sumo_steps(
                     if not status.terminal:
                         continue
                     counts["ok" if status is GoalStatus.SUCCEEDED else "failed"] += 1
-                goals[i] = b.send_goal(
-                    NavigateThroughPoses(patrol_poses(graph, rng.sample(nodes, poses_per_goal)))
-                )
+                if routes:
+                    poses = routes[i % len(routes)]
+                else:
+                    poses = patrol_poses(graph, rng.sample(nodes, poses_per_goal))
+                goals[i] = b.send_goal(NavigateThroughPoses(poses))
 
         # warm-up, not timed: insert the vehicles and route every robot's first goal
         world.step()

@@ -9,8 +9,9 @@ of the :data:`AVOID_OFFSETS` (tried in an order that keeps the side it already c
 heading is free for :data:`AVOID_CLEAR_M`, static map included (:meth:`Avoidance.detour`).
 
 The loops over neighbor pairs (the corridor test of every pair, and of every pair and detour
-heading) run compiled (:mod:`sim.kernels`), computing the same floats as the NumPy
-expressions they replaced. Units m, rad; frame ``map``.
+heading) run compiled (:mod:`sim.kernels`) where numba is installed, else as the NumPy
+expressions :func:`corridor_min_numpy` and :func:`pair_blocks_numpy`, which compute the same
+floats. Units m, rad; frame ``map``.
 """
 
 from __future__ import annotations
@@ -77,12 +78,79 @@ def corridor_gaps(
     return np.where((along <= 0.0) | (lateral >= contact + CORRIDOR_MARGIN_M), cap, gap)
 
 
+def corridor_min_numpy(
+    a: np.ndarray,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    hx: np.ndarray,
+    hy: np.ndarray,
+    cap: np.ndarray,
+    contact: float,
+    lat: float,
+    best: np.ndarray,
+) -> None:
+    """:func:`sim.kernels.corridor_min` as whole-array NumPy (the same floats): lower
+    ``best[i]`` to the corridor gap of every pair ``(i = a[p], offset dx[p], dy[p])`` whose
+    neighbor is ahead along ``(hx[i], hy[i])``, inside the corridor and closer than ``cap[i] +
+    contact``."""
+    along = dx * hx[a] + dy * hy[a]
+    lateral = np.abs(dx * hy[a] - dy * hx[a])
+    hit = np.flatnonzero((along > 0.0) & (lateral < lat) & (along < cap[a] + contact))
+    if hit.size:
+        al, la = along[hit], lateral[hit]
+        inner = al - np.sqrt(np.maximum(contact * contact - la * la, 0.0))
+        gap = np.maximum(np.where(la >= contact, al - contact, inner), 0.0)
+        np.minimum.at(best, a[hit], gap)
+
+
+def pair_blocks_numpy(
+    a_all: np.ndarray,
+    dx_all: np.ndarray,
+    dy_all: np.ndarray,
+    d2_all: np.ndarray,
+    reach2: float,
+    loc: np.ndarray,
+    db: np.ndarray,
+    offsets: np.ndarray,
+    bits: np.ndarray,
+    contact: float,
+    lat: float,
+    cap: float,
+    blocked: np.ndarray,
+) -> None:
+    """:func:`sim.kernels.pair_blocks` as whole-array NumPy (the same floats and bits): every
+    (pair, offset) of the blocked robots' pairs closer than ``sqrt(reach2)``."""
+    sel = np.flatnonzero((d2_all < reach2) & (loc[a_all] >= 0))
+    if not sel.size:
+        return
+    r, dx, dy = loc[a_all[sel]], dx_all[sel], dy_all[sel]
+    kk = offsets.size
+    p = np.repeat(np.arange(r.size), kk)
+    k = np.tile(np.arange(kk), r.size)
+    h = db[r[p]] + offsets[k]
+    hx, hy = np.cos(h), np.sin(h)
+    along = dx[p] * hx + dy[p] * hy
+    lateral = np.abs(dx[p] * hy - dy[p] * hx)
+    hit = np.flatnonzero((along > 0.0) & (lateral < lat) & (along < cap + contact))
+    al, la = along[hit], lateral[hit]
+    inner = al - np.sqrt(np.maximum(contact * contact - la * la, 0.0))
+    gap = np.maximum(np.where(la >= contact, al - contact, inner), 0.0)
+    bad = hit[gap < cap]
+    np.bitwise_or.at(blocked, r[p[bad]], bits[k[bad]])
+
+
 class Avoidance:
     """Corridor checks and detour search over the fleet's :class:`~sim.state.FleetState`,
-    its neighbor pairs and the static footprint grid, for robots of ``radius`` m."""
+    its neighbor pairs and the static footprint grid, for robots of ``radius`` m.
+    ``compiled`` (default :func:`sim.kernels.enabled`): the pair loops compiled, else NumPy."""
 
     def __init__(
-        self, state: FleetState, pairs: NeighborPairs, footprints: FootprintGrid, radius: float
+        self,
+        state: FleetState,
+        pairs: NeighborPairs,
+        footprints: FootprintGrid,
+        radius: float,
+        compiled: bool | None = None,
     ) -> None:
         self.state = state
         self.pairs = pairs
@@ -90,7 +158,8 @@ class Avoidance:
         self.radius = radius
         self.contact = contact = 2.0 * radius
         self.lat = contact + CORRIDOR_MARGIN_M
-        kernels.warm_up()  # compiled (or loaded from the cache) here, not in the first step
+        self.compiled = kernels.enabled() if compiled is None else compiled and kernels.ready()
+        self._pair_blocks_fn = kernels.pair_blocks if self.compiled else pair_blocks_numpy
 
     def corridor_free(
         self, idx: np.ndarray, hx: np.ndarray, hy: np.ndarray, cap: np.ndarray, obst: np.ndarray
@@ -105,7 +174,6 @@ class Avoidance:
         n = s.n
         contact, lat = self.contact, self.lat
         reach = math.hypot(float(cap.max()) + contact, lat)
-        a, dx, dy, _ = self.pairs.within(reach)
         if idx.size == n:
             hxf, hyf, capf = hx, hy, cap
         else:
@@ -116,9 +184,16 @@ class Avoidance:
             hyf[idx] = hy
             capf[idx] = cap
         best = capf.copy()
-        if a.size:
-            # only what is ahead, in the corridor and closer than the cap can limit
-            kernels.corridor_min(a, dx, dy, hxf, hyf, capf, contact, lat, best)
+        # only what is ahead, in the corridor and closer than the cap can limit
+        if self.compiled:
+            a, dx, dy, d2 = self.pairs.candidates(reach)
+            # within() keeps every pair once the reach passes the pair radius
+            reach2 = reach * reach if reach < self.pairs.radius else math.inf
+            kernels.corridor_min(a, dx, dy, d2, reach2, hxf, hyf, capf, contact, lat, best)
+        else:
+            a, dx, dy, _ = self.pairs.within(reach)
+            if a.size:
+                corridor_min_numpy(a, dx, dy, hxf, hyf, capf, contact, lat, best)
         if idx.size != n:
             best = best[idx]
         if obst.size:
@@ -127,6 +202,19 @@ class Avoidance:
             for qx, qy, qr in obst.tolist():
                 best = np.minimum(best, corridor_gaps(qx - sx, qy - sy, hx, hy, self.radius + qr, best))
         return best
+
+    def corridor_min_all(
+        self, hx: np.ndarray, hy: np.ndarray, cap: np.ndarray, longest: float, best: np.ndarray
+    ) -> None:
+        """:meth:`corridor_free` of every robot, compiled, without dynamic obstacles: lower
+        ``best`` (one entry per robot, in place) to the distance to the first robot in the
+        corridor along ``(hx, hy)`` (``(0, 0)``: none), capped at ``cap``; ``longest`` is
+        ``cap.max()`` of the robots with a heading."""
+        contact, lat = self.contact, self.lat
+        reach = math.hypot(longest + contact, lat)
+        a, dx, dy, d2 = self.pairs.candidates(reach)
+        reach2 = reach * reach if reach < self.pairs.radius else math.inf
+        kernels.corridor_min(a, dx, dy, d2, reach2, hx, hy, cap, contact, lat, best)
 
     def detour(self, fb: np.ndarray, db: np.ndarray, side: np.ndarray, obst: np.ndarray) -> np.ndarray:
         """The detour of each blocked robot ``fb[r]`` that wants to go along ``db[r]`` (rad):
@@ -150,16 +238,18 @@ class Avoidance:
 
     def _pair_blocks(self, fb: np.ndarray, db: np.ndarray, blocked: np.ndarray) -> None:
         """Set the bits of the offsets that neighbors block: the exact corridor test of every
-        (pair, offset) in a compiled loop (:func:`sim.kernels.pair_blocks`)."""
+        (pair, offset) (:func:`sim.kernels.pair_blocks` or :func:`pair_blocks_numpy`)."""
         n = self.state.n
         contact, lat, cap = self.contact, self.lat, AVOID_CLEAR_M
         reach = math.hypot(cap + contact, lat)
-        a_all, dx_all, dy_all, d2_all = self.pairs.within(reach)
+        # the compiled loop tests d2 itself
+        pick = self.pairs.candidates if self.compiled else self.pairs.within
+        a_all, dx_all, dy_all, d2_all = pick(reach)
         if not a_all.size:
             return
         loc = np.full(n, -1, dtype=np.int64)
         loc[fb] = np.arange(fb.size)
-        kernels.pair_blocks(
+        self._pair_blocks_fn(
             a_all,
             dx_all,
             dy_all,

@@ -24,6 +24,7 @@ from collections.abc import Callable
 import numpy as np
 
 from fleet.robots import SimParams
+from sim import follower_kernels, kernels
 from sim.avoidance import AVOID_LOOKAHEAD_M, OFFSETS, Avoidance
 from sim.state import FleetState
 
@@ -47,18 +48,25 @@ _Gather = Callable[[np.ndarray], np.ndarray]
 
 class PathFollower:
     """Follows the paths attached in ``state`` (see the module docstring), detouring with
-    ``avoidance``."""
+    ``avoidance``. ``compiled`` (default :func:`sim.kernels.enabled`): run the per-robot
+    arithmetic as the compiled loops of :mod:`sim.follower_kernels`, else as NumPy array
+    passes; both give the same bits."""
 
-    def __init__(self, state: FleetState, params: SimParams, avoidance: Avoidance) -> None:
+    def __init__(
+        self, state: FleetState, params: SimParams, avoidance: Avoidance, compiled: bool | None = None
+    ) -> None:
         self.state = state
         self.params = params
         self.avoidance = avoidance
+        self.compiled = kernels.enabled() if compiled is None else compiled and kernels.ready()
 
     def follow(self, F: np.ndarray, now: float, obst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Command every robot in ``F`` (increasing indices) at time ``now`` (s), with the
         dynamic obstacles ``obst`` (rows ``(x, y, radius)``). Returns ``(robots, arrived)``:
         the robots that stopped this step, in increasing order, and for each whether it
         arrived (else its remaining path stopped shrinking)."""
+        if self.compiled:
+            return self._follow_compiled(F, now, obst)
         s = self.state
         n = s.n
         full = F.size == n
@@ -103,6 +111,51 @@ class PathFollower:
             wcmd[stop] = 0.0
         self._write_back(F, full, seg, proj, nv, xy, side, best, btime, vcmd, wcmd)
         if not any_stop:
+            return _NO_ROBOTS, _NO_FLAGS
+        a = np.flatnonzero(stop)
+        return F[a], arrived[a]
+
+    def _follow_compiled(self, F: np.ndarray, now: float, obst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`follow` with the per-robot arithmetic compiled (:mod:`sim.follower_kernels`);
+        the lookahead heading (NumPy's ``arctan2``) and the detour search run between the two
+        loops."""
+        s = self.state
+        p = self.params
+        m = p.model
+        k = F.size
+        seg = np.empty(k, dtype=np.int64)
+        nv = np.empty(k, dtype=np.int64)
+        proj, rem, dx, dy, w = (np.empty(k) for _ in range(5))
+        xy = np.empty(k, dtype=bool)
+        arrived = np.empty(k, dtype=bool)
+        follower_kernels.track(
+            F, s.x, s.y, s.th, s.v, s.f_xy, s.f_seg, s.f_len, s.f_off, s.f_nv, s.f_vn, s.f_voff, s.f_yaw,
+            s.c_ax, s.c_ay, s.c_bx, s.c_by, s.c_ex, s.c_ey, s.c_den, s.c_suf, s.c_long,
+            s.c_vx, s.c_vy, s.c_vseg, s.c_vmore, s.c_gx, s.c_gy,
+            s.vias, s.pts_x, s.pts_y, s.seg_len, s.suffix,
+            p.goal_tolerance, p.yaw_tolerance, m.max_angular_speed, m.max_angular_accel,
+            seg, nv, proj, rem, dx, dy, w, xy, arrived,
+        )  # fmt: skip
+        di = np.flatnonzero(~xy)
+        side = s.f_side[F]
+        if di.size == k:
+            desired = np.arctan2(dy, dx)
+            self._avoid(F, desired, rem, side, obst)
+        elif di.size:
+            desired = np.arctan2(dy[di], dx[di])
+            sd = side[di]
+            self._avoid(F[di], desired, rem[di], sd, obst)
+            side[di] = sd
+        else:
+            desired = dx[:0]
+        stop = np.empty(k, dtype=bool)
+        follower_kernels.command(
+            F, di, desired, s.th, seg, nv, proj, rem, w, xy, arrived, side,
+            m.max_linear_speed, m.max_angular_speed, m.max_linear_accel, m.max_angular_accel,
+            ROTATE_IN_PLACE_RAD, HEADING_GAIN, APPROACH_M, now, APPROACH_FACTOR * p.stuck_time_s,
+            s.f_seg, s.f_nv, s.f_side, s.f_t, s.f_best, s.f_btime, s.f_xy, s.vd, s.wd, s.drives, stop,
+        )  # fmt: skip
+        if not stop.any():
             return _NO_ROBOTS, _NO_FLAGS
         a = np.flatnonzero(stop)
         return F[a], arrived[a]

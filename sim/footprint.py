@@ -32,7 +32,9 @@ class FootprintGrid:
         self._clear_m = clear_m
         padded = np.zeros((grid.height + 2, grid.width + 2), dtype=bool)
         padded[1:-1, 1:-1] = ~footprint
-        self._free = padded.ravel()
+        #: the padded free mask, flat: cell ``(iy, ix)`` (``-1 .. height``, ``-1 .. width``) is
+        #: at ``(iy + 1) * (width + 2) + ix + 1``
+        self.cells = padded.ravel()
         self._clear: np.ndarray | None = None
         samples: list[float] = []
         stepd = 0.5 * grid.resolution
@@ -55,7 +57,7 @@ class FootprintGrid:
         iy *= g.width + 2
         iy += ix
         iy += 1
-        out: np.ndarray = self._free[iy]
+        out: np.ndarray = self.cells[iy]
         return out
 
     def clear(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:

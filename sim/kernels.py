@@ -1,24 +1,104 @@
-"""Compiled kernels of the simulator's step (numba): loops over neighbor pairs that NumPy can
-only do as many whole-array passes.
+"""Compiled kernels of the simulator's step (numba): loops over robots and neighbor pairs that
+NumPy can only do as many whole-array passes, and the switch that chooses them.
 
-Each kernel computes exactly what the NumPy expression it replaces computes, with the same
+Each kernel computes exactly what the NumPy code it replaces computes, with the same
 floating-point operations in the same order on the same values: plain IEEE double arithmetic,
-no fast-math (no fused multiply-add, no reassociation), and ``math.cos`` / ``math.sin`` /
-``math.sqrt``, which on the project's machines give the very bits NumPy's ``cos`` / ``sin`` /
-``sqrt`` give (``tests/sim/test_kernels.py`` checks both). Kernels are compiled on first use
-and cached next to this module (``cache=True``); :func:`warm_up` compiles them up front so a
-simulator's first step does not pay for it.
+no fast-math (no fused multiply-add, no reassociation), ``math.cos`` / ``math.sin`` /
+``math.sqrt`` / ``math.hypot`` (the C library's, which on the project's machines give the very
+bits NumPy's give; ``tests/sim/test_kernels.py`` checks them), and NumPy's own rule for
+``minimum`` / ``maximum`` (the second operand when they compare equal, which decides the sign
+of a zero). ``arctan2`` is the exception: NumPy's vectorized one differs from the C library's
+in the last bit for about 8 % of inputs here, so the follower calls NumPy's between two
+kernels.
+
+**Compiled or NumPy.** numba is a dependency of the project (``make setup`` installs it), but
+the simulator runs without it: :func:`enabled` tells whether the compiled kernels are used
+(numba importable and ``FLEET_SIM_KERNELS`` not set to ``numpy``); otherwise every stage runs
+its NumPy code, with bit-identical results (``tests/sim/test_kernels.py`` runs a fleet both
+ways and compares every state). Kernels are compiled on first use and cached next to this
+module (``cache=True``, in ``__pycache__``); :func:`ready` compiles them all (or loads them
+from the cache) once per process when the first simulator is made, so no step pays for it, and
+turns them off with a warning if they cannot compile here.
 """
 
 from __future__ import annotations
 
+import logging
 import math
+import os
+from collections.abc import Callable
+from types import ModuleType
+from typing import Any, TypeVar, cast
 
 import numpy as np
-from numba import njit
+
+_numba: ModuleType | None
+try:
+    import numba as _numba
+except ImportError:  # pragma: no cover - the NumPy code runs instead
+    _numba = None
+
+#: Set to ``numpy`` to run the simulator's NumPy code even where numba is installed.
+ENV_VAR = "FLEET_SIM_KERNELS"
+
+log = logging.getLogger(__name__)
+#: Whether every kernel compiled (or loaded from the cache) in this process; None: not tried.
+_ready: bool | None = None
+#: The warm-ups :func:`ready` runs: this module's and those the other kernel modules register.
+_warm_ups: list[Callable[[], None]] = []
 
 
-@njit(cache=True, nogil=True)
+def register_warm_up(fn: Callable[[], None]) -> None:
+    """Have :func:`ready` run ``fn`` (a kernel module's warm-up, which calls its kernels with
+    the simulator's argument types on empty inputs)."""
+    _warm_ups.append(fn)
+
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def available() -> bool:
+    """Whether numba is installed, so the kernels can be compiled."""
+    return _numba is not None
+
+
+def enabled() -> bool:
+    """Whether a simulator built now uses the compiled kernels: numba is installed,
+    ``FLEET_SIM_KERNELS`` is not ``numpy`` and the kernels compile here (:func:`ready`)."""
+    return available() and os.environ.get(ENV_VAR, "").strip().lower() != "numpy" and ready()
+
+
+def ready() -> bool:
+    """Compile every kernel of the simulator (or load it from the cache) once per process, so
+    no step pays for it; False, with a warning, when that fails (numba installed but unable to
+    compile here): the simulator then runs its NumPy code."""
+    global _ready
+    if _ready is None:
+        if _numba is None:  # pragma: no cover
+            _ready = False
+            return False
+        try:
+            for fn in _warm_ups:
+                fn()
+            _ready = True
+        except Exception as exc:  # e.g. a broken llvmlite: the NumPy code gives the same run
+            log.warning(
+                "the simulator's compiled kernels are not available (%s); running its NumPy code", exc
+            )
+            _ready = False
+    return _ready
+
+
+def jit(fn: _F) -> _F:
+    """Compile ``fn`` with numba (no-Python mode, cached, releasing the GIL) where numba is
+    installed; without numba ``fn`` stays a plain Python function (never called by the
+    simulator then: it runs its NumPy code)."""
+    if _numba is None:  # pragma: no cover
+        return fn
+    return cast(_F, _numba.njit(cache=True, nogil=True)(fn))
+
+
+@jit
 def pair_blocks(
     a_all: np.ndarray,
     dx_all: np.ndarray,
@@ -78,11 +158,13 @@ def pair_blocks(
         blocked[r] = m
 
 
-@njit(cache=True, nogil=True)
+@jit
 def corridor_min(
     a: np.ndarray,
     dx: np.ndarray,
     dy: np.ndarray,
+    d2: np.ndarray,
+    reach2: float,
     hx: np.ndarray,
     hy: np.ndarray,
     cap: np.ndarray,
@@ -91,10 +173,14 @@ def corridor_min(
     best: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """Lower ``best[i]`` to the corridor gap of every pair ``(i = a[p], offset dx[p], dy[p])``
-    whose neighbor is ahead along ``(hx[i], hy[i])``, inside the corridor and closer than
-    ``cap[i] + contact`` (what ``Avoidance.corridor_free`` does with ``np.minimum.at``)."""
+    with ``d2[p] < reach2`` whose neighbor is ahead along ``(hx[i], hy[i])``, inside the
+    corridor and closer than ``cap[i] + contact`` (what ``np.minimum.at`` does in
+    :func:`sim.avoidance.corridor_min_numpy`). A pair the reach leaves out cannot be in the
+    corridor when ``reach2 >= max(cap + contact)**2 + lat**2``."""
     cc = contact * contact
     for p in range(a.shape[0]):
+        if not d2[p] < reach2:
+            continue
         i = a[p]
         hxa = hx[i]
         hya = hy[i]
@@ -133,4 +219,46 @@ def warm_up() -> None:
         0.8,
         ints,
     )
-    corridor_min(ints, floats, floats, floats, floats, floats, 0.6, 0.65, floats)
+    corridor_min(ints, floats, floats, floats, 1.0, floats, floats, floats, 0.6, 0.65, floats)
+    pair_offsets(ints, ints, floats, floats, 1.0, floats, floats, floats, ints, ints, floats, floats, floats)
+
+
+@jit
+def pair_offsets(
+    pi: np.ndarray,
+    pj: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    short2: float,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    d2: np.ndarray,
+    si: np.ndarray,
+    sj: np.ndarray,
+    sdx: np.ndarray,
+    sdy: np.ndarray,
+    sd2: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """The offsets ``dx = x[pj] - x[pi]``, ``dy``, ``d2 = dx * dx + dy * dy`` of every pair,
+    and the pairs with ``d2 < short2`` in order into ``si .. sd2``; returns how many."""
+    k = 0
+    for p in range(pi.shape[0]):
+        a = pi[p]
+        b = pj[p]
+        ex = x[b] - x[a]
+        ey = y[b] - y[a]
+        e2 = ex * ex + ey * ey
+        dx[p] = ex
+        dy[p] = ey
+        d2[p] = e2
+        if e2 < short2:
+            si[k] = a
+            sj[k] = b
+            sdx[k] = ex
+            sdy[k] = ey
+            sd2[k] = e2
+            k += 1
+    return k
+
+
+register_warm_up(warm_up)

@@ -23,6 +23,7 @@ from collections.abc import Callable
 import numpy as np
 
 from fleet.robots import SimParams
+from sim import motion_kernels
 from sim.avoidance import Avoidance, corridor_gaps
 from sim.footprint import FootprintGrid
 from sim.history import EVENTS_KEPT, trim_oldest
@@ -72,6 +73,35 @@ class Safety:
             vmax = np.minimum(np.sqrt(2.0 * m.max_linear_accel * room), room / dt)
             cut = lim & (np.abs(vm) > vmax)
             v[mv[cut]] = direction[cut] * vmax[cut]
+
+    def limit_stop_move(
+        self, vd: np.ndarray, wd: np.ndarray, dt: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The acceleration and speed limits, :meth:`reactive_stop` and :meth:`move` of every
+        robot in two compiled loops (:mod:`sim.motion_kernels`), for a step without dynamic
+        obstacles. Returns ``(w, ds, dtheta, moved)``: the limited turn rates and what
+        :meth:`move` returns."""
+        s = self.state
+        m = self.params.model
+        n = vd.size
+        v, w, hx, hy, look, ds, dth = (np.empty(n) for _ in range(7))
+        longest = motion_kernels.limit_and_look(
+            vd, wd, s.v[:n], s.w[:n], s.stalled[:n], s.halt[:n], s.battery[:n], s.th[:n], dt,
+            m.max_linear_accel, m.max_angular_accel, m.max_linear_speed, m.max_angular_speed, STOP_GAP_M,
+            v, w, hx, hy, look,
+        )  # fmt: skip
+        free = look.copy()
+        if longest > 0.0:
+            self.avoidance.corridor_min_all(hx, hy, look, longest, free)
+        moved = np.empty(n, dtype=bool)
+        fp = self.footprints
+        g = fp.grid
+        motion_kernels.stop_and_move(
+            v, w, free, look, s.x[:n], s.y[:n], s.th[:n], s.v[:n], s.w[:n], s.dist[:n], dt,
+            m.max_linear_accel, STOP_GAP_M, g.origin_x, g.origin_y, g.resolution, g.width, g.height,
+            fp.cells, ds, dth, moved,
+        )  # fmt: skip
+        return w, ds, dth, moved
 
     def move(
         self, v: np.ndarray, w: np.ndarray, dt: float, obst: np.ndarray

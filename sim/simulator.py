@@ -49,6 +49,7 @@ from fleet.maps import OccupancyGrid
 from fleet.navigation import NavBatch
 from fleet.robots import RobotSpec, SimParams
 from fleet.types import ErrorCode, GoalState, Pose2D, RobotState, normalize_angle
+from sim import kernels
 from sim.avoidance import AVOID_CLEAR_M, AVOID_LOOKAHEAD_M, CORRIDOR_MARGIN_M, Avoidance
 from sim.backend import NamespacedBackend
 from sim.batch import SimBatch
@@ -109,9 +110,12 @@ class Simulator:
         params: step, tolerances, stuck time, chargers, robot and battery models.
         clock: the simulated clock; :meth:`step` advances it. Pass a fresh ``SimClock()``
             unless several components must share one clock.
+        compiled: the step's loops compiled or NumPy (default :func:`sim.kernels.enabled`): same bits.
     """
 
-    def __init__(self, grid: OccupancyGrid, params: SimParams, clock: SimClock) -> None:
+    def __init__(
+        self, grid: OccupancyGrid, params: SimParams, clock: SimClock, *, compiled: bool | None = None
+    ) -> None:
         if params.step_s <= 0:
             raise BackendError(f"SimParams.step_s must be positive, got {params.step_s}")
         self.grid = grid
@@ -130,11 +134,12 @@ class Simulator:
         self._traj_start: list[tuple[float, float, float, int]] = []
         self._backends: dict[str, NamespacedBackend] = {}
         self._chargers = np.array([(c.x, c.y) for c in params.chargers], dtype=float).reshape(-1, 2)
+        self.compiled = kernels.enabled() if compiled is None else compiled and kernels.ready()
         radius, short = pair_radii(params)
-        self._pairs = NeighborPairs(radius, short, params.model.max_linear_speed)
+        self._pairs = NeighborPairs(radius, short, params.model.max_linear_speed, self.compiled)
         footprints = FootprintGrid(grid, self.planner.footprint, AVOID_CLEAR_M)
-        avoidance = Avoidance(self.state, self._pairs, footprints, params.model.radius)
-        self._follower = PathFollower(self.state, params, avoidance)
+        avoidance = Avoidance(self.state, self._pairs, footprints, params.model.radius, self.compiled)
+        self._follower = PathFollower(self.state, params, avoidance, self.compiled)
         self._safety = Safety(self.state, params, avoidance, footprints, self.planner)
         self._contacts = Contacts(self.state, params, self._pairs)
         self.costmaps = Costmaps(grid, params.model.radius)
@@ -505,11 +510,13 @@ class Simulator:
             stopped, arrived = self._follower.follow(fol, now, obst)
             if stopped.size:
                 self._dispatch.path_events(stopped, arrived, now)
-        # 2. acceleration and speed limits, faults
-        v, w = self._limits(vd, wd, dt)
-        # 3. safety: be able to stop before whatever is ahead; refuse moves into obstacles
-        self._safety.reactive_stop(v, dt, obst)
-        ds, dth, moved = self._safety.move(v, w, dt, obst)
+        # 2. speed limits, faults; 3. safety: stop before what is ahead, not into obstacles
+        if self.compiled and not obst.size:
+            w, ds, dth, moved = self._safety.limit_stop_move(vd, wd, dt)
+        else:
+            v, w = self._limits(vd, wd, dt)
+            self._safety.reactive_stop(v, dt, obst)
+            ds, dth, moved = self._safety.move(v, w, dt, obst)
         self._dispatch.after_move(py_robots, ds, dth)
         # 4. battery and stuck detector
         self._battery(moved, w, np.abs(ds), dt)
@@ -521,15 +528,12 @@ class Simulator:
         self._sample(now)
 
     def _limits(self, vd: np.ndarray, wd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """The commands ``vd``, ``wd`` within the acceleration and speed limits; zero for a
-        stalled robot or an empty battery."""
+        """``vd``, ``wd`` within the acceleration and speed limits; 0 when stalled or flat."""
         s = self.state
         n = vd.size
         m = self.params.model
-        dv = m.max_linear_accel * dt
-        dw = m.max_angular_accel * dt
-        v0 = s.v[:n]
-        w0 = s.w[:n]
+        dv, dw = m.max_linear_accel * dt, m.max_angular_accel * dt
+        v0, w0 = s.v[:n], s.w[:n]
         v = np.maximum(vd, v0 - dv)
         np.minimum(v, v0 + dv, out=v)
         np.maximum(v, -m.max_linear_speed, out=v)

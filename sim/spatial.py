@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim import kernels
+
 _EMPTY = np.zeros(0, dtype=np.int64)
 
 
@@ -98,11 +100,13 @@ class NeighborPairs:
     motion at ``max_speed`` (m/s) can close, rebuilt every :data:`PAIR_REUSE_STEPS` steps (or
     when a robot was added). Each step :meth:`update` refreshes the offsets ``dx = x[j] - x[i]``,
     ``dy``, ``d2 = dx**2 + dy**2`` of every pair ``(i, j)``, and keeps the pairs closer than
-    ``short`` (m) in a second, shorter list (``si``, ``sj``, ``sdx``, ``sdy``, ``sd2``)."""
+    ``short`` (m) in a second, shorter list (``si``, ``sj``, ``sdx``, ``sdy``, ``sd2``), in one
+    compiled pass with ``compiled`` (:func:`sim.kernels.pair_offsets`), else with NumPy."""
 
-    def __init__(self, radius: float, short: float, max_speed: float) -> None:
+    def __init__(self, radius: float, short: float, max_speed: float, compiled: bool = False) -> None:
         self.radius = radius
         self.short = short
+        self.compiled = compiled
         self._max_speed = max_speed
         self.i = self.j = _EMPTY
         self.dx = self.dy = self.d2 = np.zeros(0)
@@ -120,6 +124,15 @@ class NeighborPairs:
             self.i, self.j = neighbor_pairs(x, y, self.radius + skin)
             self._n, self._built = n, step
         pi, pj = self.i, self.j
+        if self.compiled and self.short < self.radius:
+            m = pi.shape[0]
+            dx, dy, d2, sdx, sdy, sd2 = (np.empty(m) for _ in range(6))
+            si = np.empty(m, dtype=np.int64)
+            sj = np.empty(m, dtype=np.int64)
+            k = kernels.pair_offsets(pi, pj, x, y, self.short * self.short, dx, dy, d2, si, sj, sdx, sdy, sd2)
+            self.dx, self.dy, self.d2 = dx, dy, d2
+            self.si, self.sj, self.sdx, self.sdy, self.sd2 = si[:k], sj[:k], sdx[:k], sdy[:k], sd2[:k]
+            return
         self.dx = x[pj] - x[pi]
         self.dy = y[pj] - y[pi]
         self.d2 = self.dx * self.dx + self.dy * self.dy
@@ -129,6 +142,14 @@ class NeighborPairs:
             self.sdx, self.sdy, self.sd2 = self.dx[near], self.dy[near], self.d2[near]
         else:
             self.si, self.sj, self.sdx, self.sdy, self.sd2 = pi, pj, self.dx, self.dy, self.d2
+
+    def candidates(self, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(i, dx, dy, d2)`` of a list of directed pairs holding every pair with ``d2 <
+        reach**2`` (the short list when it reaches that far, else all pairs), unfiltered: for
+        a loop that tests ``d2`` itself."""
+        if reach <= self.short:
+            return self.si, self.sdx, self.sdy, self.sd2
+        return self.i, self.dx, self.dy, self.d2
 
     def within(self, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(i, dx, dy, d2)`` of the directed pairs ``(i, j)`` that can matter to a corridor

@@ -12,6 +12,8 @@ from sim.sumo.launch import Libsumo
 
 #: Heading agreement weight when snapping poses to lanes (m of distance per unit of 1-cos).
 _HEADING_WEIGHT_M = 0.3
+#: Snapped poses remembered (:meth:`LaneIndex.nearest`); the memory is emptied when full.
+NEAREST_KEPT = 65536
 
 
 @dataclass(frozen=True)
@@ -94,6 +96,7 @@ class LaneIndex:
         self._scale = np.array(scale)
         self._owner = np.array(owner)
         self._heading = np.arctan2(self._d[:, 1], self._d[:, 0])
+        self._nearest: dict[tuple[float, float, float | None], LanePoint] = {}
 
     @staticmethod
     def _junction_line(ls: Libsumo, edge: str, shape: list[tuple[float, ...]]) -> list[tuple[float, ...]]:
@@ -122,7 +125,19 @@ class LaneIndex:
 
     def nearest(self, x: float, y: float, theta: float | None = None) -> LanePoint:
         """The lane point nearest ``(x, y)``; with ``theta``, lanes pointing the pose's way are
-        preferred over the opposite lane at a similar distance."""
+        preferred over the opposite lane at a similar distance. A pose snapped before is
+        answered from memory (patrols send the same poses again and again; a scan costs
+        O(lanes)), the last :data:`NEAREST_KEPT` poses at most."""
+        key = (x, y, theta)
+        got = self._nearest.get(key)
+        if got is None:
+            if len(self._nearest) >= NEAREST_KEPT:
+                self._nearest.clear()
+            got = self._nearest[key] = self._scan(x, y, theta)
+        return got
+
+    def _scan(self, x: float, y: float, theta: float | None) -> LanePoint:
+        """:meth:`nearest` by testing every lane segment."""
         p = np.array([x, y])
         t = np.clip(((p - self._a) * self._d).sum(axis=1) / self._len2, 0.0, 1.0)
         q = self._a + self._d * t[:, None]

@@ -1,15 +1,24 @@
-"""The compiled kernels compute the very floats of the NumPy expressions they replaced."""
+"""The compiled kernels compute the very floats of the NumPy code they replace, and a fleet
+run compiled is the same run, bit for bit, as the same fleet run with the NumPy code (what a
+machine without numba runs)."""
 
 from __future__ import annotations
 
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from fleet.clock import SimClock
+from fleet.config.loader import load_config
+from fleet.types import NavigateThroughPoses, NavigateToPose, Pose2D
+from fleet.warehouse import generate_warehouse
 from sim import kernels
-from sim.avoidance import AVOID_CLEAR_M, CORRIDOR_MARGIN_M, OFFSETS
+from sim.avoidance import AVOID_CLEAR_M, CORRIDOR_MARGIN_M, OFFSETS, corridor_min_numpy, pair_blocks_numpy
+from sim.goals import TERMINAL
+from sim.simulator import Simulator
 
 
 def _gaps(along: np.ndarray, lateral: np.ndarray, contact: float) -> np.ndarray:
@@ -71,6 +80,11 @@ def test_pair_blocks_is_the_exact_corridor_test(seed: int, n: int, span: float, 
     )
     want = _pair_blocks_numpy(a_all, dx, dy, d2, reach, loc, db, contact, lat, fb.size)
     assert got.tolist() == want.tolist()
+    fallback = np.zeros(fb.size, dtype=np.int64)
+    pair_blocks_numpy(
+        a_all, dx, dy, d2, reach * reach, loc, db, OFFSETS, bits, contact, lat, AVOID_CLEAR_M, fallback
+    )
+    assert fallback.tolist() == want.tolist()
 
 
 @settings(max_examples=40, deadline=None)
@@ -84,13 +98,37 @@ def test_corridor_min_is_the_numpy_minimum(seed: int, n: int, span: float) -> No
     cap = rng.uniform(0.1, 2.0, n)
     contact, lat = 0.6, 0.65
     got = cap.copy()
-    kernels.corridor_min(a, dx, dy, hx, hy, cap, contact, lat, got)
+    kernels.corridor_min(a, dx, dy, dx * dx + dy * dy, math.inf, hx, hy, cap, contact, lat, got)
     want = cap.copy()
     along = dx * hx[a] + dy * hy[a]
     lateral = np.abs(dx * hy[a] - dy * hx[a])
     hit = np.flatnonzero((along > 0.0) & (lateral < lat) & (along < cap[a] + contact))
     np.minimum.at(want, a[hit], _gaps(along[hit], lateral[hit], contact))
     assert got.tobytes() == want.tobytes()
+    fallback = cap.copy()
+    corridor_min_numpy(a, dx, dy, hx, hy, cap, contact, lat, fallback)
+    assert fallback.tobytes() == want.tobytes()
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 80), span=st.floats(0.5, 8.0))
+def test_pair_offsets_are_numpys_offsets_and_short_list(seed: int, n: int, span: float) -> None:
+    a, _, _, _ = _scene(seed, n, span)
+    rng = np.random.default_rng(seed + 3)
+    x, y = rng.uniform(0.0, span, n), rng.uniform(0.0, span, n)
+    b = np.array([j for i in range(n) for j in range(n) if j != i], dtype=np.int64)
+    m = a.size
+    dx, dy, d2, sdx, sdy, sd2 = (np.empty(m) for _ in range(6))
+    si, sj = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    short = 0.4 * span
+    k = kernels.pair_offsets(a, b, x, y, short * short, dx, dy, d2, si, sj, sdx, sdy, sd2)
+    ex, ey = x[b] - x[a], y[b] - y[a]
+    e2 = ex * ex + ey * ey
+    near = np.flatnonzero(e2 < short * short)
+    assert (dx.tobytes(), dy.tobytes(), d2.tobytes()) == (ex.tobytes(), ey.tobytes(), e2.tobytes())
+    assert k == near.size
+    assert si[:k].tolist() == a[near].tolist() and sj[:k].tolist() == b[near].tolist()
+    assert sd2[:k].tobytes() == e2[near].tobytes() and sdx[:k].tobytes() == ex[near].tobytes()
 
 
 def test_libm_trigonometry_matches_numpy() -> None:
@@ -101,3 +139,82 @@ def test_libm_trigonometry_matches_numpy() -> None:
     assert np.sin(x).tobytes() == np.array([math.sin(v) for v in x.tolist()]).tobytes()
     ax = np.abs(x)
     assert np.sqrt(ax).tobytes() == np.array([math.sqrt(v) for v in ax.tolist()]).tobytes()
+
+
+def _fleet(tmp: str, compiled: bool) -> tuple[Simulator, list[str], list[tuple[Pose2D, ...]]]:
+    cfg = load_config(generate_warehouse(tmp, "kernels", 60), robots=60)
+    sim = Simulator(cfg.grid, cfg.sim, SimClock(), compiled=compiled)
+    for spec in cfg.robots:
+        sim.add_robot(spec)
+    return sim, sim.namespaces, [cfg.route_poses(r) for r in cfg.routes]
+
+
+def test_compiled_and_numpy_fleets_run_bit_identical(tmp_path: object) -> None:
+    """60 robots patrolling a generated warehouse (vias, detours in the aisles, arrivals with a
+    final turn, a dynamic obstacle dropped in and taken away), compiled and NumPy side by side:
+    every robot's state and every goal's batch row are the same bytes after every step."""
+    fast, nss, routes = _fleet(str(tmp_path / "a"), compiled=True)
+    slow, _, _ = _fleet(str(tmp_path / "b"), compiled=False)
+    assert fast.compiled and not slow.compiled
+    goals: list[list[str]] = [[], []]
+    for sim, ids in ((fast, goals[0]), (slow, goals[1])):
+        for i, ns in enumerate(nss):
+            goal = NavigateThroughPoses(routes[i % len(routes)])
+            if i % 3 == 0:  # a single pose: arrives, then turns to the final yaw
+                p = routes[i % len(routes)][1]
+                goal = NavigateToPose(Pose2D(p.x, p.y, p.theta + 2.0))
+            ids.append(sim.send_goal(ns, goal))
+    moved = 0.0
+    for k in range(360):
+        if k == 60:
+            p = fast.true_pose(nss[5])
+            oids = [sim.add_obstacle(p.x + 1.0, p.y, 0.3) for sim in (fast, slow)]
+        if k == 200:
+            for sim, oid in zip((fast, slow), oids, strict=True):
+                sim.remove_obstacle(oid)
+        for sim in (fast, slow):
+            sim.step()
+        a, b = fast.robot_table(), slow.robot_table()
+        for name in ("x", "y", "theta", "v", "w", "battery", "distance_m", "collisions", "stuck"):
+            assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), (k, name)
+        if k % 5 == 0:
+            qa, qb = fast.query_batch(nss, goals[0]), slow.query_batch(nss, goals[1])
+            for name in ("goal_status", "goal_error", "distance_remaining"):
+                assert getattr(qa, name).tobytes() == getattr(qb, name).tobytes(), (k, name)
+            for i in TERMINAL[qa.goal_status].nonzero()[0].tolist():
+                for sim, ids in ((fast, goals[0]), (slow, goals[1])):
+                    ids[i] = sim.send_goal(nss[i], NavigateThroughPoses(routes[i % len(routes)]))
+        moved = float(a.distance_m.sum())
+    assert moved > 100.0  # the fleet drove: the comparison covered motion, not robots at rest
+
+
+def test_numpy_code_is_chosen_by_the_environment(monkeypatch: pytest.MonkeyPatch, tmp_path: object) -> None:
+    monkeypatch.setenv(kernels.ENV_VAR, "numpy")
+    assert not kernels.enabled()
+    cfg = load_config(generate_warehouse(str(tmp_path), "env", 2), robots=2)
+    assert not Simulator(cfg.grid, cfg.sim, SimClock()).compiled
+    monkeypatch.setenv(kernels.ENV_VAR, "")
+    assert kernels.enabled() == kernels.available()
+    assert Simulator(cfg.grid, cfg.sim, SimClock()).compiled == kernels.available()
+
+
+def test_kernels_that_cannot_compile_leave_the_numpy_code_running(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture, tmp_path: object
+) -> None:
+    """numba installed but unable to compile here: a warning, and simulators run NumPy."""
+    from sim import follower_kernels
+
+    def broken() -> None:
+        raise RuntimeError("no LLVM here")
+
+    monkeypatch.setattr(kernels, "_ready", None)
+    monkeypatch.setattr(kernels, "_warm_ups", [follower_kernels.warm_up, broken])
+    with caplog.at_level("WARNING", logger="sim.kernels"):
+        sim, nss, routes = _fleet(str(tmp_path), compiled=True)
+    assert not sim.compiled and not kernels.enabled()
+    assert "no LLVM here" in caplog.text and "NumPy" in caplog.text
+    for i, ns in enumerate(nss):
+        sim.send_goal(ns, NavigateThroughPoses(routes[i % len(routes)]))
+    for _ in range(60):
+        sim.step()
+    assert sim.robot_table().distance_m.sum() > 10.0

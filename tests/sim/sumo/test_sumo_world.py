@@ -426,3 +426,20 @@ def test_a_goal_on_a_junction_centre_is_reached_at_the_lane_end_beside_it(cache:
         pose = b.robot_state().pose
         assert pose is not None and pose.distance_to(goal) <= H + PARAMS.model.radius + 0.05
         assert abs(pose.theta) < 0.01
+
+
+def test_snapped_poses_are_remembered_within_a_bound(cache: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Snapping a pose again answers from memory with the very lane point a scan of every
+    lane gives; the memory is emptied when it holds ``NEAREST_KEPT`` poses."""
+    from sim.sumo import lanes as lanes_mod
+
+    monkeypatch.setattr(lanes_mod, "NEAREST_KEPT", 3)
+    with make_world(cache, {"/r1": east(2.0)}) as world:
+        index = world.lanes
+        index._nearest.clear()
+        poses = [(5.0, -H, 0.0), (SPACING, 5.0, math.pi / 2), (7.0, SPACING + H, math.pi), (1.0, 1.0, None)]
+        for x, y, th in poses:
+            first = index.nearest(x, y, th)
+            assert first == index._scan(x, y, th)
+            assert index.nearest(x, y, th) is first  # from memory
+            assert len(index._nearest) <= 3
