@@ -48,7 +48,7 @@ from fleet.errors import BackendError
 from fleet.maps import OccupancyGrid
 from fleet.navigation import NavBatch
 from fleet.robots import RobotSpec, SimParams
-from fleet.types import ErrorCode, GoalState, Pose2D, RobotState, normalize_angle
+from fleet.types import ErrorCode, GoalState, Pose2D, RobotState, make_pose, normalize_angle
 from sim.avoidance import AVOID_CLEAR_M, AVOID_LOOKAHEAD_M, CORRIDOR_MARGIN_M, Avoidance
 from sim.backend import NamespacedBackend
 from sim.batch import SimBatch
@@ -201,7 +201,7 @@ class Simulator:
         r = self._robot(namespace)
         x, y, th, v, w, battery, charging, stuck, dist, collisions = self.state.row(r.index)[:10]
         est = self.localization.robots[r.index]
-        pose = Pose2D(x, y, th)
+        pose = make_pose(x, y, th)
         if not est.localized or est.lost:
             loc = self.localization.state(r.index, pose, self.clock.now())
             state_loc: RobotState = make_robot_state(

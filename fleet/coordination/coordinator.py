@@ -125,7 +125,7 @@ from fleet.coordination.views import (
     TaskOrder,
 )
 from fleet.messages import Grant, StatusRecord, TaskMessage
-from fleet.types import Pose2D, TreeKind
+from fleet.types import TreeKind, frozen_factory, make_pose
 
 if TYPE_CHECKING:
     from fleet.config.model import FleetConfig
@@ -270,17 +270,21 @@ class Coordinator:
 
     def feed_local(self, rec: StatusRecord) -> None:
         """A status record of an in-process robot."""
-        self._put(("status", rec))
+        with self._lock:  # _put, without the call: every robot, every period
+            self._inbox.append(("status", rec))
 
     def cycle(self) -> list[TaskOrder]:
         """Apply everything received since the last cycle, decide, publish. Returns the orders."""
         now = self.clock.now()
         with self._lock:
             inbox, self._inbox = self._inbox, []
+        observe, local = self.state.observe, self.local_robots
         for item in inbox:
             if item[0] == "status":
-                self._heal(item[1])
-                self.state.observe(item[1].robot, now, observation_from_record(item[1]))
+                rec = item[1]
+                if rec.robot not in local:  # _heal leaves local robots alone
+                    self._heal(rec)
+                observe(rec.robot, now, observation_from_record(rec))
             elif item[0] == "join":
                 self.state.robot_joined(item[1], now)
             elif not self._left_with_link(item[1]):
@@ -329,11 +333,17 @@ class Coordinator:
                 self.bus.publish_grant(grant)
 
 
+#: ``Observation(**fields)`` without the frozen dataclass's ``__init__`` (built for every
+#: status record the coordinator takes: every robot, every period).
+_make_observation = frozen_factory(Observation)
+
+
 def observation_from_record(rec: StatusRecord) -> Observation:
     """Convert a :class:`fleet.messages.StatusRecord` to an :class:`Observation`."""
-    return Observation(
+    pose = rec.pose
+    return _make_observation(
         t=float(rec.t),
-        pose=None if rec.pose is None else Pose2D(*rec.pose),
+        pose=None if pose is None else make_pose(*pose),
         battery=float(rec.battery),
         mode=str(rec.mode),
         stuck=bool(rec.stuck),

@@ -63,6 +63,8 @@ import threading
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING
 
+from py_trees.common import Status
+
 from fleet.diagnostics import (
     Diagnostic,
     HealthParams,
@@ -87,6 +89,8 @@ if TYPE_CHECKING:
     from fleet.robots import BatteryModel
 
 logger = logging.getLogger(__name__)
+
+_INVALID = Status.INVALID
 
 #: Remember this many applied order ids (older ones are forgotten first).
 SEEN_IDS = 256
@@ -174,6 +178,7 @@ class RobotAgent:
         self.tree_file = tree_file
         #: The tree's view of the backend: it records what the tree polls (``fleet.wake``).
         self.watched = WatchedBackend(backend)
+        self._read_state = backend.robot_state  # bound once: read every period
         self.root = build_agent_tree(
             tree_kind, tree_file, self.namespace, self.watched, clock, battery, traffic
         )
@@ -373,19 +378,17 @@ class RobotAgent:
         ``tree=False`` (the event-driven scheduler, :mod:`fleet.runtime.scheduler`, found nothing
         the tree waits for) does all of that but the tree's tick, unless orders were applied or
         the robot leaves a safety stop or a pause; ``tree_ticked`` says whether it ticked."""
-        from py_trees.common import Status
-
         self.tree_ticked = False
-        if self._apply_orders():
+        if self.touched and self._apply_orders():
             tree = True
             self._view = None
-        st = self.backend.robot_state()
+        st = self._read_state()
         if not self._has_charger:
             if self.bb.charger is None and self.chargers:
                 self._default_charger(st.pose)
             self._has_charger = self.bb.charger is not None
         was = self.watchdog.reason
-        waiting = self._waiting_for_state(st)
+        waiting = self.waiting_for_state and self._waiting_for_state(st)
         reason = "" if waiting else self.watchdog.check(st)
         ctl = self._control  # replaced whole under the lock; reading it needs none
         halt = (
@@ -407,7 +410,7 @@ class RobotAgent:
             self.halted = None
             if not was:
                 logger.warning("robot %s: safety stop: %s", self.name, reason)
-                self.root.stop(Status.INVALID)  # cancels the running goal: the robot stops
+                self.root.stop(_INVALID)  # cancels the running goal: the robot stops
             self.bb.mode = Mode.SAFETY_STOP
             self.bb.active_leaf = "SafetyWatchdog"
         elif waiting:
@@ -565,10 +568,8 @@ class RobotAgent:
 
     def _stop_tree(self) -> None:
         """Interrupt the tree: the running leaf cancels its goal (the robot stops)."""
-        from py_trees.common import Status
-
         try:
-            self.root.stop(Status.INVALID)
+            self.root.stop(_INVALID)
         except Exception as e:  # noqa: BLE001 - best effort: the latch below still holds
             logger.warning("robot %s: stopping the tree failed: %s", self.name, e)
 
