@@ -123,9 +123,10 @@ from fleet.coordination.views import (
     Reassignment,
     RobotView,
     TaskOrder,
+    make_observation,
 )
 from fleet.messages import Grant, StatusRecord, TaskMessage
-from fleet.types import TreeKind, frozen_factory, make_pose
+from fleet.types import TreeKind, make_pose
 
 if TYPE_CHECKING:
     from fleet.config.model import FleetConfig
@@ -158,7 +159,11 @@ class CoordinatorBus(Protocol):
 
 
 #: An input of the coordinator: a status record, or a robot whose token appeared / went away.
-Input = tuple[Literal["status"], StatusRecord] | tuple[Literal["join", "leave"], str]
+Input = (
+    tuple[Literal["status"], StatusRecord]
+    | tuple[Literal["join", "leave"], str]
+    | tuple[Literal["observation"], tuple[str, Observation]]
+)
 
 
 class Coordinator:
@@ -273,6 +278,13 @@ class Coordinator:
         with self._lock:  # _put, without the call: every robot, every period
             self._inbox.append(("status", rec))
 
+    def feed_observation(self, robot: str, obs: Observation) -> None:
+        """What an in-process robot's status record says, handed over as the
+        :class:`Observation` :func:`observation_from_record` would make of it (its agent builds
+        it from the state and tree it just read: no record to take apart)."""
+        with self._lock:
+            self._inbox.append(("observation", (robot, obs)))
+
     def cycle(self) -> list[TaskOrder]:
         """Apply everything received since the last cycle, decide, publish. Returns the orders."""
         now = self.clock.now()
@@ -285,6 +297,8 @@ class Coordinator:
                 if rec.robot not in local:  # _heal leaves local robots alone
                     self._heal(rec)
                 observe(rec.robot, now, observation_from_record(rec))
+            elif item[0] == "observation":
+                observe(item[1][0], now, item[1][1])
             elif item[0] == "join":
                 self.state.robot_joined(item[1], now)
             elif not self._left_with_link(item[1]):
@@ -333,15 +347,10 @@ class Coordinator:
                 self.bus.publish_grant(grant)
 
 
-#: ``Observation(**fields)`` without the frozen dataclass's ``__init__`` (built for every
-#: status record the coordinator takes: every robot, every period).
-_make_observation = frozen_factory(Observation)
-
-
 def observation_from_record(rec: StatusRecord) -> Observation:
     """Convert a :class:`fleet.messages.StatusRecord` to an :class:`Observation`."""
     pose = rec.pose
-    return _make_observation(
+    return make_observation(
         t=float(rec.t),
         pose=None if pose is None else make_pose(*pose),
         battery=float(rec.battery),

@@ -65,6 +65,7 @@ from typing import TYPE_CHECKING
 
 from py_trees.common import Status
 
+from fleet.coordination.views import Observation
 from fleet.diagnostics import (
     Diagnostic,
     HealthParams,
@@ -77,7 +78,7 @@ from fleet.diagnostics import (
 from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
 from fleet.runtime.agent_bus import AgentBus, ControlBus, Declared
 from fleet.runtime.order_gate import OrderGate
-from fleet.runtime.status_record import TreeView, status_changed
+from fleet.runtime.status_record import TreeView, observation, status_changed
 from fleet.runtime.watched import WatchedBackend, wake_aware
 from fleet.types import Mode, Pose2D, RobotState, TaskKind, TreeKind
 from fleet.wake import Wake
@@ -89,8 +90,6 @@ if TYPE_CHECKING:
     from fleet.robots import BatteryModel
 
 logger = logging.getLogger(__name__)
-
-_INVALID = Status.INVALID
 
 #: Remember this many applied order ids (older ones are forgotten first).
 SEEN_IDS = 256
@@ -160,6 +159,8 @@ class RobotAgent:
         self.tick_hz = float(tick_hz)
         self.tree_kind = tree_kind
         self.on_status = on_status
+        #: Like ``on_status``, given the record as an in-process coordinator reads it.
+        self.on_observation: Callable[[str, Observation], None] | None = None
         _check_rate("status_hz", status_hz, "Hz")
         _check_rate("status_max_period_s", status_max_period_s, "s")
         #: Least simulated time between two records published on the bus (None: every tick).
@@ -298,9 +299,8 @@ class RobotAgent:
                 self.touched = True
 
     def _apply_orders(self) -> bool:
-        """Apply the queued orders and the newest grant; whether there was any."""
-        if not self.touched:  # nothing delivered since the last time (no lock needed to read)
-            return False
+        """Apply the queued orders and the newest grant; whether there was any. Called when
+        ``touched`` (something was delivered since the last time; no lock needed to read it)."""
         with self._lock:
             self.touched = False
             inbox, self._inbox = self._inbox, []
@@ -410,7 +410,7 @@ class RobotAgent:
             self.halted = None
             if not was:
                 logger.warning("robot %s: safety stop: %s", self.name, reason)
-                self.root.stop(_INVALID)  # cancels the running goal: the robot stops
+                self.root.stop(Status.INVALID)  # cancels the running goal: the robot stops
             self.bb.mode = Mode.SAFETY_STOP
             self.bb.active_leaf = "SafetyWatchdog"
         elif waiting:
@@ -440,6 +440,8 @@ class RobotAgent:
         self._publish(rec)
         if self.on_status is not None:
             self.on_status(rec)
+        if self.on_observation is not None:
+            self.on_observation(self.name, observation(rec, st.pose, view))
         return rec
 
     def _waiting_for_state(self, st: RobotState) -> bool:
@@ -562,14 +564,16 @@ class RobotAgent:
         ):
             return 0, ()
         items = robot_diagnostics(st, h)
-        if self.watchdog.reason and not st.safety_stop:
-            items = (*(d for d in items if d.name != "motion"), _stopped(self.watchdog.reason))
+        why = self.watchdog.reason
+        if why and not st.safety_stop:
+            motion = Diagnostic("motion", Level.ERROR, f"safety stop: {why}")
+            items = (*(d for d in items if d.name != "motion"), motion)
         return int(worst(items)), problems(items)
 
     def _stop_tree(self) -> None:
         """Interrupt the tree: the running leaf cancels its goal (the robot stops)."""
         try:
-            self.root.stop(_INVALID)
+            self.root.stop(Status.INVALID)
         except Exception as e:  # noqa: BLE001 - best effort: the latch below still holds
             logger.warning("robot %s: stopping the tree failed: %s", self.name, e)
 
@@ -588,10 +592,6 @@ class RobotAgent:
 def _check_rate(name: str, value: float | None, unit: str) -> None:
     if value is not None and not (math.isfinite(value) and value > 0):
         raise ValueError(f"{name} must be a positive number of {unit} or None, got {value}")
-
-
-def _stopped(reason: str) -> Diagnostic:
-    return Diagnostic("motion", Level.ERROR, f"safety stop: {reason}")
 
 
 def _pose(p: Pose2D | Iterable[float]) -> Pose2D:

@@ -6,19 +6,23 @@ state read alone."""
 from __future__ import annotations
 
 import dataclasses
+import io
 from pathlib import Path
 
 import pytest
+from ports import free_endpoint
 
 from fleet.clock import SimClock
 from fleet.config.loader import load_config
-from fleet.coordination.coordinator import observation_from_record
+from fleet.coordination.coordinator import Coordinator, observation_from_record
 from fleet.coordination.views import Observation
 from fleet.messages import StatusRecord
 from fleet.navigation import state_reader
 from fleet.runtime.goal_log import GoalLog
 from fleet.runtime.latch import Latch, LatchedBackend
+from fleet.runtime.runner import FleetRunner
 from fleet.types import GoalStatus, NavigateToPose, Pose2D, frozen_factory, make_pose
+from fleet.viz.display import NullDisplay
 from sim.simulator import Simulator
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -69,3 +73,36 @@ def test_state_read_below_the_wrappers_is_the_robot_state_and_the_latch_still_ca
     latch.set(True)
     backend.robot_state()  # a state read alone applies the latch: the goal it let through ends
     assert sim.goal_state(gid).status is GoalStatus.CANCELED
+
+
+def test_an_in_process_coordinator_reads_every_record_as_it_would_from_the_record() -> None:
+    """The agents hand the in-process coordinator an Observation built from the state and tree
+    they read; over a run with laps and traffic management it is, tick by tick, the Observation
+    the coordinator would make of the record."""
+    runner = FleetRunner(
+        load_config(ROOT / "configs" / "warehouse_patrol.yaml"),
+        duration=120.0,
+        speed=0,
+        endpoint=free_endpoint(),
+        live=False,
+        display=NullDisplay(),
+        out=io.StringIO(),
+    )
+    pairs: list[tuple[Observation, StatusRecord]] = []
+    real = Coordinator.feed_observation
+
+    def feed(coordinator: Coordinator, robot: str, obs: Observation) -> None:
+        agent = next(a for a in runner.agents if a.name == robot)
+        assert agent.last_status is not None and agent.last_status.robot == robot
+        pairs.append((obs, agent.last_status))
+        real(coordinator, robot, obs)
+
+    Coordinator.feed_observation = feed  # type: ignore[method-assign]
+    try:
+        report = runner.run()
+    finally:
+        Coordinator.feed_observation = real  # type: ignore[method-assign]
+    assert report.laps_completed > 0 and len(pairs) >= 6 * 120 * runner.config.tick_hz * 0.9
+    assert {o.mode for o, _ in pairs} >= {"patrol"}
+    for obs, rec in pairs:
+        assert obs == observation_from_record(rec), rec.robot
