@@ -61,7 +61,7 @@ from sim.localization import Localization, LocalizationState
 from sim.planner import GridPlanner, PlanResult
 from sim.robot import Robot
 from sim.safety import STOP_GAP_M, Contacts, Safety
-from sim.snapshots import GoalTable, RobotTable, make_robot_state
+from sim.snapshots import GoalTable, RobotTable, localized_robot_state, make_robot_state
 from sim.spatial import NeighborPairs, near_any
 from sim.state import FleetState
 
@@ -219,19 +219,18 @@ class Simulator:
                 safety_stop=self.safety_stops.get(namespace, ""),
             )
             return state_loc
-        state: RobotState = make_robot_state(
-            pose=pose,
-            linear_velocity=v,
-            angular_velocity=w,
-            battery=battery,
-            charging=bool(charging),
-            stuck=bool(stuck),
-            distance_m=dist,
-            collisions=int(collisions),
-            navigation_ready=r.fault != "navigation_down",
-            safety_stop=self.safety_stops.get(namespace, "") if self.safety_stops else "",
+        return localized_robot_state(
+            pose,
+            v,
+            w,
+            battery,
+            bool(charging),
+            bool(stuck),
+            dist,
+            int(collisions),
+            r.fault != "navigation_down",
+            self.safety_stops.get(namespace, "") if self.safety_stops else "",
         )
-        return state
 
     def true_pose(self, namespace: str) -> Pose2D:
         """Where the robot truly is (``map``), whatever its localization believes."""

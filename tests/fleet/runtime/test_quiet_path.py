@@ -21,9 +21,10 @@ from fleet.navigation import state_reader
 from fleet.runtime.goal_log import GoalLog
 from fleet.runtime.latch import Latch, LatchedBackend
 from fleet.runtime.runner import FleetRunner
-from fleet.types import GoalStatus, NavigateToPose, Pose2D, frozen_factory, make_pose
+from fleet.types import GoalStatus, NavigateToPose, Pose2D, RobotState, frozen_factory, make_pose
 from fleet.viz.display import NullDisplay
 from sim.simulator import Simulator
+from sim.snapshots import localized_robot_state
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -106,3 +107,16 @@ def test_an_in_process_coordinator_reads_every_record_as_it_would_from_the_recor
     assert {o.mode for o, _ in pairs} >= {"patrol"}
     for obs, rec in pairs:
         assert obs == observation_from_record(rec), rec.robot
+
+
+def test_a_localized_robot_state_is_the_dataclass_state() -> None:
+    pose = Pose2D(1.0, 2.0, 0.5)
+    fast = localized_robot_state(pose, 0.4, -0.1, 0.8, True, False, 12.5, 2, False, "bumper")
+    plain = RobotState(
+        pose=pose, linear_velocity=0.4, angular_velocity=-0.1, battery=0.8, charging=True, stuck=False,
+        distance_m=12.5, collisions=2, navigation_ready=False, safety_stop="bumper",
+    )  # fmt: skip
+    assert fast == plain and type(fast) is RobotState
+    assert list(vars(fast).items()) == list(
+        vars(plain).items()
+    )  # localized, pose age, battery known: defaults
