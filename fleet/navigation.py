@@ -38,7 +38,7 @@ per-goal queries (``check_backend``'s ``batch_query_agrees_with_per_goal_queries
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -211,6 +211,15 @@ def batch_from_states(
             dtype=np.float64,
         ),
     )
+
+
+def state_reader(backend: NavigationBackend) -> Callable[[], RobotState]:
+    """What reads ``backend``'s robot state, skipping wrappers that only pass the call on: a
+    backend (or wrapper) may offer ``state_reader``, a callable returning exactly what its
+    ``robot_state()`` returns; otherwise ``backend.robot_state`` itself. For readers called
+    every period for every robot (the agents)."""
+    reader = getattr(backend, "state_reader", None)
+    return reader if callable(reader) else backend.robot_state
 
 
 def query_batch(backends: Sequence[NavigationBackend], goal_ids: Sequence[str | None]) -> NavBatch:

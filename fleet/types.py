@@ -9,9 +9,12 @@ from a real Nav2 server mean the same thing (see :class:`ErrorCode`).
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 
 @dataclass(frozen=True)
@@ -28,6 +31,20 @@ class Pose2D:
 
     def as_tuple(self) -> tuple[float, float, float]:
         return (self.x, self.y, self.theta)
+
+
+def make_pose(x: float, y: float, theta: float = 0.0) -> Pose2D:
+    """``Pose2D(x, y, theta)`` built without the frozen dataclass's ``__init__`` (the very
+    instance it would build; a third of its cost): for poses made once per robot per period."""
+    pose = _new(Pose2D)
+    state = pose.__dict__
+    state["x"] = x
+    state["y"] = y
+    state["theta"] = theta
+    return pose
+
+
+_new = object.__new__
 
 
 def normalize_angle(a: float) -> float:
@@ -442,3 +459,35 @@ class RobotState:
     battery_known: bool = True
     navigation_ready: bool = True
     safety_stop: str = ""
+
+
+_T = TypeVar("_T")
+
+
+def frozen_factory(cls: type[_T]) -> Callable[..., _T]:
+    """A keyword-only constructor of the dataclass ``cls`` that builds the very instance
+    ``cls(**fields)`` would (same class, same attribute dict in field order) without the
+    generated ``__init__``, whose one ``object.__setattr__`` per field of a frozen dataclass
+    is most of the cost of the goal and robot snapshots polled every tick (about 1 µs each).
+    Every field without a default must be passed. For anything but a plain dataclass (slots,
+    ``__post_init__``, default factories, fields outside ``__init__``) it returns ``cls``."""
+    fields = dataclasses.fields(cls) if dataclasses.is_dataclass(cls) else ()
+    plain = (
+        bool(fields)
+        and "__slots__" not in vars(cls)
+        and not hasattr(cls, "__post_init__")
+        and all(f.init and f.default_factory is dataclasses.MISSING for f in fields)
+    )
+    if not plain:
+        return cls
+    template = {f.name: None if f.default is dataclasses.MISSING else f.default for f in fields}
+    new = object.__new__
+
+    def make(**values: object) -> _T:
+        obj = new(cls)
+        state = obj.__dict__
+        state.update(template)
+        state.update(values)
+        return obj
+
+    return make

@@ -9,8 +9,9 @@ preemption, cancel) are the server's, shared by both through :mod:`sim.goals`.
 
 from __future__ import annotations
 
+import functools
 import weakref
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Protocol
 
 from fleet.navigation import BatchNavigation, NavBatch, batch_from_states
@@ -62,6 +63,11 @@ class NamespacedBackend:
     def robot_state(self) -> RobotState:
         """Pose, velocities, battery, charging, stuck, odometer and collisions of the robot."""
         return self._server.robot_state(self._namespace)
+
+    @property
+    def state_reader(self) -> Callable[[], RobotState]:
+        """:meth:`robot_state` as one call to the server (:func:`fleet.navigation.state_reader`)."""
+        return functools.partial(self._server.robot_state, self._namespace)
 
     @property
     def batch_server(self) -> BatchNavigation:

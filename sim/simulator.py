@@ -48,7 +48,7 @@ from fleet.errors import BackendError
 from fleet.maps import OccupancyGrid
 from fleet.navigation import NavBatch
 from fleet.robots import RobotSpec, SimParams
-from fleet.types import ErrorCode, GoalState, Pose2D, RobotState, normalize_angle
+from fleet.types import ErrorCode, GoalState, Pose2D, RobotState, make_pose, normalize_angle
 from sim import kernels
 from sim.avoidance import AVOID_CLEAR_M, AVOID_LOOKAHEAD_M, CORRIDOR_MARGIN_M, Avoidance
 from sim.backend import NamespacedBackend
@@ -62,7 +62,7 @@ from sim.localization import Localization, LocalizationState
 from sim.planner import GridPlanner, PlanResult
 from sim.robot import Robot
 from sim.safety import STOP_GAP_M, Contacts, Safety
-from sim.snapshots import GoalTable, RobotTable, make_robot_state
+from sim.snapshots import GoalTable, RobotTable, localized_robot_state, make_robot_state
 from sim.spatial import NeighborPairs, near_any
 from sim.state import FleetState
 
@@ -206,7 +206,7 @@ class Simulator:
         r = self._robot(namespace)
         x, y, th, v, w, battery, charging, stuck, dist, collisions = self.state.row(r.index)[:10]
         est = self.localization.robots[r.index]
-        pose = Pose2D(x, y, th)
+        pose = make_pose(x, y, th)
         if not est.localized or est.lost:
             loc = self.localization.state(r.index, pose, self.clock.now())
             state_loc: RobotState = make_robot_state(
@@ -224,19 +224,18 @@ class Simulator:
                 safety_stop=self.safety_stops.get(namespace, ""),
             )
             return state_loc
-        state: RobotState = make_robot_state(
-            pose=pose,
-            linear_velocity=v,
-            angular_velocity=w,
-            battery=battery,
-            charging=bool(charging),
-            stuck=bool(stuck),
-            distance_m=dist,
-            collisions=int(collisions),
-            navigation_ready=r.fault != "navigation_down",
-            safety_stop=self.safety_stops.get(namespace, "") if self.safety_stops else "",
+        return localized_robot_state(
+            pose,
+            v,
+            w,
+            battery,
+            bool(charging),
+            bool(stuck),
+            dist,
+            int(collisions),
+            r.fault != "navigation_down",
+            self.safety_stops.get(namespace, "") if self.safety_stops else "",
         )
-        return state
 
     def true_pose(self, namespace: str) -> Pose2D:
         """Where the robot truly is (``map``), whatever its localization believes."""

@@ -5,50 +5,53 @@ whole fleet as arrays without building one object per robot."""
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TypeVar
 
 import numpy as np
 
-from fleet.types import Feedback, GoalState, RobotState
-
-_T = TypeVar("_T")
-
-
-def frozen_factory(cls: type[_T]) -> Callable[..., _T]:
-    """A keyword-only constructor of the dataclass ``cls`` that builds the very instance
-    ``cls(**fields)`` would (same class, same attribute dict in field order) without the
-    generated ``__init__``, whose one ``object.__setattr__`` per field of a frozen dataclass
-    is most of the cost of the goal and robot snapshots polled every tick (about 1 µs each).
-    Every field without a default must be passed. For anything but a plain dataclass (slots,
-    ``__post_init__``, default factories, fields outside ``__init__``) it returns ``cls``."""
-    fields = dataclasses.fields(cls) if dataclasses.is_dataclass(cls) else ()
-    plain = (
-        bool(fields)
-        and "__slots__" not in vars(cls)
-        and not hasattr(cls, "__post_init__")
-        and all(f.init and f.default_factory is dataclasses.MISSING for f in fields)
-    )
-    if not plain:
-        return cls
-    template = {f.name: None if f.default is dataclasses.MISSING else f.default for f in fields}
-    new = object.__new__
-
-    def make(**values: object) -> _T:
-        obj = new(cls)
-        state = obj.__dict__
-        state.update(template)
-        state.update(values)
-        return obj
-
-    return make
-
+from fleet.types import Feedback, GoalState, Pose2D, RobotState, frozen_factory
 
 #: Fast constructors of the snapshot types (see :func:`frozen_factory`).
 make_feedback = frozen_factory(Feedback)
 make_goal_state = frozen_factory(GoalState)
 make_robot_state = frozen_factory(RobotState)
+
+_STATE_DEFAULTS = {
+    f.name: None if f.default is dataclasses.MISSING else f.default for f in dataclasses.fields(RobotState)
+}
+_new = object.__new__
+
+
+def localized_robot_state(
+    pose: Pose2D,
+    linear_velocity: float,
+    angular_velocity: float,
+    battery: float,
+    charging: bool,
+    stuck: bool,
+    distance_m: float,
+    collisions: int,
+    navigation_ready: bool,
+    safety_stop: str,
+) -> RobotState:
+    """``RobotState(pose=pose, ..., safety_stop=safety_stop)`` of a localized robot (the other
+    fields at their defaults), built as :func:`frozen_factory` builds it but from positional
+    arguments: about half the cost of the keyword call, for the state read of every robot
+    every period."""
+    obj = _new(RobotState)
+    state = obj.__dict__
+    state.update(_STATE_DEFAULTS)
+    state["pose"] = pose
+    state["linear_velocity"] = linear_velocity
+    state["angular_velocity"] = angular_velocity
+    state["battery"] = battery
+    state["charging"] = charging
+    state["stuck"] = stuck
+    state["distance_m"] = distance_m
+    state["collisions"] = collisions
+    state["navigation_ready"] = navigation_ready
+    state["safety_stop"] = safety_stop
+    return obj
 
 
 @dataclass(frozen=True)

@@ -123,9 +123,10 @@ from fleet.coordination.views import (
     Reassignment,
     RobotView,
     TaskOrder,
+    make_observation,
 )
 from fleet.messages import Grant, StatusRecord, TaskMessage
-from fleet.types import Pose2D, TreeKind
+from fleet.types import TreeKind, make_pose
 
 if TYPE_CHECKING:
     from fleet.config.model import FleetConfig
@@ -158,7 +159,11 @@ class CoordinatorBus(Protocol):
 
 
 #: An input of the coordinator: a status record, or a robot whose token appeared / went away.
-Input = tuple[Literal["status"], StatusRecord] | tuple[Literal["join", "leave"], str]
+Input = (
+    tuple[Literal["status"], StatusRecord]
+    | tuple[Literal["join", "leave"], str]
+    | tuple[Literal["observation"], tuple[str, Observation]]
+)
 
 
 class Coordinator:
@@ -270,17 +275,30 @@ class Coordinator:
 
     def feed_local(self, rec: StatusRecord) -> None:
         """A status record of an in-process robot."""
-        self._put(("status", rec))
+        with self._lock:  # _put, without the call: every robot, every period
+            self._inbox.append(("status", rec))
+
+    def feed_observation(self, robot: str, obs: Observation) -> None:
+        """What an in-process robot's status record says, handed over as the
+        :class:`Observation` :func:`observation_from_record` would make of it (its agent builds
+        it from the state and tree it just read: no record to take apart)."""
+        with self._lock:
+            self._inbox.append(("observation", (robot, obs)))
 
     def cycle(self) -> list[TaskOrder]:
         """Apply everything received since the last cycle, decide, publish. Returns the orders."""
         now = self.clock.now()
         with self._lock:
             inbox, self._inbox = self._inbox, []
+        observe, local = self.state.observe, self.local_robots
         for item in inbox:
             if item[0] == "status":
-                self._heal(item[1])
-                self.state.observe(item[1].robot, now, observation_from_record(item[1]))
+                rec = item[1]
+                if rec.robot not in local:  # _heal leaves local robots alone
+                    self._heal(rec)
+                observe(rec.robot, now, observation_from_record(rec))
+            elif item[0] == "observation":
+                observe(item[1][0], now, item[1][1])
             elif item[0] == "join":
                 self.state.robot_joined(item[1], now)
             elif not self._left_with_link(item[1]):
@@ -331,9 +349,10 @@ class Coordinator:
 
 def observation_from_record(rec: StatusRecord) -> Observation:
     """Convert a :class:`fleet.messages.StatusRecord` to an :class:`Observation`."""
-    return Observation(
+    pose = rec.pose
+    return make_observation(
         t=float(rec.t),
-        pose=None if rec.pose is None else Pose2D(*rec.pose),
+        pose=None if pose is None else make_pose(*pose),
         battery=float(rec.battery),
         mode=str(rec.mode),
         stuck=bool(rec.stuck),

@@ -139,13 +139,14 @@ class CoordinatorState:
     def observe(self, robot: str, now: float, obs: Observation) -> None:
         """A status record from ``robot`` arrived at ``now``: count its laps or picks for the
         assignment whose id it carries, note its progress, count deadlocks."""
-        v = self._view(robot, now)
+        v = self.robots.get(robot) or self._view(robot, now)
         if not v.alive:
             v.alive = True
             self._log(now, f"{robot} is back")
         v.last_seen = now
         v.obs = obs
-        self._confirm(v, obs, now)
+        if v.assignment is not None and v.assignment.restored:
+            self._confirm(v, obs, now)
         finished = self.book.record(robot, obs, now, v.assignment)
         if finished is not None:
             v.assignment = None

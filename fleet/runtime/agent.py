@@ -63,6 +63,9 @@ import threading
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING
 
+from py_trees.common import Status
+
+from fleet.coordination.views import Observation
 from fleet.diagnostics import (
     Diagnostic,
     HealthParams,
@@ -75,7 +78,7 @@ from fleet.diagnostics import (
 from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
 from fleet.runtime.agent_bus import AgentBus, ControlBus, Declared
 from fleet.runtime.order_gate import OrderGate
-from fleet.runtime.status_record import TreeView, status_changed
+from fleet.runtime.status_record import TreeView, observation, status_changed
 from fleet.runtime.watched import WatchedBackend, wake_aware
 from fleet.types import Mode, Pose2D, RobotState, TaskKind, TreeKind
 from fleet.wake import Wake
@@ -156,6 +159,8 @@ class RobotAgent:
         self.tick_hz = float(tick_hz)
         self.tree_kind = tree_kind
         self.on_status = on_status
+        #: Like ``on_status``, given the record as an in-process coordinator reads it.
+        self.on_observation: Callable[[str, Observation], None] | None = None
         _check_rate("status_hz", status_hz, "Hz")
         _check_rate("status_max_period_s", status_max_period_s, "s")
         #: Least simulated time between two records published on the bus (None: every tick).
@@ -174,6 +179,7 @@ class RobotAgent:
         self.tree_file = tree_file
         #: The tree's view of the backend: it records what the tree polls (``fleet.wake``).
         self.watched = WatchedBackend(backend)
+        self._read_state = backend.robot_state  # bound once: read every period
         self.root = build_agent_tree(
             tree_kind, tree_file, self.namespace, self.watched, clock, battery, traffic
         )
@@ -293,9 +299,8 @@ class RobotAgent:
                 self.touched = True
 
     def _apply_orders(self) -> bool:
-        """Apply the queued orders and the newest grant; whether there was any."""
-        if not self.touched:  # nothing delivered since the last time (no lock needed to read)
-            return False
+        """Apply the queued orders and the newest grant; whether there was any. Called when
+        ``touched`` (something was delivered since the last time; no lock needed to read it)."""
         with self._lock:
             self.touched = False
             inbox, self._inbox = self._inbox, []
@@ -373,19 +378,17 @@ class RobotAgent:
         ``tree=False`` (the event-driven scheduler, :mod:`fleet.runtime.scheduler`, found nothing
         the tree waits for) does all of that but the tree's tick, unless orders were applied or
         the robot leaves a safety stop or a pause; ``tree_ticked`` says whether it ticked."""
-        from py_trees.common import Status
-
         self.tree_ticked = False
-        if self._apply_orders():
+        if self.touched and self._apply_orders():
             tree = True
             self._view = None
-        st = self.backend.robot_state()
+        st = self._read_state()
         if not self._has_charger:
             if self.bb.charger is None and self.chargers:
                 self._default_charger(st.pose)
             self._has_charger = self.bb.charger is not None
         was = self.watchdog.reason
-        waiting = self._waiting_for_state(st)
+        waiting = self.waiting_for_state and self._waiting_for_state(st)
         reason = "" if waiting else self.watchdog.check(st)
         ctl = self._control  # replaced whole under the lock; reading it needs none
         halt = (
@@ -437,6 +440,8 @@ class RobotAgent:
         self._publish(rec)
         if self.on_status is not None:
             self.on_status(rec)
+        if self.on_observation is not None:
+            self.on_observation(self.name, observation(rec, st.pose, view))
         return rec
 
     def _waiting_for_state(self, st: RobotState) -> bool:
@@ -559,14 +564,14 @@ class RobotAgent:
         ):
             return 0, ()
         items = robot_diagnostics(st, h)
-        if self.watchdog.reason and not st.safety_stop:
-            items = (*(d for d in items if d.name != "motion"), _stopped(self.watchdog.reason))
+        why = self.watchdog.reason
+        if why and not st.safety_stop:
+            motion = Diagnostic("motion", Level.ERROR, f"safety stop: {why}")
+            items = (*(d for d in items if d.name != "motion"), motion)
         return int(worst(items)), problems(items)
 
     def _stop_tree(self) -> None:
         """Interrupt the tree: the running leaf cancels its goal (the robot stops)."""
-        from py_trees.common import Status
-
         try:
             self.root.stop(Status.INVALID)
         except Exception as e:  # noqa: BLE001 - best effort: the latch below still holds
@@ -587,10 +592,6 @@ class RobotAgent:
 def _check_rate(name: str, value: float | None, unit: str) -> None:
     if value is not None and not (math.isfinite(value) and value > 0):
         raise ValueError(f"{name} must be a positive number of {unit} or None, got {value}")
-
-
-def _stopped(reason: str) -> Diagnostic:
-    return Diagnostic("motion", Level.ERROR, f"safety stop: {reason}")
 
 
 def _pose(p: Pose2D | Iterable[float]) -> Pose2D:

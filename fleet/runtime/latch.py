@@ -22,6 +22,7 @@ import threading
 from typing import TYPE_CHECKING, Protocol
 
 from fleet.messages import FleetControl
+from fleet.navigation import state_reader
 from fleet.types import Goal, GoalState, GoalStatus, RobotState
 
 if TYPE_CHECKING:
@@ -124,6 +125,7 @@ class LatchedBackend:
         self._refused: dict[str, GoalState] = {}
         self._sent: list[str] = []
         self._seen_version = latch.version
+        self._read_state = state_reader(inner)  # robot_state below the pass-through wrappers
         self._n = 0
         #: Goals refused while latched.
         self.refused = 0
@@ -164,5 +166,6 @@ class LatchedBackend:
             self.inner.cancel_goal(goal_id)
 
     def robot_state(self) -> RobotState:
-        self._check()
-        return self.inner.robot_state()
+        if self.latch.version != self._seen_version:
+            self._check()
+        return self._read_state()

@@ -361,7 +361,7 @@ class FleetRunner:
             world.backend(namespace), world.clock, self.config.sim.model.max_linear_speed, self.config.roadmap
         )
         self.goal_logs[namespace.strip("/")] = log
-        return RobotAgent(
+        agent = RobotAgent(
             namespace,
             LatchedBackend(log, self.latch),
             world.clock,
@@ -370,7 +370,6 @@ class FleetRunner:
             tree_kind=TreeKind.TASKS if self.tree_file is None else self.tree_kind,
             battery_model=self.config.sim.battery,
             tick_hz=self.config.tick_hz,
-            on_status=self.coordinator.feed_local if self.coordinator is not None else None,
             traffic=self.traffic,
             status_hz=self.config.status_hz,
             status_max_period_s=self.config.status_max_period_s,
@@ -378,6 +377,9 @@ class FleetRunner:
             chargers=[c.pose for c in self.config.chargers],
             leases=self.lease_watch.current if self.lease_watch is not None else None,
         )
+        if self.coordinator is not None:  # every tick's status, as the coordinator reads it
+            agent.on_observation = self.coordinator.feed_observation
+        return agent
 
     def _loop(self, world: World) -> None:
         clock = world.clock

@@ -1,13 +1,15 @@
-"""An agent's status record: the fields its tree gives (:class:`TreeView`) and whether a new
+"""An agent's status record: the fields its tree gives (:class:`TreeView`), whether a new
 record says something the last one published did not (:func:`status_changed`, for publishing
-on change)."""
+on change), and what an in-process coordinator reads of it (:func:`observation`)."""
 
 from __future__ import annotations
 
 import math
 from typing import NamedTuple
 
+from fleet.coordination.views import Observation, make_observation
 from fleet.messages import StatusRecord
+from fleet.types import Pose2D
 
 
 class TreeView(NamedTuple):
@@ -71,4 +73,15 @@ def status_changed(old: StatusRecord, new: StatusRecord) -> bool:
     )
 
 
-__all__ = ["TreeView", "status_changed"]
+def observation(rec: StatusRecord, pose: Pose2D | None, view: TreeView) -> Observation:
+    """What the coordinator reads of ``rec`` (the equal of
+    :func:`fleet.coordination.coordinator.observation_from_record`), from the ``pose`` and the
+    ``view`` the record was made of: no record taken apart, no pose built again."""
+    return make_observation(
+        t=rec.t, pose=pose, battery=rec.battery, mode=view.mode, stuck=rec.stuck, task_id=view.task_id,
+        laps=view.laps, charging=rec.charging, picks_done=view.picks_done, result_id=view.result_id,
+        result=view.result, steps_done=view.steps_done,
+    )  # fmt: skip
+
+
+__all__ = ["TreeView", "observation", "status_changed"]
