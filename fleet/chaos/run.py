@@ -8,9 +8,10 @@ Two deployments (``mode``):
   seconds one of them, chosen by the seeded generator, is killed and started again with the
   same arguments ``restart_after`` wall seconds later;
 * ``run``: one ``fleet run --state`` process (router, simulator, agents and coordinator in
-  one), killed and started again the same way. It resumes from its durable task book; its
-  in-process simulator starts again from the config (the robots at their start poses, full
-  batteries, the clock at 0), so the fleet time of the run is summed over the restarts.
+  one), killed and started again the same way. It resumes its tasks from its durable task book
+  and its robots from its simulator's snapshot in the same directory (poses, batteries,
+  docking states, the clock; :mod:`fleet.runtime.snapshot`); the fleet time of the run is
+  summed over the restarts (a clock that went back is caught up with, not counted twice).
 
 The next kill waits until the last one has recovered (or ``settle`` wall seconds passed), so
 one process is down at a time. The run watches the robots' statuses and the coordinator's
