@@ -59,7 +59,8 @@ def detect_and_resolve(st: TrafficState, now: float) -> None:
 
 def unblock(st: TrafficState, now: float, budget: int) -> None:
     """Robots that waited ``reroute_after_s`` on robots that are all dead or parked (each at
-    most once per ``reroute_after_s``): nudge a parked one aside; failing that, reroute."""
+    most once per ``reroute_after_s``): nudge a parked one aside; failing that, reroute (a
+    robot with a detour limit only once it waited ``dead_wait_s``)."""
     p = st.params
     for name in sorted(st.waiting):
         if budget <= 0:
@@ -79,6 +80,8 @@ def unblock(st: TrafficState, now: float, budget: int) -> None:
         if any(b.parked and sidestep(st, b, {name}, now, back=False) for b in stuck_on):
             st.metrics.nudges += 1
             continue
+        if r.detour_m is not None and now - r.wait_since < p.dead_wait_s:
+            continue  # it cannot afford a long way round: it waits for the dead robot a while
         avoid = {x for b in stuck_on for x in st.table.held(b.name) if isinstance(x, str)}
         if reroute(st, r, avoid, now, bounded=False):
             st.metrics.dead_reroutes += 1
