@@ -73,7 +73,9 @@ class TrackedRobot:
     first). ``next_reroute``: not before this time is it rerouted around a dead or parked
     robot again. ``detour_m``: set by the caller for a robot that cannot afford a long way
     round (one short of energy on its way to a charger): a detour around a dead robot may
-    then be at most this much (m) longer than its way, else it waits (``None``: any detour).
+    then be at most this much (m) longer than its way, else it waits, and after stepping
+    aside it comes back the shortest way, against the flow if need be (``None``: any detour,
+    with the flow).
     """
 
     __slots__ = (

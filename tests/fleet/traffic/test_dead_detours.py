@@ -1,4 +1,5 @@
-"""A robot on its way to a charger does not drive far round a dead robot.
+"""A robot on its way to a charger does not drive far round a dead robot, nor round a loop
+after stepping aside.
 
 Found by ``fleet chaos`` (docs/faults.md, "Batteries under chaos"): an agent killed and
 restarted leaves its robot dead to the traffic manager for a few seconds (tens of simulated
@@ -7,13 +8,16 @@ however long the way round. A robot at 22 % on its way to a free charger 8 m ahe
 an aisle and along the far row instead (a 36 m detour behind traffic) and ran flat, although the
 dead robot's agent was back 17 s later. Now a robot with a detour limit (the charging errand
 sets one) waits for the dead robot when the way round is longer than its way plus the limit,
-and is rerouted only after ``dead_wait_s`` of waiting (a robot that stays dead)."""
+and is rerouted only after ``dead_wait_s`` of waiting (a robot that stays dead). The same
+kind of run showed a robot that stepped aside to break a deadlock sent on round a 33 m loop
+with the fleet's flow instead of 4 m back: with a limit it comes back the short way."""
 
 from __future__ import annotations
 
 import networkx as nx
 
 from fleet.roadmap.graph import Roadmap
+from fleet.traffic.deadlocks import sidestep
 from fleet.traffic.errands import CHARGE_DETOUR_M, Errands
 from fleet.traffic.manager import TrafficManager
 from fleet.traffic.params import TrafficParams
@@ -118,3 +122,25 @@ def test_the_charging_errand_sets_the_limit_and_the_end_of_the_charge_clears_it(
     assert tm.detour_limit("C") == CHARGE_DETOUR_M
     er.step("C", View(Mode.IDLE), 1.0, [])  # charged: simply idle now
     assert tm.detour_limit("C") is None
+
+
+def test_a_robot_with_a_limit_steps_aside_and_comes_back_the_short_way() -> None:
+    """A deadlock is broken by a robot stepping aside; its way on from the side node was
+    planned with the fleet's flow, round a loop (21 m here, 33 m in the chaos run) rather than
+    back 3 m against the flow. A robot with a detour limit comes back the short way."""
+    pos = {"q": (4, 0), "goal": (8, 0), "side": (4, -3), "f1": (4, -10), "f2": (8, -10)}
+    g = nx.Graph()
+    for n, xy in pos.items():
+        g.add_node(n, pos=xy)
+    loop = [("goal", "q"), ("q", "side"), ("side", "f1"), ("f1", "f2"), ("f2", "goal")]
+    g.add_edges_from(loop)
+    for limit, way_on in ((None, ["side", "f1", "f2", "goal"]), (CHARGE_DETOUR_M, ["side", "q", "goal"])):
+        tm = TrafficManager(Roadmap.from_graph(g), TrafficParams(detect_period_s=STEP_S))
+        tm.set_flow(loop)  # the patrol direction: q -> goal is against it
+        tm.add_robot("O", Pose2D(8, 0), 0.0)  # on the goal: R must make way
+        tm.add_robot("R", Pose2D(4, 0), 0.0)
+        tm.set_detour_limit("R", limit)
+        tm.set_path("R", ["q", "goal"], 0.0)
+        tm.cycle(0.0)
+        assert sidestep(tm._st, tm._st.get("R"), {"O"}, 0.0, back=True)
+        assert tm.path("R") == ["q", *way_on], limit
