@@ -8,9 +8,10 @@ Two deployments (``mode``):
   seconds one of them, chosen by the seeded generator, is killed and started again with the
   same arguments ``restart_after`` wall seconds later;
 * ``run``: one ``fleet run --state`` process (router, simulator, agents and coordinator in
-  one), killed and started again the same way. It resumes from its durable task book; its
-  in-process simulator starts again from the config (the robots at their start poses, full
-  batteries, the clock at 0), so the fleet time of the run is summed over the restarts.
+  one), killed and started again the same way. It resumes its tasks from its durable task book
+  and its robots from its simulator's snapshot in the same directory (poses, batteries,
+  docking states, the clock; :mod:`fleet.runtime.snapshot`); the fleet time of the run is
+  summed over the restarts (a clock that went back is caught up with, not counted twice).
 
 The next kill waits until the last one has recovered (or ``settle`` wall seconds passed), so
 one process is down at a time. The run watches the robots' statuses and the coordinator's
@@ -35,7 +36,7 @@ from typing import IO, Literal
 
 from fleet.bus.session import Secure, open_session, undeclare_all
 from fleet.bus.status_bus import StatusBus
-from fleet.chaos.watch import Sample, Watch, book_checks
+from fleet.chaos.watch import MIN_BATTERY, Sample, Watch, book_checks, crossing_lines
 from fleet.errors import BusError
 
 #: The ``fleet`` command line of the processes (this interpreter, this source tree).
@@ -45,9 +46,6 @@ ROOT = Path(__file__).resolve().parents[2]
 PROGRESS_S = 10.0
 
 Mode = Literal["split", "run"]
-#: The lowest battery fraction a chaos run accepts: below it a robot ran (nearly) flat and the
-#: run fails (issue 13's target for a fleet that manages its charging).
-MIN_BATTERY = 0.05
 
 
 @dataclass(frozen=True)
@@ -147,6 +145,8 @@ class ChaosResult:
     min_battery: tuple[float, str] = (1.0, "")
     #: Per robot, (fleet time s, battery, mode) samples (:attr:`Watch.timeline`).
     timeline: dict[str, list[Sample]] = field(default_factory=dict)
+    #: Where and doing what each robot went below :data:`MIN_BATTERY` (:attr:`Watch.crossed`).
+    crossed: dict[str, tuple[Sample, Sample | None]] = field(default_factory=dict)
 
     @property
     def flat(self) -> bool:
@@ -232,6 +232,7 @@ def run_chaos(spec: ChaosSpec, say: Callable[[str], None] = print) -> ChaosResul
     result.min_battery = watch.min_battery
     with watch.lock:
         result.timeline = {r: list(line) for r, line in watch.timeline.items()}
+        result.crossed = dict(watch.crossed)
     write_timeline(spec.out / "battery.csv", result.timeline)
     result.tracebacks = [p.name for p in procs if "Traceback" in p.log.read_text(errors="replace")]
     return result
@@ -371,6 +372,7 @@ def report_lines(res: ChaosResult) -> list[str]:
     low, robot = res.min_battery
     verdict = f"below {MIN_BATTERY:.0%}: ran flat" if res.flat else f"at least {MIN_BATTERY:.0%}"
     lines.append(f"lowest battery seen: {low:.1%}{f' ({robot})' if robot else ''} ({verdict})")
+    lines += [f"  {line}" for line in crossing_lines(res.crossed)]
     lines.append(
         f"tasks lost: {len(res.lost)}   tasks done twice: {len(res.twice)}   collisions: {res.collisions}   "
         f"tracebacks: {len(res.tracebacks)}   flat batteries: {int(res.flat)}"

@@ -22,6 +22,9 @@ RESTART_BACK_S = 5.0
 TIMELINE_EVERY_S = 10.0
 #: Battery samples kept per robot (about 3 hours at one every 10 s).
 TIMELINE_MAX = 1200
+#: The lowest battery fraction a chaos run accepts: below it a robot ran (nearly) flat and the
+#: run fails (issue 13's target for a fleet that manages its charging).
+MIN_BATTERY = 0.05
 
 
 class Sample(NamedTuple):
@@ -41,8 +44,9 @@ class Sample(NamedTuple):
 class Watch:
     """What the bus shows: every robot's latest status (and the wall time it came), collisions
     summed across simulator restarts, simulated time elapsed summed across restarts, the
-    moments robots drove and the coordinator spoke, and the assignments seen on two live robots
-    at once. Callbacks run on Zenoh's thread; readers take the lock."""
+    moments robots drove and the coordinator spoke, the assignments seen on two live robots
+    at once, and the batteries (lowest, a timeline, and where and doing what a robot went
+    below :data:`MIN_BATTERY`). Callbacks run on Zenoh's thread; readers take the lock."""
 
     latest: dict[str, tuple[float, StatusRecord]] = field(default_factory=dict)
     collisions: dict[str, int] = field(default_factory=dict)
@@ -58,6 +62,12 @@ class Watch:
     #: Per robot, a :class:`Sample` every :data:`TIMELINE_EVERY_S` simulated seconds, the
     #: newest :data:`TIMELINE_MAX`.
     timeline: dict[str, deque[Sample]] = field(default_factory=dict)
+    #: Per robot whose battery went below :data:`MIN_BATTERY`: where it was and what it did at
+    #: its first status below it, and at the last status on which it went into charging mode
+    #: before that (``None``: it was not in charging mode then).
+    crossed: dict[str, tuple[Sample, Sample | None]] = field(default_factory=dict)
+    #: Per robot, the status (as a sample) on which it last went into charging mode.
+    _charge_began: dict[str, Sample] = field(default_factory=dict)
     _last_t: float | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -95,11 +105,17 @@ class Watch:
     def _battery(self, rec: StatusRecord) -> None:
         # caller holds the lock
         self.min_battery = min(self.min_battery, (rec.battery, rec.robot))
+        assert rec.pose is not None
+        now = Sample(self.elapsed, rec.battery, rec.mode, rec.charging, rec.pose[0], rec.pose[1], rec.leaf)
+        if rec.mode != "charging":
+            self._charge_began.pop(rec.robot, None)
+        elif rec.robot not in self._charge_began:
+            self._charge_began[rec.robot] = now
+        if rec.battery < MIN_BATTERY and rec.robot not in self.crossed:
+            self.crossed[rec.robot] = (now, self._charge_began.get(rec.robot))
         line = self.timeline.setdefault(rec.robot, deque(maxlen=TIMELINE_MAX))
         if not line or self.elapsed >= line[-1][0] + TIMELINE_EVERY_S:
-            assert rec.pose is not None
-            x, y = rec.pose[0], rec.pose[1]
-            line.append(Sample(self.elapsed, rec.battery, rec.mode, rec.charging, x, y, rec.leaf))
+            line.append(now)
 
     def on_control(self, _sample: object) -> None:
         with self.lock:
@@ -177,3 +193,23 @@ def book_checks(
         elif state == "queued" and idle:
             lost.append(f"{i} ({name}) queued while {sorted(idle)} stand idle")
     return lost, twice
+
+
+def crossing_lines(crossed: dict[str, tuple[Sample, Sample | None]]) -> list[str]:
+    """One line per robot that went below :data:`MIN_BATTERY` (:attr:`Watch.crossed`): when,
+    where and doing what, and since when and where it was in charging mode."""
+    out = []
+    for robot in sorted(crossed):
+        at, began = crossed[robot]
+        dock = "on a charger" if at.charging else "not on a charger"
+        line = (
+            f"{robot} below {MIN_BATTERY:.0%} at t={at.t:.0f} s at ({at.x:.1f}, {at.y:.1f}) m: "
+            f"mode {at.mode}, leaf {at.leaf}, {dock}"
+        )
+        if began is not None:
+            line += (
+                f"; in charging mode since t={began.t:.0f} s ({at.t - began.t:.0f} s), which began at "
+                f"{began.battery:.0%} at ({began.x:.1f}, {began.y:.1f}) m"
+            )
+        out.append(line)
+    return out

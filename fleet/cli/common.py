@@ -148,7 +148,8 @@ def add_service(p: argparse.ArgumentParser) -> None:
         type=Path,
         metavar="DIR",
         help="durable task book (SQLite) of the coordinator: a directory that holds one is resumed "
-        "(tasks, states, leases, ids, e-stop); default: a new one under out/state/",
+        "(tasks, states, leases, ids, e-stop; with the in-process simulator of `fleet run` also the "
+        "robots' poses, batteries and the clock); default: a new one under out/state/",
     )
     p.add_argument(
         "--api",

@@ -14,8 +14,6 @@ down cleanly and its report and plot are still written)."""
 from __future__ import annotations
 
 import argparse
-import logging
-import os
 import sys
 from collections.abc import Callable, Sequence
 
@@ -152,22 +150,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def entry() -> None:
-    """The ``fleet`` console script and ``python -m fleet.cli``: :func:`main`, then exit at once.
+    """The ``fleet`` console script and ``python -m fleet.cli``: :func:`main`, then exit at once
+    with its code (:func:`fleet.runtime.process_exit.exit_now`: every command has closed its
+    Zenoh session, task book and files when :func:`main` returns, and the interpreter's
+    finalization took seconds after Ctrl-C)."""
+    from fleet.runtime.process_exit import exit_now
 
-    Every command has closed its Zenoh session, task book and files when :func:`main` returns;
-    what is left is the interpreter's finalization, which collects every object and drops
-    Zenoh's native ones. On the 2-core project machine that took 0.9-4.7 s after Ctrl-C
-    (longer under load), so a coordinator or agent whose simulator had gone looked hung after
-    Ctrl-C. The exit code is the command's; stdout, stderr and the log handlers are flushed
-    first."""
-    code = main()
-    logging.shutdown()
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):  # a closed pipe: nothing more can reach it
-            pass
-    os._exit(code)
+    exit_now(main())
 
 
 if __name__ == "__main__":

@@ -33,7 +33,7 @@ from fleet.bus.status_bus import StatusBus
 from fleet.cli.common import SubParsers, add_command, add_secure, secure_of, standalone_parser
 from fleet.cli.logs import configure_logging, resolve_level
 from fleet.errors import BusError
-from fleet.messages import DEFAULT_ENDPOINT
+from fleet.messages import DEFAULT_ENDPOINT, StatusRecord
 from fleet.viz.display import FleetSnapshot, LiveTable
 from fleet.viz.table import SILENT_S, render_table, robot_sort_key
 
@@ -105,24 +105,29 @@ def build_parser() -> argparse.ArgumentParser:
 def snapshot(bus: StatusBus) -> dict[str, Any]:
     """``{"t": newest t, "robots": [record dicts by robot], "alive": [...], "malformed": n}``;
     each robot's dict has its diagnostics (``health``: worst level, ``diag``: the checks that
-    are not OK) and ``stale``: its record is more than :data:`~fleet.viz.table.SILENT_S` older
+    are not OK), ``battery`` ``None`` while its ``pose`` is (before its robot's first state the
+    agent knows no battery) and ``stale``: its record is more than :data:`~fleet.viz.table.SILENT_S` older
     than the newest one."""
     latest = bus.latest()
     names = sorted(latest, key=robot_sort_key)
     t = max((r.t for r in latest.values()), default=None)
-    robots = []
-    for n in names:
-        d = latest[n].to_dict()
-        d.setdefault("health", 0)
-        d.setdefault("diag", [])
-        d["stale"] = t is not None and t - latest[n].t > SILENT_S
-        robots.append(d)
     return {
         "t": t,
-        "robots": robots,
+        "robots": [robot_json(latest[n], t) for n in names],
         "alive": sorted(bus.alive(), key=robot_sort_key),
         "malformed": bus.malformed,
     }
+
+
+def robot_json(rec: StatusRecord, newest_t: float | None) -> dict[str, Any]:
+    """One robot's entry of :func:`snapshot` (``newest_t``: the newest record's ``t``)."""
+    d = rec.to_dict()
+    d.setdefault("health", 0)
+    d.setdefault("diag", [])
+    d["stale"] = newest_t is not None and newest_t - rec.t > SILENT_S
+    if rec.pose is None:  # before its robot's first state an agent knows no battery
+        d["battery"] = None
+    return d
 
 
 def _wait_for_robots(bus: StatusBus, wait_s: float, settle_s: float, stop: threading.Event) -> bool:

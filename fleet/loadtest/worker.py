@@ -50,6 +50,7 @@ from fleet.loadtest.lockstep import (
     tick_key,
 )
 from fleet.messages import Grant, StatusRecord, TaskMessage
+from fleet.runtime.process_exit import exit_now
 
 logger = logging.getLogger(__name__)
 
@@ -294,6 +295,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         secure = checked_secure(a.secure, a.identity) if a.secure is not None else None
+    except BusError as e:  # bad usage: a path that is no key directory (or lacks the identity)
+        print(f"fleet loadtest worker {a.index}: {e}", file=sys.stderr)
+        return 2
+    try:
         return run_worker(a.endpoint, a.index, run=a.run, out_dir=a.out, parent=a.parent, secure=secure)
     except KeyboardInterrupt:
         return 130
@@ -308,7 +313,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    code = main()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)  # everything is closed: skip the interpreter's slow finalization (fleet.cli.main.entry)
+    exit_now(main())  # everything is closed: skip the interpreter's slow finalization

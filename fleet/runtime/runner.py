@@ -96,7 +96,10 @@ class FleetRunner:
             on ``out``; :class:`fleet.viz.display.NullDisplay` shows nothing).
         state_dir: the coordinator's durable task book (``docs/service.md``); a directory that
             holds one is resumed. ``None``: an in-memory book (the CLI defaults to a new directory
-            under ``out/state/``).
+            under ``out/state/``). An in-process simulator keeps its snapshot there too and
+            resumes from it (robots' poses, batteries, docking states, the clock:
+            :mod:`fleet.runtime.snapshot`), so a killed ``fleet run`` resumes its robots as well
+            as its tasks.
         api: ``HOST:PORT`` to serve the task service's HTTP API on (with the coordinator).
         secure: open the session on a secured bus (``docs/security.md``): as the router (with
             its credentials and access control) when this process listens, else as
@@ -264,6 +267,9 @@ class FleetRunner:
         self.bus.subscribe_statuses(self.bus_view.see)
         guard = self.bus.guard_orders(self.agent_names)  # counts what arrives while we start
         self.world = world = factory(self.config, specs, session)
+        keep_state = getattr(world, "keep_state", None)
+        if self.state_dir is not None and callable(keep_state):
+            keep_state(self.state_dir)  # an in-process simulator resumes its robots, and keeps them
         sim = getattr(world, "sim", None)
         self._world_latch = (
             WorldLatch(self.latch, sim) if sim is not None and hasattr(sim, "fault_of") else None
@@ -497,6 +503,8 @@ class FleetRunner:
             duration_s=self.duration,
             laps=st.laps_completed() if st is not None else None,
             charging=sum(1 for r in recs if r.mode == Mode.CHARGING),
+            # a remote simulator's clock is the fleet's, which ran before this process
+            clock_s=world.clock.now() if world is not None and world.remote else None,
         )
 
     def _report(self, world: World, wall_s: float, interrupted: bool) -> RunReport:

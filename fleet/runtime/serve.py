@@ -32,7 +32,7 @@ from fleet.clock import Pacer, WallClock
 from fleet.config.model import FleetConfig
 from fleet.errors import BackendError
 from fleet.runtime.latch import Latch, WorldLatch
-from fleet.runtime.snapshot import SNAPSHOT_EVERY_S, SNAPSHOT_FILE, SimSnapshot, read, take, write
+from fleet.runtime.snapshot import SnapshotWriter, resume_simulator, simulator_from_config
 
 if TYPE_CHECKING:
     from fleet.bus.session import Secure
@@ -66,42 +66,6 @@ class ServeProgress:
     steps: int
     requests: int
     malformed: int = 0
-
-
-def simulator_from_config(config: FleetConfig, snapshot: SimSnapshot | None = None) -> Simulator:
-    """A :class:`sim.simulator.Simulator` with every robot of a fleet config; with a
-    ``snapshot``, its clock starts at the snapshot's time and its robots at their saved poses
-    and batteries (a robot whose saved pose is not free starts at its configured start)."""
-    from fleet.clock import SimClock
-    from sim.simulator import Simulator
-
-    sim = Simulator(config.grid, config.sim, SimClock(snapshot.t if snapshot is not None else 0.0))
-    for spec in config.robots:
-        if snapshot is None:
-            sim.add_robot(spec)
-            continue
-        try:
-            sim.add_robot(snapshot.respec(spec))
-        except BackendError as e:
-            logger.warning("%s starts at its configured pose: %s", spec.name, e)
-            sim.add_robot(spec)
-    return sim
-
-
-def resume_simulator(config: FleetConfig, state_dir: Path) -> Simulator:
-    """The simulator of ``config`` resumed from the snapshot in ``state_dir`` (fresh if there
-    is none; the directory is created). Raises :class:`~fleet.errors.ConfigError` for a file
-    there that is not a snapshot of this fleet."""
-    state_dir.mkdir(parents=True, exist_ok=True)
-    snap = read(state_dir / SNAPSHOT_FILE, config.name)
-    if snap is not None:
-        logger.warning(
-            "resuming the simulator from %s: t=%.1f s, %d robots at their saved poses",
-            state_dir / SNAPSHOT_FILE,
-            snap.t,
-            len(snap.robots),
-        )
-    return simulator_from_config(config, snap)
 
 
 @contextmanager
@@ -163,7 +127,7 @@ def serve_simulator(
     server: SimNavServer | None = None
     loop = _ServeLoop(sim, speed, duration, stop, 1.0 / publish_hz)
     if state_dir is not None and config is not None:
-        loop.snapshots = _Snapshots(sim, config, state_dir)
+        loop.snapshots = SnapshotWriter(sim, config, state_dir)
     bus = StatusBus(sess)
     try:
         bus.subscribe_control(loop.latch.latch.follow)  # the e-stop latch, from the coordinator
@@ -202,7 +166,7 @@ class _ServeLoop:
         #: The e-stop latch below every agent, applied before each step (``fleet.runtime.latch``).
         self.latch = WorldLatch(Latch(), sim)
         #: Where the simulator's snapshot goes (``None``: nowhere).
-        self.snapshots: _Snapshots | None = None
+        self.snapshots: SnapshotWriter | None = None
 
     def wall_s(self) -> float:
         return self.wall.now() - self.w0
@@ -250,25 +214,3 @@ class _ServeLoop:
         if self.snapshots is not None:
             self.snapshots.save()
         self.interrupted = self.interrupted or self.stop.is_set()
-
-
-class _Snapshots:
-    """Writes the simulator's snapshot to ``state_dir`` every :data:`SNAPSHOT_EVERY_S` wall s."""
-
-    def __init__(self, sim: Simulator, config: FleetConfig, state_dir: Path) -> None:
-        self.sim = sim
-        self.fleet = config.name
-        self.names = {r.namespace: r.name for r in config.robots}
-        self.path = state_dir / SNAPSHOT_FILE
-        self.next_wall = 0.0
-
-    def maybe(self, wall: float) -> None:
-        if wall >= self.next_wall:
-            self.next_wall = wall + SNAPSHOT_EVERY_S
-            self.save()
-
-    def save(self) -> None:
-        try:
-            write(self.path, take(self.sim, self.fleet, self.names))
-        except OSError as e:  # a full disk must not stop the simulator
-            logger.warning("cannot write the simulator snapshot %s: %s", self.path, e)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
 import zenoh
@@ -14,6 +15,7 @@ from fleet.config.model import FleetConfig
 from fleet.errors import BackendError, BusError
 from fleet.navigation import Clock, NavigationBackend
 from fleet.robots import RobotSpec
+from fleet.runtime.snapshot import SnapshotWriter, resume_simulator
 
 logger = logging.getLogger(__name__)
 
@@ -80,17 +82,34 @@ class SimWorld:
     def __init__(self, config: FleetConfig, robots: list[RobotSpec], session: zenoh.Session | None) -> None:
         from sim.simulator import Simulator
 
+        self.config = config
         self.clock = SimClock()
         self.sim = Simulator(config.grid, config.sim, self.clock)
         self.step_s = config.sim.step_s
         for spec in config.robots:
             self.sim.add_robot(spec)
+        #: Where the simulator's snapshot goes (``None``: nowhere; see :meth:`keep_state`).
+        self.snapshots: SnapshotWriter | None = None
+
+    def keep_state(self, state_dir: Path) -> None:
+        """Resume the simulator from the snapshot in ``state_dir`` (its robots' poses,
+        batteries and docking states and its clock; as configured when there is none) and keep
+        its snapshot there from now on (:mod:`fleet.runtime.snapshot`): every
+        :data:`~fleet.runtime.snapshot.SNAPSHOT_EVERY_S` wall s while it steps, and at
+        :meth:`close`. Call it before anything uses the world. Raises
+        :class:`~fleet.errors.ConfigError` for a file there that is not a snapshot of this fleet."""
+        self.sim = resume_simulator(self.config, state_dir)
+        self.clock = self.sim.clock
+        self.snapshots = SnapshotWriter(self.sim, self.config, state_dir)
+        self.snapshots.save()
 
     def backend(self, namespace: str) -> NavigationBackend:
         return self.sim.backend(namespace)
 
     def advance(self) -> None:
         self.sim.step()
+        if self.snapshots is not None:
+            self.snapshots.maybe()
 
     def collisions(self) -> int | None:
         return self.sim.collisions
@@ -102,7 +121,8 @@ class SimWorld:
         return self.sim.trajectory(namespace)
 
     def close(self) -> None:
-        return None
+        if self.snapshots is not None:
+            self.snapshots.save()
 
 
 class BlindWorld:

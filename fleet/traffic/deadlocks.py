@@ -59,7 +59,8 @@ def detect_and_resolve(st: TrafficState, now: float) -> None:
 
 def unblock(st: TrafficState, now: float, budget: int) -> None:
     """Robots that waited ``reroute_after_s`` on robots that are all dead or parked (each at
-    most once per ``reroute_after_s``): nudge a parked one aside; failing that, reroute."""
+    most once per ``reroute_after_s``): nudge a parked one aside; failing that, reroute (a
+    robot with a detour limit only once it waited ``dead_wait_s``)."""
     p = st.params
     for name in sorted(st.waiting):
         if budget <= 0:
@@ -79,6 +80,8 @@ def unblock(st: TrafficState, now: float, budget: int) -> None:
         if any(b.parked and sidestep(st, b, {name}, now, back=False) for b in stuck_on):
             st.metrics.nudges += 1
             continue
+        if r.detour_m is not None and now - r.wait_since < p.dead_wait_s:
+            continue  # it cannot afford a long way round: it waits for the dead robot a while
         avoid = {x for b in stuck_on for x in st.table.held(b.name) if isinstance(x, str)}
         if reroute(st, r, avoid, now, bounded=False):
             st.metrics.dead_reroutes += 1
@@ -209,7 +212,9 @@ def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | N
 def sidestep(st: TrafficState, r: TrackedRobot, others: set[str], now: float, back: bool) -> bool:
     """Move ``r`` to a free node a few edges away that is not on the next part of the
     paths of ``others`` (granted at once), then (``back``) continue its path from there to
-    its next must-visit node; without ``back`` it ends there. ``r`` then yields to ``others``."""
+    its next must-visit node (by the shortest way, against the flow if need be, for a robot
+    with a detour limit; else with the flow); without ``back`` it ends there. ``r`` then
+    yields to ``others``."""
     if not r.alive or not r.path:
         return False
     seg = _aside(st, r, others)
@@ -227,7 +232,10 @@ def sidestep(st: TrafficState, r: TrackedRobot, others: set[str], now: float, ba
     b = 0
     if back and r.g < len(r.path) - 1:
         b = next_must(r, r.g)
-        ret = st.roads.shortest(target, r.path[b], set(st.dead_nodes))
+        # a robot that cannot afford a long way (a detour limit: short of energy, on its way
+        # to a charger) goes back the short way, against the flow if need be, once the robots
+        # it yields to have passed, not round a loop with the flow (33 m for 4 m in one run)
+        ret = st.roads.shortest(target, r.path[b], set(st.dead_nodes), flow=r.detour_m is None)
         if ret is None:
             return False
     if st.table.try_acquire(r.name, res):

@@ -3,7 +3,8 @@
 * A robot whose status mode is ``charging`` is sent to the nearest charger dock that nobody
   holds or heads for, lowest battery first; if every charger is taken it waits at a free
   parking dock nearest the chargers (:attr:`Purpose.CHARGE_WAIT`) and is sent on when a
-  charger frees. On its way it has base priority ``CHARGE_PRIORITY * (2 - battery)``.
+  charger frees. On its way it has base priority ``CHARGE_PRIORITY * (2 - battery)`` and
+  takes no detour around a dead robot longer than :data:`CHARGE_DETOUR_M` beyond its way.
 * A robot idle (no route, mode ``idle``) for ``park_idle_s`` that does not stand on a
   parking or charger dock is sent to the nearest free parking dock, so idle robots do not
   stand in aisles; one below :data:`TOP_UP_BELOW` battery goes to a free charger instead
@@ -51,6 +52,12 @@ CHARGE_REACH_M = 30.0
 RETARGET_AFTER_S = 10.0
 #: ... within this much driving (m) of where it stands.
 RETARGET_REACH_M = 60.0
+
+#: A robot that needs a charger takes a detour around a dead robot (an agent being restarted,
+#: usually back within seconds) only if it is at most this much (m) longer than its way; else
+#: it waits (:meth:`TrafficManager.set_detour_limit`). Unbounded, such detours through the
+#: aisles drained robots on their way to a charger flat under chaos (docs/faults.md).
+CHARGE_DETOUR_M = 10.0
 
 #: Sends a robot along a node path for a purpose: ``drive(robot, nodes, purpose)``.
 Drive = Callable[[str, list[str], Purpose], None]
@@ -138,6 +145,7 @@ class Errands:
             return
         if purpose in (Purpose.CHARGE, Purpose.CHARGE_WAIT):
             self.manager.set_priority(name, 0.0)
+            self.manager.set_detour_limit(name, None)
             self.purposes.pop(name, None)  # charged: now simply idle where it stands
             self._target.pop(name, None)
             self._charge_wait.discard(name)
@@ -186,8 +194,10 @@ class Errands:
         if not requests:
             return
         for battery, name in sorted(requests):
-            # a robot short of energy goes first at intersections and is never the one to yield
+            # a robot short of energy goes first at intersections and is never the one to yield,
+            # and does not drive far round a dead robot
             self.manager.set_priority(name, CHARGE_PRIORITY * (2.0 - battery))
+            self.manager.set_detour_limit(name, CHARGE_DETOUR_M)
             node = self._free_dock(name, self.chargers, reach=CHARGE_REACH_M)
             if node is not None:
                 self._go(name, node, Purpose.CHARGE)

@@ -131,7 +131,11 @@ def revive(st: TrafficState, r: TrackedRobot, now: float) -> None:
 
 def avoid_dead(st: TrafficState, r: TrackedRobot, start: int | None = None) -> None:
     """Reroute the not-yet-granted part of ``r``'s path (from index ``start`` if later)
-    around dead robots' nodes; a must-visit node held by a dead robot is skipped."""
+    around dead robots' nodes; a must-visit node held by a dead robot is skipped. A robot
+    with a detour limit (``r.detour_m``) takes no detour longer than its way plus that limit:
+    it waits before the dead robot instead (most dead robots are agents being restarted, back
+    within seconds; a detour through the aisles can cost a robot short of energy more than it
+    has: a chaos run drained one from 22 % to flat that way, docs/faults.md)."""
     if not st.dead_nodes or not r.alive:
         return
     dead = st.dead_nodes
@@ -151,6 +155,8 @@ def avoid_dead(st: TrafficState, r: TrackedRobot, start: int | None = None) -> N
         seg = st.roads.shortest(r.path[a], r.path[b], set(dead))
         if seg is None:
             return
+        if r.detour_m is not None and st.roads.cost(seg, flow=False) > r.cum[b] - r.cum[a] + r.detour_m:
+            return  # too far round for it: it waits for the dead robot
         splice(st, r, a, b, seg)
         st.metrics.dead_reroutes += 1
         i = a + len(seg)

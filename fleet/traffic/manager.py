@@ -167,6 +167,17 @@ class TrafficManager:
         """Base priority of ``robot`` (higher goes first and yields last; default 0)."""
         self._st.get(robot).base_priority = float(priority)
 
+    def set_detour_limit(self, robot: str, meters: float | None) -> None:
+        """How much longer (m) than its way a detour around a dead robot may be for ``robot``
+        (``None``, the default: any). Set it for a robot that cannot afford a long way round
+        (short of energy, on its way to a charger): it then waits before a dead robot rather
+        than drive far round it, and only after ``dead_wait_s`` of waiting is it rerouted."""
+        self._st.get(robot).detour_m = None if meters is None else float(meters)
+
+    def detour_limit(self, robot: str) -> float | None:
+        """``robot``'s detour limit (m; see :meth:`set_detour_limit`), ``None`` for none."""
+        return self._st.get(robot).detour_m
+
     def declare_dead(
         self, robot: str, now: float, reason: str = "declared dead", keep_grant: bool = False
     ) -> None:

@@ -48,7 +48,9 @@ class TrafficParams:
     up the part of its grant beyond the first node at least ``turn_back_m`` ahead of it,
     when that way is shorter (:func:`fleet.traffic.paths.errand_way`); ``turn_back_m`` must
     exceed the robot's stopping distance plus how far it drives before its follower learns
-    of the shorter grant.
+    of the shorter grant. ``dead_wait_s``: a robot with a detour limit
+    (:meth:`TrafficManager.set_detour_limit`) blocked by a dead robot waits this long for it
+    (a restarted agent is back within seconds) before it is rerouted around it.
     """
 
     robot_radius: float = 0.3
@@ -75,6 +77,7 @@ class TrafficParams:
     flow_penalty: float = 3.0
     turn_back: bool = True
     turn_back_m: float = 1.5
+    dead_wait_s: float = 30.0
 
     @property
     def clearance(self) -> float:

@@ -241,6 +241,7 @@ class ReservationTraffic:
         m = self.manager
         if m.knows(robot):
             m.set_priority(robot, 0.0)
+            m.set_detour_limit(robot, None)
         nodes = self._pending.get(robot)
         if nodes is None or not m.knows(robot) or robot in self._coord_dead:
             return

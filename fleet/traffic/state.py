@@ -71,7 +71,11 @@ class TrackedRobot:
     claimed after starving. ``yields``: times it gave way; ``yield_to``: robot -> (resources
     it leaves to that robot, until when). ``base_priority``: set by the caller (higher goes
     first). ``next_reroute``: not before this time is it rerouted around a dead or parked
-    robot again.
+    robot again. ``detour_m``: set by the caller for a robot that cannot afford a long way
+    round (one short of energy on its way to a charger): a detour around a dead robot may
+    then be at most this much (m) longer than its way, else it waits, and after stepping
+    aside it comes back the shortest way, against the flow if need be (``None``: any detour,
+    with the flow).
     """
 
     __slots__ = (
@@ -111,6 +115,7 @@ class TrackedRobot:
         "yield_to",
         "base_priority",
         "next_reroute",
+        "detour_m",
     )
 
     def __init__(self, name: str, rank: int, now: float) -> None:
@@ -147,6 +152,7 @@ class TrackedRobot:
         self.yield_to: dict[str, tuple[frozenset[Resource], float]] = {}
         self.base_priority = 0.0
         self.next_reroute = -math.inf
+        self.detour_m: float | None = None
 
     @property
     def parked(self) -> bool:

@@ -45,6 +45,9 @@ class FleetSnapshot:
     number, ``laps``: their sum, ``charging``: robots in mode ``charging``); ``collisions``,
     ``deadlocks``, ``states`` (robots per state), ``real_time_factor`` and ``note`` (free text)
     are shown when given. ``label`` names the run in progress lines (e.g. ``loadtest``).
+    ``clock_s``: the fleet's simulated clock when it is not this run's (a coordinator or agent
+    of a simulator in another process, which may have joined, or been restarted into, a fleet
+    already running); progress lines then show it as ``t`` (``None``: ``sim_time_s``).
     """
 
     sim_time_s: float
@@ -61,6 +64,11 @@ class FleetSnapshot:
     real_time_factor: float | None = None
     note: str = ""
     label: str = ""
+    clock_s: float | None = None
+
+    def clock(self) -> float:
+        """The fleet's clock (simulated s): ``clock_s``, else ``sim_time_s``."""
+        return self.sim_time_s if self.clock_s is None else self.clock_s
 
     def counts(self) -> str:
         """``6 robots, 3 laps, 1 charging`` plus the optional counts that are set. Robots, laps
@@ -92,10 +100,11 @@ class FleetSnapshot:
 
 def progress_line(snap: FleetSnapshot) -> str:
     """One plain progress line: ``[t=  12.0 s sim,    5.0 s wall] 6 robots, 3 laps, 1 charging``
-    (with the label and the real-time factor when set)."""
+    (with the label and the real-time factor when set); ``t`` is the fleet's clock
+    (``clock_s``) when given, so a restarted coordinator goes on from the fleet's time."""
     head = f"{snap.label} " if snap.label else ""
     rtf = f", {snap.real_time_factor:5.2f}x real time" if snap.real_time_factor is not None else ""
-    return f"[{head}t={snap.sim_time_s:7.1f} s sim, {snap.wall_s:6.1f} s wall{rtf}] {snap.counts()}"
+    return f"[{head}t={snap.clock():7.1f} s sim, {snap.wall_s:6.1f} s wall{rtf}] {snap.counts()}"
 
 
 class FleetDisplay(Protocol):
@@ -171,7 +180,7 @@ class LiveTable:
         return self._every
 
     def show(self, snap: FleetSnapshot) -> None:
-        self.update(snap.records, snap.alive, snap.sim_time_s)
+        self.update(snap.records, snap.alive, snap.clock())
 
     def update(self, records: Sequence[StatusRecord], alive: set[str] | None, now: float | None) -> None:
         """Redraw the table (terminal) or write one summary line (not a terminal)."""
@@ -234,7 +243,7 @@ class ProgressDisplay:
             self.out.flush()
             return
         rtf = f"{snap.real_time_factor:.1f}x" if snap.real_time_factor is not None else ""
-        sim, counts = f"{snap.sim_time_s:.1f}", snap.counts()
+        sim, counts = f"{snap.clock():.1f}", snap.counts()
         if self._progress is None:
             self._progress = Progress(
                 SpinnerColumn() if snap.duration_s is None else BarColumn(bar_width=24),

@@ -1,7 +1,7 @@
 """The fleet table: one row per robot from its latest status record, drawn with ``rich``.
 
 Columns, in the order shown: robot, ``x`` / ``y`` (m, ``map`` frame), ``yaw`` (degrees),
-``bat`` (battery %), ``chg`` (charging), ``bt`` (root status), ``leaf`` (active leaf),
+``bat`` (battery %; ``?`` before the robot's first state, when its agent knows no battery yet), ``chg`` (charging), ``bt`` (root status), ``leaf`` (active leaf),
 ``mode``, ``task`` (assignment id), ``laps``, ``prog`` (progress through the lap) and
 ``flags``: ``STUCK``; the robot's diagnostics that are not OK as ``LEVEL:name``
 (``ERROR:localization``, ``WARN:battery``; :mod:`fleet.diagnostics`); ``DEAD`` when the
@@ -232,7 +232,12 @@ def _cells(
             "x": Text(_num(pose[0], 6) if pose is not None else "-"),
             "y": Text(_num(pose[1], 6) if pose is not None else "-"),
             "yaw": Text(str(round(math.degrees(pose[2]))) if pose is not None else "-"),
-            "bat": Text(f"{rec.battery * 100:.0f}%", style=_battery_style(rec.battery)),
+            # before its robot's first state (no pose) an agent knows no battery
+            "bat": (
+                Text(f"{rec.battery * 100:.0f}%", style=_battery_style(rec.battery))
+                if pose is not None
+                else Text("?", style="dim")
+            ),
             "chg": Text("yes" if rec.charging else ""),
             "bt": Text(_BT_SHORT.get(rec.bt, rec.bt)),
             "leaf": Text(rec.leaf),

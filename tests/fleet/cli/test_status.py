@@ -79,3 +79,18 @@ with open_session(sys.argv[1], "router"):
     print("ready", flush=True)
     stop.wait()
 """
+
+
+def test_json_battery_is_null_before_the_robots_first_state() -> None:
+    """``fleet status --json``: a status sent before the robot's first state (no pose) has
+    ``battery: null``, not the navigation client's default of 1.0."""
+    import msgspec
+    from bus_peer import record
+
+    from fleet.cli.status import robot_json
+
+    known = record("robot1", 1)
+    waiting = msgspec.structs.replace(record("robot2", 2), pose=None, battery=1.0)
+    assert robot_json(known, known.t)["battery"] == known.battery
+    row = robot_json(waiting, known.t)
+    assert row["battery"] is None and row["pose"] is None and row["stale"] is False

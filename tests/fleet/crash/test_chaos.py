@@ -44,7 +44,7 @@ def test_chaos_run_loses_nothing_duplicates_nothing_and_collides_nowhere(tmp_pat
 @pytest.mark.timeout(1200)
 def test_a_killed_fleet_run_resumes_its_task_book(tmp_path: Path) -> None:
     """``fleet run --state`` killed and started again: its durable task book brings every task
-    back, none is done twice (the robots start again from the config, see docs/faults.md)."""
+    back, none is done twice, and its simulator's snapshot its robots (docs/faults.md)."""
     out = chaos(
         tmp_path,
         "--mode",

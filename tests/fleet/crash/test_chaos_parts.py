@@ -56,18 +56,30 @@ def test_bad_keys_are_refused_before_anything_starts(
 
 def test_a_battery_run_flat_fails_the_run(tmp_path: Path) -> None:
     w = Watch()
-    for i, battery in enumerate((0.5, 0.2, 0.04, 0.3)):  # robot1 dips below 5 %, then charges
-        w.on_status(status("robot1", 100.0 + i * TIMELINE_EVERY_S, battery=battery, mode="charging"))
+    # robot1 goes to charge at 20 %, dips below 5 % on the way, then charges
+    for i, (battery, mode) in enumerate(
+        ((0.5, "patrol"), (0.2, "charging"), (0.04, "charging"), (0.3, "charging"))
+    ):
+        w.on_status(status("robot1", 100.0 + i * TIMELINE_EVERY_S, battery=battery, mode=mode))
         w.on_status(status("robot2", 100.0 + i * TIMELINE_EVERY_S, battery=0.6))
     assert w.min_battery == (0.04, "robot1")
     assert [round(p.battery, 2) for p in w.timeline["robot1"]] == [0.5, 0.2, 0.04, 0.3]
     w.on_status(msgspec.structs.replace(status("robot3", 200.0, battery=1.0), pose=None))
     assert "robot3" not in w.timeline and w.min_battery == (0.04, "robot1")  # no state: no battery
     spec = ChaosSpec(config=PATROL, robots=2, duration=30.0, endpoint="tcp/127.0.0.1:7447", out=tmp_path)
-    res = ChaosResult(spec, min_battery=w.min_battery, timeline={r: list(x) for r, x in w.timeline.items()})
+    assert list(w.crossed) == ["robot1"]  # where and doing what it went below 5 %
+    at, began = w.crossed["robot1"]
+    assert (at.t, at.battery, at.mode) == (20.0, 0.04, "charging")
+    assert began is not None and (began.t, began.battery) == (10.0, 0.2)
+    timeline = {r: list(x) for r, x in w.timeline.items()}
+    res = ChaosResult(spec, min_battery=w.min_battery, timeline=timeline, crossed=w.crossed)
     assert res.flat and not res.ok
     lines = report_lines(res)
     assert f"lowest battery seen: 4.0% (robot1) (below {MIN_BATTERY:.0%}: ran flat)" in lines
+    assert (
+        "  robot1 below 5% at t=20 s at (1.0, 2.0) m: mode charging, leaf , not on a charger; "
+        "in charging mode since t=10 s (10 s), which began at 20% at (1.0, 2.0) m"
+    ) in lines
     assert "flat batteries: 1" in lines[-1]
     write_timeline(tmp_path / "battery.csv", res.timeline)
     rows = (tmp_path / "battery.csv").read_text().splitlines()

@@ -4,10 +4,15 @@ they lost) get SIGINT. Each exits with its documented code (130; 0 for the ``fle
 viewer; ``docs/cli.md``) well within the hang guard and prints no traceback.
 
 Before the fix a coordinator or agent took 1-5 s after Ctrl-C on an idle machine (and about
-30 s under load) to finish the interpreter's finalization after its run had ended."""
+30 s under load) to finish the interpreter's finalization after its run had ended.
+
+The simulator resumes a snapshot taken at t = 1000 s, as after a restart: the coordinator,
+which joined that fleet, shows the fleet's clock in its progress lines (it counted from its
+own start, t = 5 s, before)."""
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import time
@@ -29,9 +34,16 @@ EXPECTED = {"coordinator": 130, "agent": 130, "status": 0}
 
 def test_ctrl_c_after_the_simulator_stopped_exits_promptly(tmp_path: Path) -> None:
     cfg, ep = str(PATROL), free_endpoint()
+    state = tmp_path / "sim-state"
+    state.mkdir()
+    (state / "sim.json").write_text(
+        json.dumps({"version": 1, "fleet": "warehouse_patrol", "t": 1000.0, "robots": {}})
+    )
     with processes() as procs:
         sim = spawn(
-            procs, ["sim", cfg, "--endpoint", ep, "--robots", "2", "--speed", "2"], tmp_path / "sim.log"
+            procs,
+            ["sim", cfg, "--endpoint", ep, "--robots", "2", "--speed", "2", "--state", str(state)],
+            tmp_path / "sim.log",
         )
         output(sim).wait_line("fleet sim:", START_S)
         started = {
@@ -70,6 +82,8 @@ def test_ctrl_c_after_the_simulator_stopped_exits_promptly(tmp_path: Path) -> No
             bus.bus.close()
         finally:
             session.close()
+        line = output(started["coordinator"]).wait_line(" s sim,", START_S)
+        assert float(line.split("t=")[1].split()[0]) >= 1000.0, line
         sim.send_signal(signal.SIGINT)  # the router and the simulator go first
         assert sim.wait(timeout=START_S) == 130
         # the agent noticed: its bus-loss watchdog stopped its robot

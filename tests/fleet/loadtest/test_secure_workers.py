@@ -5,6 +5,8 @@ real Zenoh with authentication and access control on loopback."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 from pathlib import Path
 from typing import Any
@@ -63,6 +65,21 @@ def test_a_bad_secure_path_is_a_clear_error(tmp_path: Path, capsys: pytest.Captu
     err = capsys.readouterr().err
     assert f"not identity 'worker': {keys / 'worker.json5'} is missing" in err and "--force" in err
     assert not (tmp_path / "out" / "report.json").exists()  # refused before anything ran
+
+
+def test_a_worker_given_a_bad_secure_path_exits_2_before_connecting(tmp_path: Path) -> None:
+    """The worker process itself (as a user on another host starts it): a path that is no
+    key directory is bad usage, exit 2 with the path named, like every ``fleet`` command;
+    nothing is tried on the endpoint (a closed port here)."""
+    missing = tmp_path / "missing"
+    cmd = [sys.executable, "-m", "fleet.loadtest.worker", "--endpoint", "tcp/127.0.0.1:9", "--index", "0"]
+    root = Path(__file__).resolve().parents[3]
+    p = subprocess.run(
+        [*cmd, "--secure", str(missing)], capture_output=True, text=True, timeout=120, cwd=root
+    )
+    assert p.returncode == 2, p.stderr
+    assert f"fleet loadtest worker 0: --secure {missing}: no such key directory" in p.stderr
+    assert "Traceback" not in p.stderr
 
 
 def test_the_worker_identity_may_do_the_lockstep_and_nothing_more(tmp_path: Path) -> None:

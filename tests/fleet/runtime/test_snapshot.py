@@ -57,3 +57,28 @@ def test_no_snapshot_starts_from_the_config_and_a_bad_one_is_refused(tmp_path: P
     path.write_text("{not json")
     with pytest.raises(ConfigError, match="not a simulator snapshot"):
         resume_simulator(config, tmp_path)
+
+
+def test_a_robot_docked_at_the_kill_is_charging_at_its_agents_first_look(tmp_path: Path) -> None:
+    """The docking state comes back before the first step: an agent started with the resumed
+    simulator sees the charge under way at once (and its battery guard finishes it), instead
+    of a robot standing on a charger that does not charge until the simulator steps."""
+    config = load_config(PATROL)
+    charger = config.chargers[0].pose
+    docked = {"x": charger.x, "y": charger.y, "theta": charger.theta, "battery": 0.4, "charging": True}
+    doc = {"version": 1, "fleet": config.name, "t": 50.0, "robots": {"robot1": docked}}
+    (tmp_path / SNAPSHOT_FILE).write_text(json.dumps(doc))
+    sim = resume_simulator(config, tmp_path)
+    ns = config.robots[0].namespace
+    st = sim.robot_state(ns)
+    assert st.charging and st.battery == pytest.approx(0.4) and sim.clock.now() == 50.0
+    assert not sim.robot_state(config.robots[1].namespace).charging
+    sim.step()
+    assert sim.robot_state(ns).charging and sim.robot_state(ns).battery > 0.4  # it charges on
+    names = {r.namespace: r.name for r in config.robots}
+    assert take(sim, config.name, names).robots["robot1"].charging  # and the next snapshot says so
+    doc["robots"] = {"robot1": {**docked, "charging": "yes"}}
+    (tmp_path / SNAPSHOT_FILE).write_text(json.dumps(doc))
+    with pytest.raises(ConfigError) as e:
+        resume_simulator(config, tmp_path)
+    assert e.value.field == "robots.robot1.charging"

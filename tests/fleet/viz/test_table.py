@@ -123,3 +123,14 @@ def test_silent_robot_is_flagged() -> None:
     recs = fleet(2)
     lines = render_table(recs, now=recs["robot2"].t + 10.0).splitlines()
     assert lines[2].endswith("STALE") and lines[3].endswith("STALE")
+
+
+def test_battery_is_unknown_before_the_robots_first_state() -> None:
+    """A restarted agent's status before its robot's first state (no pose) carries the
+    navigation client's default battery; the table shows ``?``, not that default."""
+    recs = fleet(2)
+    recs["robot2"] = msgspec.structs.replace(recs["robot2"], pose=None, battery=1.0, leaf="WaitingForState")
+    lines = render_table(recs).splitlines()
+    known, waiting = lines[2].split(), lines[3].split()
+    assert known[0] == "robot1" and known[4] == "90%"
+    assert waiting[0] == "robot2" and waiting[4] == "?" and "100%" not in lines[3]
