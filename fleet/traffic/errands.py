@@ -11,7 +11,8 @@
   parking or charger dock is sent to the nearest free parking dock, so idle robots do not
   stand in aisles; one below :data:`TOP_UP_BELOW` battery goes to a free charger instead
   (while more than :data:`SPARE_CHARGERS` of them are free), parked robots too. A robot on
-  a charger dock is moved to parking when another robot waits for a charger, or when it
+  a charger dock is moved to parking when another robot waits for a charger or heads for
+  that one (sent there to arrive as it frees), or when it
   has charged above :data:`VACATE_ABOVE` and an idle robot below :data:`TOP_UP_BELOW` found
   no free charger (so chargers do not fill up with full robots while others drain).
 * A robot whose target dock another robot stepped onto picks another dock."""
@@ -186,7 +187,8 @@ class Errands:
         if here in self._charger_set:
             assert obs is not None
             full = float(obs.battery) >= VACATE_ABOVE
-            if not self._charge_wait and not (self._wanted and full):
+            wanted = self._charge_wait or any(self._target.get(r) == here for r in self._behind)
+            if not wanted and not (self._wanted and full):
                 return  # idle on a charger: it charges there until a robot needs it
         else:
             assert obs is not None
