@@ -3,16 +3,12 @@
 * A robot whose status mode is ``charging`` is sent to the nearest charger dock that nobody
   holds or heads for, lowest battery first; if every charger is taken it waits at a free
   parking dock nearest the chargers (:attr:`Purpose.CHARGE_WAIT`) and is sent on when a
-  charger frees; or, when it cannot reach a charger before that charger's robot is done
-  charging (:meth:`Errands.freeing_charger`), it drives straight there instead (a reservation
-  in time: it arrives as the charger frees, without the detour to a waiting dock). On its
-  way it has base priority ``CHARGE_PRIORITY * (2 - battery)``.
+  charger frees. On its way it has base priority ``CHARGE_PRIORITY * (2 - battery)``.
 * A robot idle (no route, mode ``idle``) for ``park_idle_s`` that does not stand on a
   parking or charger dock is sent to the nearest free parking dock, so idle robots do not
   stand in aisles; one below :data:`TOP_UP_BELOW` battery goes to a free charger instead
   (while more than :data:`SPARE_CHARGERS` of them are free), parked robots too. A robot on
-  a charger dock is moved to parking when another robot waits for a charger or heads for
-  that one (sent there to arrive as it frees), or when it
+  a charger dock is moved to parking when another robot waits for a charger, or when it
   has charged above :data:`VACATE_ABOVE` and an idle robot below :data:`TOP_UP_BELOW` found
   no free charger (so chargers do not fill up with full robots while others drain).
 * A robot whose target dock another robot stepped onto picks another dock."""
@@ -21,7 +17,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, cast
 
 import networkx as nx
@@ -57,25 +52,8 @@ RETARGET_AFTER_S = 10.0
 #: ... within this much driving (m) of where it stands.
 RETARGET_REACH_M = 60.0
 
-#: A robot sent to a busy charger (:meth:`Errands.freeing_charger`) must need at least this
-#: much longer (s) to get there, at top speed, than the charging robot needs to finish.
-ARRIVE_AFTER_S = 3.0
-#: ... and be within this roadmap distance (m) of it.
-FREEING_REACH_M = 40.0
-
 #: Sends a robot along a node path for a purpose: ``drive(robot, nodes, purpose)``.
 Drive = Callable[[str, list[str], Purpose], None]
-
-
-@dataclass(frozen=True)
-class ChargeRates:
-    """What the charger queue needs to know of the robots to reserve chargers in time:
-    ``charge_per_s`` (battery fraction per second on a charger), ``resume`` (the fraction at
-    which a robot leaves its charger), ``top_speed`` (m/s)."""
-
-    charge_per_s: float
-    resume: float
-    top_speed: float
 
 
 class Errands:
@@ -96,7 +74,6 @@ class Errands:
         chargers: Sequence[str],
         parking: Sequence[str],
         park_idle_s: float,
-        charging: ChargeRates | None = None,
     ) -> None:
         self.manager = manager
         self.roadmap = roadmap
@@ -105,11 +82,6 @@ class Errands:
         self.chargers = list(chargers)
         self.parking = list(parking)
         self.park_idle_s = float(park_idle_s)
-        self.charging = charging
-        self._battery: dict[str, float] = {}
-        self._from_charger: dict[str, dict[str, float]] = {}
-        # robots sent to a charger another robot still charges on: name -> that robot
-        self._behind: dict[str, str] = {}
         self._parking_set = set(self.parking)
         self._charger_set = set(self.chargers)
         self._target: dict[str, str] = {}
@@ -128,22 +100,15 @@ class Errands:
         self._target.pop(robot, None)
         self._charge_wait.discard(robot)
         self._stuck.pop(robot, None)
-        self._behind.pop(robot, None)
 
     def step(self, name: str, view: RobotViewLike, now: float, requests: list[tuple[float, str]]) -> None:
         """Charging and parking trips of the live robot ``name`` at ``now``. A robot that needs
         a charger is added to ``requests`` as ``(battery, robot)``: :meth:`serve_chargers`."""
         obs = view.obs
         mode = obs.mode if obs is not None else None
-        if obs is not None:
-            self._battery[name] = float(obs.battery)
         purpose = self.purposes.get(name)
         target = self._target.get(name)
-        if (
-            target is not None
-            and self.manager.holder(target) not in (None, name)
-            and not self._queued(name, target)
-        ):
+        if target is not None and self.manager.holder(target) not in (None, name):
             # another robot stepped onto the dock this robot heads for (e.g. to let a third
             # pass): choose another dock rather than wait for it, head-on on a dead-end spur
             self._target.pop(name, None)
@@ -187,8 +152,7 @@ class Errands:
         if here in self._charger_set:
             assert obs is not None
             full = float(obs.battery) >= VACATE_ABOVE
-            wanted = self._charge_wait or any(self._target.get(r) == here for r in self._behind)
-            if not wanted and not (self._wanted and full):
+            if not self._charge_wait and not (self._wanted and full):
                 return  # idle on a charger: it charges there until a robot needs it
         else:
             assert obs is not None
@@ -225,12 +189,6 @@ class Errands:
             # a robot short of energy goes first at intersections and is never the one to yield
             self.manager.set_priority(name, CHARGE_PRIORITY * (2.0 - battery))
             node = self._free_dock(name, self.chargers, reach=CHARGE_REACH_M)
-            if node is None:
-                node = self.freeing_charger(name)
-                if node is not None:
-                    self._go(name, node, Purpose.CHARGE)
-                    self._behind[name] = str(self.manager.holder(node))
-                    continue
             if node is not None:
                 self._go(name, node, Purpose.CHARGE)
             elif self.purposes.get(name) is not Purpose.CHARGE_WAIT:
@@ -242,55 +200,6 @@ class Errands:
                     self._go(name, far, Purpose.CHARGE)
                 else:
                     self._go(name, dock, Purpose.CHARGE_WAIT)
-
-    def freeing_charger(self, name: str) -> str | None:
-        """A busy charger ``name`` may drive to now: one whose robot charges there (purpose
-        charge, standing on it) and will be done before ``name`` can get there, at top speed,
-        by :data:`ARRIVE_AFTER_S` (``(resume - battery) / charge_per_s`` seconds from now),
-        within :data:`FREEING_REACH_M` of ``name``, that no third robot heads for; of those,
-        the nearest (then by name). ``None`` without such a charger or without
-        :class:`ChargeRates`."""
-        rates, m = self.charging, self.manager
-        path = m.path(name)
-        if rates is None or not path:
-            return None
-        here = path[0]
-        best: tuple[float, str] | None = None
-        for c in self.chargers:
-            h = m.holder(c)
-            if h is None or h == name or self.purposes.get(h) is not Purpose.CHARGE:
-                continue
-            occupant = m.path(h)
-            if not occupant or occupant[0] != c or h not in self._battery:
-                continue
-            if any(t == c and r not in (h, name) for r, t in self._target.items()):
-                continue
-            dist = self._distance_to(c).get(here)
-            if dist is None:
-                continue
-            left = max(0.0, rates.resume - self._battery[h]) / rates.charge_per_s
-            if dist / rates.top_speed < left + ARRIVE_AFTER_S:
-                continue
-            if best is None or (dist, c) < best:
-                best = (dist, c)
-        if best is None:
-            return None
-        return best[1]
-
-    def _queued(self, name: str, target: str) -> bool:
-        """``name`` was sent to ``target`` behind the robot that still holds it."""
-        return self._behind.get(name) == self.manager.holder(target)
-
-    def _distance_to(self, charger: str) -> dict[str, float]:
-        """Roadmap distance (m, either way) from every node within :data:`FREEING_REACH_M`
-        of ``charger`` to it (cached)."""
-        d = self._from_charger.get(charger)
-        if d is None:
-            found = nx.single_source_dijkstra_path_length(
-                self.roadmap.graph, charger, cutoff=FREEING_REACH_M, weight="length"
-            )
-            d = self._from_charger[charger] = {str(k): float(v) for k, v in found.items()}
-        return d
 
     def _blocked_long(self, name: str, now: float) -> bool:
         """``name`` has waited :data:`RETARGET_AFTER_S` on the same robots (then the clock
@@ -360,8 +269,6 @@ class Errands:
     def _go(self, name: str, node: str | None, purpose: Purpose) -> None:
         if node is None:
             return
-        if self._target.get(name) != node:
-            self._behind.pop(name, None)
         self._target[name] = node
         if purpose is Purpose.CHARGE_WAIT:
             self._charge_wait.add(name)

@@ -14,7 +14,7 @@ from fleet.errors import ConfigError, DockError, TrafficError
 from fleet.messages import Grant
 from fleet.roadmap.docks import add_docks
 from fleet.roadmap.graph import Roadmap
-from fleet.traffic.errands import ChargeRates, Errands
+from fleet.traffic.errands import Errands
 from fleet.traffic.manager import TrafficManager
 from fleet.traffic.params import TrafficParams
 from fleet.traffic.purpose import Purpose
@@ -58,10 +58,8 @@ class ReservationTraffic:
       :data:`MAX_DEADLOCK_EVENTS`).
 
     ``roadmap`` is the traffic roadmap (with docks, see :func:`traffic_from_config`);
-    ``chargers`` / ``parking`` are its dock node names; ``charging`` (the robots' charge rate,
-    resume level and top speed) lets the charger queue send a robot to a charger that will be
-    free when it gets there (``None``: robots wait for a free charger). ``deliver`` may be set
-    later (the coordinator sets it when it is ``None``).
+    ``chargers`` / ``parking`` are its dock node names. ``deliver`` may be set later (the
+    coordinator sets it when it is ``None``).
     """
 
     def __init__(
@@ -75,7 +73,6 @@ class ReservationTraffic:
         deadlock_s: float = 30.0,
         park_idle_s: float = 5.0,
         dead_release_s: float = 10.0,
-        charging: ChargeRates | None = None,
     ) -> None:
         self.roadmap = roadmap
         self.manager = TrafficManager(roadmap, params)
@@ -99,14 +96,7 @@ class ReservationTraffic:
         self._dead_since: dict[str, float] = {}
         self._last_dl = -math.inf
         self.errands = Errands(
-            self.manager,
-            roadmap,
-            self._purpose,
-            self._set_path,
-            self.chargers,
-            self.parking,
-            park_idle_s,
-            charging,
+            self.manager, roadmap, self._purpose, self._set_path, self.chargers, self.parking, park_idle_s
         )
         # grants of a later policy (a restarted coordinator) must outrank older ones at the
         # robots: seq counts up from the wall time this policy was made, in microseconds
@@ -257,7 +247,7 @@ class ReservationTraffic:
         del self._pending[robot]
         self.errands.forget(robot)
         if robot in self._once:  # a task's stops, driven once; every stop must be visited
-            path = m.route(nodes)
+            path = m.route(nodes)  # legs with the flow, like errands
             stops = set(nodes)
             self._set_path(robot, path, Purpose.TASK, must=[i for i, n in enumerate(path) if n in stops])
             return
@@ -320,11 +310,6 @@ def traffic_from_config(config: FleetConfig, deliver: Deliver | None = None) -> 
         deadlock_s=ts.deadlock_s,
         park_idle_s=ts.park_idle_s,
         dead_release_s=ts.dead_release_s,
-        charging=ChargeRates(
-            charge_per_s=config.sim.battery.charge_per_s,
-            resume=config.sim.battery.resume,
-            top_speed=config.sim.model.max_linear_speed,
-        ),
     )
     policy.manager.set_flow(_loop_moves(roadmap, config))
     return policy

@@ -1,7 +1,6 @@
 """Charging errands and the deadlocks around them: a robot nudged off its way to a charger is
 sent on again, a robot blocked on its errand takes a free charger it can reach without passing
-its blockers, a free charger far beyond a busy near one is not taken, a robot that cannot get
-to a busy charger before its robot is done drives straight there, and a starving robot's
+its blockers, a free charger far beyond a busy near one is not taken, and a starving robot's
 claim on what the robot ahead needs is dropped to break the cycle it makes."""
 
 from __future__ import annotations
@@ -10,7 +9,7 @@ import networkx as nx
 
 from fleet.roadmap.graph import Roadmap
 from fleet.traffic.deadlocks import resolve
-from fleet.traffic.errands import CHARGE_REACH_M, RETARGET_AFTER_S, ChargeRates, Errands
+from fleet.traffic.errands import CHARGE_REACH_M, RETARGET_AFTER_S, Errands
 from fleet.traffic.grants import claim
 from fleet.traffic.manager import TrafficManager
 from fleet.traffic.params import TrafficParams
@@ -43,9 +42,7 @@ def corridor(length_m: float = 10.0) -> Roadmap:
     return Roadmap.from_graph(g)
 
 
-def errands_on(
-    rm: Roadmap, robots: dict[str, str], rates: ChargeRates | None = None
-) -> tuple[TrafficManager, Errands, dict[str, Purpose]]:
+def errands_on(rm: Roadmap, robots: dict[str, str]) -> tuple[TrafficManager, Errands, dict[str, Purpose]]:
     tm = TrafficManager(rm, TrafficParams(detect_period_s=0.5))
     for name, node in robots.items():
         x, y = rm.pos(node)
@@ -56,8 +53,7 @@ def errands_on(
         tm.set_path(robot, nodes, 0.0)
         purposes[robot] = purpose
 
-    er = Errands(tm, rm, purposes, drive, ["cw", "ce"], ["bay"], park_idle_s=5.0, charging=rates)
-    return tm, er, purposes
+    return tm, Errands(tm, rm, purposes, drive, ["cw", "ce"], ["bay"], park_idle_s=5.0), purposes
 
 
 def charging(rm: Roadmap, node: str, battery: float = 0.3) -> View:
@@ -92,35 +88,6 @@ def test_a_free_charger_far_beyond_the_busy_near_one_is_not_taken() -> None:
     er2.step("R", charging(rm2, "w"), 0.0, requests)
     er2.serve_chargers(requests)
     assert purposes2["R"] is Purpose.CHARGE and tm2.path("R")[-1] == "ce"
-
-
-def test_a_robot_that_gets_to_a_busy_charger_after_it_frees_drives_straight_there() -> None:
-    rates = ChargeRates(charge_per_s=0.02, resume=0.95, top_speed=1.0)
-    rm = corridor()  # R at c1: 11 m from cw, 31 m from ce
-
-    def queue(z_battery: float, y_battery: float) -> tuple[TrafficManager, Errands, dict[str, Purpose]]:
-        tm, er, purposes = errands_on(rm, {"R": "c1", "Z": "cw", "Y": "ce"}, rates)
-        requests: list[tuple[float, str]] = []
-        er.step("Z", charging(rm, "cw", z_battery), 0.0, requests)
-        er.step("Y", charging(rm, "ce", y_battery), 0.0, requests)
-        er.serve_chargers(requests)  # Z and Y charge where they stand
-        assert tm.path("Z")[-1] == "cw" and tm.path("Y")[-1] == "ce"
-        requests = []
-        er.step("R", charging(rm, "c1"), 1.0, requests)
-        er.serve_chargers(requests)
-        return tm, er, purposes
-
-    # Z is done in 2.5 s, R needs 11 s to cw: it drives there and stays on its way
-    tm, er, purposes = queue(0.9, 0.9)
-    assert purposes["R"] is Purpose.CHARGE and tm.path("R")[-1] == "cw"
-    er.step("R", charging(rm, "c1"), 2.0, [])
-    assert purposes["R"] is Purpose.CHARGE and tm.path("R")[-1] == "cw"
-    # Z needs 22.5 s more, Y 2.5 s: R takes ce, 31 m away
-    tm, _, purposes = queue(0.5, 0.9)
-    assert purposes["R"] is Purpose.CHARGE and tm.path("R")[-1] == "ce"
-    # both charge for another 32 s: R waits off the corridor
-    tm, _, purposes = queue(0.3, 0.3)
-    assert purposes["R"] is Purpose.CHARGE_WAIT and tm.path("R")[-1] == "bay"
 
 
 def test_a_robot_blocked_on_its_way_to_a_charger_takes_one_it_reaches_without_passing() -> None:
