@@ -168,7 +168,7 @@ class TrafficManager:
             leg = roads.shortest(a, b, ())
             if leg is None:
                 raise TrafficError(f"no roadmap path from {a!r} to {b!r}")
-            out += [n for n in leg[1:] if n != out[-1]] if out[-1] == leg[0] else leg[1:]
+            out += leg[1:]  # a shortest leg never comes back to its start
         return out
 
     def nearest(self, node: str, candidates: Iterable[str]) -> str | None:
