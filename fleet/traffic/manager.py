@@ -158,6 +158,19 @@ class TrafficManager:
         node, as the manager plans its own paths (:meth:`RoadIndex.costs_from`)."""
         return self._st.roads.costs_from(node)
 
+    def route(self, stops: Sequence[str]) -> list[str]:
+        """``stops`` joined by the paths the manager plans itself (shortest with the fleet's
+        flow, :meth:`costs_from`), visited in order. Raises :class:`TrafficError` when a leg
+        cannot be driven."""
+        roads = self._st.roads
+        out = list(stops[:1])
+        for a, b in zip(stops, stops[1:], strict=False):
+            leg = roads.shortest(a, b, ())
+            if leg is None:
+                raise TrafficError(f"no roadmap path from {a!r} to {b!r}")
+            out += leg[1:]  # a shortest leg never comes back to its start
+        return out
+
     def nearest(self, node: str, candidates: Iterable[str]) -> str | None:
         """The candidate node of least :meth:`costs_from` ``node`` (ties: the least name);
         ``None`` for none (:meth:`RoadIndex.nearest`: stops at the nearest)."""

@@ -248,7 +248,7 @@ class ReservationTraffic:
         del self._pending[robot]
         self.errands.forget(robot)
         if robot in self._once:  # a task's stops, driven once; every stop must be visited
-            path = self.roadmap.expand_route(nodes, closed=False)
+            path = m.route(nodes)  # legs with the flow, like errands
             stops = set(nodes)
             self._set_path(robot, path, Purpose.TASK, must=[i for i, n in enumerate(path) if n in stops])
             return

@@ -35,3 +35,26 @@ def test_a_loop_joins_where_it_passes_the_robot() -> None:
     loop = policy.roadmap.expand_route(["a3_s", "a3_n", "a4_n", "a4_s"], closed=True)
     m.set_path("r1", loop, 0.0, loop=True)
     assert m.path("r1")[:3] == ["a3_1", "a3_2", "a3_n"]  # on from a3_1, not back to a3_s first
+
+
+def test_a_pick_drives_its_legs_with_the_flow() -> None:
+    # both drops stand on the east corridor, which the patrol loops drive southwards: a robot
+    # taking a pick from aisle 7 to drop1 enters that corridor from the north and leaves it
+    # south, so robots heading for the drops follow each other instead of meeting head-on
+    policy = traffic_from_config(load_config(ROOT / "configs" / "warehouse_picking.yaml"))
+    m = policy.manager
+    m.add_robot("r1", Pose2D(24.0, 9.0, math.pi / 2), 0.0)
+    assert m.path("r1") == ["a7_1"]
+    policy.on_assign("r1", _Stops(("a7_1", "e_1", "e_s")), (), task_id="k-0001")
+    got = m.path("r1")
+    east = [n for n in got if n.startswith("e_")]
+    assert east == ["e_n", "e_2", "e_1", "e_s"], got
+    # the shortest way to drop1 is against it (south down aisle 7, then north into the corridor)
+    assert policy.roadmap.expand_route(["a7_1", "e_1"], closed=False)[-2] == "e_s"
+
+
+class _Stops:
+    """A task's stops as the coordinator hands them over (driven once)."""
+
+    def __init__(self, nodes: tuple[str, ...]) -> None:
+        self.nodes, self.loop = nodes, False
