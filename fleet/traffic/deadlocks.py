@@ -14,6 +14,7 @@ import math
 
 import networkx as nx
 
+from fleet.traffic.grants import moves_ahead
 from fleet.traffic.paths import install, next_must, splice
 from fleet.traffic.reservations import Resource, edge_key
 from fleet.traffic.state import TrackedRobot, TrafficState
@@ -169,13 +170,24 @@ def reroute(st: TrafficState, r: TrackedRobot, avoid: set[str], now: float, boun
 
 def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | None:
     """Nodes from ``r``'s grant end to the nearest node within ``sidestep_depth`` edges that
-    is reachable over free nodes and edges and not on the next part of ``others``' paths."""
-    start = r.path[r.g]
+    is reachable over free nodes and edges, not on the next part of ``others``' paths and,
+    where such a node exists, not on the next :data:`~fleet.traffic.params.ONCOMING_NODES`
+    path nodes of any other robot either. Without that last rule a robot stepped into the
+    aisle or onto the corridor node a third robot was about to enter from the other side:
+    on the 100-robot load test nearly every deadlock episode was such a side step meeting
+    that robot head-on (``bench/deadlock_shapes.py``)."""
     avoid: set[str] = set()
     for o in others:
         orr = st.robots.get(o)
         if orr is not None:
             avoid.update(orr.path[orr.cur : orr.cur + SIDESTEP_CLEAR_NODES])
+    busy = {b for (_, b), who in moves_ahead(st).items() if len(who) > 1 or r.name not in who}
+    return _aside_avoiding(st, r, avoid | busy) or _aside_avoiding(st, r, avoid)
+
+
+def _aside_avoiding(st: TrafficState, r: TrackedRobot, avoid: set[str]) -> list[str] | None:
+    """The way of :func:`_aside` to the nearest node not in ``avoid``."""
+    start = r.path[r.g]
     holder, adj, claims = st.table.holder, st.roads.adj, st.claims
     parent: dict[str, str] = {start: start}
     frontier = [start]

@@ -61,7 +61,7 @@ from fleet.traffic.deadlocks import cycles, detect_and_resolve
 from fleet.traffic.failures import avoid_dead, kill, revive, shrink
 from fleet.traffic.grants import extend
 from fleet.traffic.params import TrafficParams
-from fleet.traffic.paths import checked_path, errand_way, install, join, pose_at
+from fleet.traffic.paths import checked_path, enter_loop, errand_way, install, join, pose_at
 from fleet.traffic.reservations import ReservationTable, Resource, edge_key
 from fleet.traffic.roads import RoadIndex
 from fleet.traffic.state import TrackedRobot, TrafficMetrics, TrafficState
@@ -228,10 +228,16 @@ class TrafficManager:
         way = errand_way(st, r, seq[0]) if turn_back and not loop else None
         prefix = r.path[r.cur : r.g + 1]
         pm = [False] * len(prefix) if loop else r.must[r.cur : r.g + 1]
+        jp = st.params.join_penalty if loop else None
+        uturn = None  # the step back the robot came from, unless it stands in a dead end
+        if r.g >= 1 and r.path[r.g - 1] != r.path[r.g] and st.roads.deg[r.path[r.g]] > 1:
+            uturn = (r.path[r.g], r.path[r.g - 1])
+        if loop and prefix and prefix[-1] not in seq:
+            seq, must = enter_loop(st.roads, prefix[-1], seq, must, jp, uturn)
         if way is not None and len(way) > 1:
             new_nodes, new_must = way[1:] + seq[1:], [False] * (len(way) - 2) + must
         else:
-            new_nodes, new_must = join(st.roads, prefix, seq, must, loop)
+            new_nodes, new_must = join(st.roads, prefix, seq, must, loop, jp, uturn)
         r.loop = (list(seq), list(must)) if loop else None
         r.must_passed = 0
         install(st, r, prefix + new_nodes, pm + new_must)

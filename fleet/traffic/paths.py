@@ -50,13 +50,22 @@ def checked_path(
 
 
 def join(
-    roads: RoadIndex, prefix: list[str], seq: list[str], must: list[bool], loop: bool = True
+    roads: RoadIndex,
+    prefix: list[str],
+    seq: list[str],
+    must: list[bool],
+    loop: bool = True,
+    penalty: float | None = None,
+    no_uturn: tuple[str, str] | None = None,
 ) -> tuple[list[str], list[bool]]:
     """Nodes (and must flags) to append after ``prefix`` to continue on ``seq``: from where
     ``seq`` passes ``prefix[-1]`` (for a path driven once, only where no must-visit node of
     ``seq`` comes before: a task whose last stop is where the robot stands must still
-    visit its first stops), else by a shortest path to ``seq[0]``. Raises
-    :class:`TrafficError` if ``seq`` cannot be reached."""
+    visit its first stops), else by a shortest path to ``seq[0]`` (against-the-flow edges
+    weighted by ``penalty`` if given, see :meth:`RoadIndex.shortest`) that does not start
+    with the step ``no_uturn`` where another way exists (a robot given a new task in the
+    middle of a one-way aisle drives on through it instead of turning back into the robots
+    following it). Raises :class:`TrafficError` if ``seq`` cannot be reached."""
     if not prefix:
         return list(seq), list(must)
     last = prefix[-1]
@@ -65,10 +74,33 @@ def join(
             if not loop and any(must[:i]):
                 break
             return seq[i + 1 :], must[i + 1 :]
-    link = roads.shortest(last, seq[0], frozenset())
+    link = None
+    if no_uturn is not None:
+        link = roads.shortest(last, seq[0], frozenset(), penalty=penalty, avoid_moves={no_uturn})
+    if link is None:
+        link = roads.shortest(last, seq[0], frozenset(), penalty=penalty)
     if link is None:
         raise TrafficError(f"no roadmap path from {last!r} to {seq[0]!r}")
     return link[1:] + seq[1:], [False] * (len(link) - 2) + must
+
+
+def enter_loop(
+    roads: RoadIndex,
+    at: str,
+    seq: list[str],
+    must: list[bool],
+    penalty: float | None = None,
+    no_uturn: tuple[str, str] | None = None,
+) -> tuple[list[str], list[bool]]:
+    """The loop ``seq`` (with its must flags) turned to start at the node of least cost from
+    ``at`` (:meth:`RoadIndex.nearest`, against-the-flow edges weighted by ``penalty`` if
+    given): a robot joining its patrol loop from a charger or a parking dock drives onto it
+    at the nearest place, with the traffic, rather than to the loop's first waypoint (often
+    against the flow, or around half the loop). A lap still passes every must-visit node
+    once. ``no_uturn``: a step not to drive (see :func:`join`)."""
+    entry = roads.nearest(at, seq, penalty, {no_uturn} if no_uturn is not None else ())
+    i = seq.index(entry) if entry is not None else 0
+    return seq[i:] + seq[:i], must[i:] + must[:i]
 
 
 class HeldByOthers:
