@@ -60,19 +60,25 @@ class Watch:
         self.low: dict[str, tuple[float, str, str]] = {}
         self.last = -1.0
         self.waits: Counter[str] = Counter()
+        self.trigger: dict[str, tuple[float, float]] = {}  # robot -> (t, battery) it began to charge
 
     def __call__(self, now: float, runner: FleetRunner) -> None:
         policy = getattr(runner, "traffic_policy", None)
         if now - self.last >= 5.0:
             self.last = now
             for rec in runner.records():
+                if rec.mode == "charging" and rec.robot not in self.trigger:
+                    self.trigger[rec.robot] = (now, rec.battery)
+                elif rec.mode != "charging":
+                    self.trigger.pop(rec.robot, None)
                 if rec.battery < LOW and rec.robot not in self.low:
                     where = "?"
                     if policy is not None and policy.manager.knows(rec.robot):
                         where = (
                             policy.manager.path(rec.robot)[:1][0] if policy.manager.path(rec.robot) else "?"
                         )
-                    self.low[rec.robot] = (now, rec.mode, where)
+                    t0, b0 = self.trigger.get(rec.robot, (now, rec.battery))
+                    self.low[rec.robot] = (now, f"{rec.mode} since {now - t0:.0f} s, from {b0:.0%}", where)
         if policy is None:
             return
         if now - self.last < 1e-9:

@@ -5,7 +5,7 @@ and the poses a grant hands out along the path. Units: meters, radians, ``map`` 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Container, Iterable, Sequence
 
 from fleet.errors import TrafficError
 from fleet.traffic.grants import moves_ahead
@@ -56,16 +56,17 @@ def join(
     must: list[bool],
     loop: bool = True,
     penalty: float | None = None,
-    no_uturn: tuple[str, str] | None = None,
+    avoid_moves: Container[tuple[str, str]] = (),
 ) -> tuple[list[str], list[bool]]:
     """Nodes (and must flags) to append after ``prefix`` to continue on ``seq``: from where
     ``seq`` passes ``prefix[-1]`` (for a path driven once, only where no must-visit node of
     ``seq`` comes before: a task whose last stop is where the robot stands must still
     visit its first stops), else by a shortest path to ``seq[0]`` (against-the-flow edges
-    weighted by ``penalty`` if given, see :meth:`RoadIndex.shortest`) that does not start
-    with the step ``no_uturn`` where another way exists (a robot given a new task in the
-    middle of a one-way aisle drives on through it instead of turning back into the robots
-    following it). Raises :class:`TrafficError` if ``seq`` cannot be reached."""
+    weighted by ``penalty`` if given, see :meth:`RoadIndex.shortest`) that drives no step of
+    ``avoid_moves`` where such a way exists (the manager passes the step back the robot came
+    from, so that a robot given a new task in a one-way aisle drives on through it instead
+    of turning back into the robots following it, and, for a patrol loop, the steps other
+    robots are about to drive the other way, :class:`Oncoming`). Raises :class:`TrafficError` if ``seq`` cannot be reached."""
     if not prefix:
         return list(seq), list(must)
     last = prefix[-1]
@@ -74,9 +75,7 @@ def join(
             if not loop and any(must[:i]):
                 break
             return seq[i + 1 :], must[i + 1 :]
-    link = None
-    if no_uturn is not None:
-        link = roads.shortest(last, seq[0], frozenset(), penalty=penalty, avoid_moves={no_uturn})
+    link = roads.shortest(last, seq[0], frozenset(), penalty=penalty, avoid_moves=avoid_moves)
     if link is None:
         link = roads.shortest(last, seq[0], frozenset(), penalty=penalty)
     if link is None:
@@ -90,15 +89,15 @@ def enter_loop(
     seq: list[str],
     must: list[bool],
     penalty: float | None = None,
-    no_uturn: tuple[str, str] | None = None,
+    avoid_moves: Container[tuple[str, str]] = (),
 ) -> tuple[list[str], list[bool]]:
     """The loop ``seq`` (with its must flags) turned to start at the node of least cost from
     ``at`` (:meth:`RoadIndex.nearest`, against-the-flow edges weighted by ``penalty`` if
     given): a robot joining its patrol loop from a charger or a parking dock drives onto it
     at the nearest place, with the traffic, rather than to the loop's first waypoint (often
     against the flow, or around half the loop). A lap still passes every must-visit node
-    once. ``no_uturn``: a step not to drive (see :func:`join`)."""
-    entry = roads.nearest(at, seq, penalty, {no_uturn} if no_uturn is not None else ())
+    once. ``avoid_moves``: steps not to drive where another way exists (see :func:`join`)."""
+    entry = roads.nearest(at, seq, penalty, avoid_moves)
     i = seq.index(entry) if entry is not None else 0
     return seq[i:] + seq[:i], must[i:] + must[:i]
 
@@ -117,17 +116,21 @@ class HeldByOthers:
 
 
 class Oncoming:
-    """The steps ``(u, v)`` that another robot is about to drive the other way, ``(v, u)``,
+    """The steps ``(u, v)`` that another robot is about to drive the other way, ``(v, u)``
+    (and the steps of ``also``),
     within its next :data:`~fleet.traffic.params.ONCOMING_NODES` path nodes (a container
     for :meth:`RoadIndex.shortest`'s ``avoid_moves``)."""
 
-    def __init__(self, st: TrafficState, robot: str) -> None:
+    def __init__(self, st: TrafficState, robot: str, also: Container[tuple[str, str]] = ()) -> None:
         self.idx = moves_ahead(st)
         self.robot = robot
+        self.also = also
 
     def __contains__(self, move: object) -> bool:
         if not isinstance(move, tuple):
             return False
+        if move in self.also:
+            return True
         who = self.idx.get((move[1], move[0]))
         return who is not None and (len(who) > 1 or self.robot not in who)
 
