@@ -77,6 +77,14 @@ class Watch:
                         where = (
                             policy.manager.path(rec.robot)[:1][0] if policy.manager.path(rec.robot) else "?"
                         )
+                    if policy is not None and policy.manager.knows(rec.robot):
+                        r = policy.manager._st.robots[rec.robot]  # noqa: SLF001
+                        print(
+                            f"  {now:7.1f} {rec.robot} below {LOW:.0%}: {policy.purpose(rec.robot)}, "
+                            f"waiting {r.wait_since is not None} on {sorted(r.blockers)}, "
+                            f"ahead {r.path[r.cur : r.cur + 16]}",
+                            file=self.out,
+                        )
                     t0, b0 = self.trigger.get(rec.robot, (now, rec.battery))
                     self.low[rec.robot] = (now, f"{rec.mode} since {now - t0:.0f} s, from {b0:.0%}", where)
         if policy is None:

@@ -229,12 +229,13 @@ class TrafficManager:
         prefix = r.path[r.cur : r.g + 1]
         pm = [False] * len(prefix) if loop else r.must[r.cur : r.g + 1]
         jp = st.params.join_penalty if loop else None
-        # not back the way it came (unless it stands in a dead end); onto a loop, no step
-        # another robot is about to drive the other way (where another way exists)
+        # onto a patrol loop: not back the way it came (unless it stands in a dead end), no
+        # step another robot is about to drive the other way, where another way exists
+        # (errands choose their own way back: errand_way)
         avoid: set[tuple[str, str]] = set()
-        if r.g >= 1 and r.path[r.g - 1] != r.path[r.g] and st.roads.deg[r.path[r.g]] > 1:
+        if loop and r.g >= 1 and r.path[r.g - 1] != r.path[r.g] and st.roads.deg[r.path[r.g]] > 1:
             avoid.add((r.path[r.g], r.path[r.g - 1]))
-        moves: Container[tuple[str, str]] = Oncoming(st, robot, avoid) if loop else avoid
+        moves: Container[tuple[str, str]] = Oncoming(st, robot, avoid) if loop else ()
         if loop and prefix and prefix[-1] not in seq:
             seq, must = enter_loop(st.roads, prefix[-1], seq, must, jp, moves)
         if way is not None and len(way) > 1:
