@@ -39,3 +39,30 @@ def test_a_robot_steps_aside_off_the_way_a_third_robot_is_about_to_take() -> Non
     assert tm.metrics.sidesteps == 1, tm.metrics.events
     assert "s2" in tm.grant("A").nodes and "s1" not in tm.path("A")
     tm.check()
+
+
+def test_a_robot_lets_another_out_of_a_corridor_before_taking_its_mouth() -> None:
+    """a - b - c - d with a bay at b; A goes a -> d, B comes out of the corridor c -> b -> a.
+    A does not take the junction b while B is about to come through it: it waits at a, B
+    passes, and no wait-for cycle forms (before, A took b, and the two waited on each other
+    until one was made to step aside)."""
+    g: nx.Graph[str] = nx.Graph()
+    for n, p in {"a": (0, 0), "b": (2, 0), "c": (4, 0), "d": (6, 0), "s": (2, 2)}.items():
+        g.add_node(n, pos=p)
+    g.add_edges_from([("a", "b"), ("b", "c"), ("c", "d"), ("b", "s")])
+    tm = TrafficManager(g, TrafficParams(deadlock_detect_s=1.0, detect_period_s=0.1))
+    tm.add_robot("A", Pose2D(0, 0), 0.0)
+    tm.add_robot("B", Pose2D(6, 0), 0.0)
+    tm.set_path("A", ["a", "b", "c", "d"], 0.0)
+    tm.set_path("B", ["d", "c", "b", "a"], 0.0)
+    tm.cycle(0.0)
+    assert tm.grant("A").nodes == () and tm.blockers("A") == {"B"}
+    assert tm.grant("B").nodes[:2] == ("c", "b")
+    pos = {"c": (4, 0), "b": (2, 0), "s": (2, 2), "a": (0, 0)}
+    t = 0.0
+    for node in ("c", "b"):
+        t += 1.0
+        tm.update("B", Pose2D(*pos[node]), t)
+        tm.cycle(t)
+    assert tm.metrics.deadlocks_detected == 0 and tm.metrics.sidesteps == 0
+    tm.check()
