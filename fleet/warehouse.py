@@ -90,7 +90,6 @@ class Layout:
     y_south: float  # south corridor center line
     y_shelf0: float  # south end of the shelf rows
     y_north: float  # north corridor center line
-    bay: float = BAY  # roadmap node spacing target along the aisles
 
     @property
     def pairs(self) -> int:
@@ -139,7 +138,7 @@ class Layout:
     @property
     def bays(self) -> int:
         """Roadmap nodes strictly inside each aisle."""
-        return max(1, round(self.shelf_len / self.bay))
+        return max(1, round(self.shelf_len / BAY))
 
     def charger_sites(self) -> list[tuple[float, float, float]]:
         """Where chargers may stand, ``(x, y, theta)``: 1 m and 2 m east of each corridor
@@ -179,14 +178,9 @@ def auto_shelf_len(n_robots: int) -> float:
 
 
 def plan_layout(
-    n_robots: int,
-    aisles: int | None = None,
-    shelf_len: float | None = None,
-    parking_rows: int | None = None,
-    bay: float = BAY,
+    n_robots: int, aisles: int | None = None, shelf_len: float | None = None, parking_rows: int | None = None
 ) -> Layout:
-    """Dimensions for ``n_robots``. ``None`` arguments are chosen automatically; ``bay``: the
-    roadmap node spacing target along the aisles (m).
+    """Dimensions for ``n_robots``. ``None`` arguments are chosen automatically.
 
     Raises :class:`ConfigError` (field ``n_robots``) if explicit ``aisles`` / ``parking_rows``
     leave fewer parking spots than robots, and (field ``aisles`` / ``shelf_len`` /
@@ -219,9 +213,7 @@ def plan_layout(
     y_shelf0 = y_south + CORRIDOR_HALF
     y_north = y_shelf0 + sl + CORRIDOR_HALF
     height = y_north + CORRIDOR_HALF + 0.3 + WALL
-    if not bay >= 1.0:
-        raise ConfigError(src, "bay", f"must be at least 1.0 m, got {bay}")
-    lay = Layout(k, sl, rows, width, height, x_west, x_shelf0, x_east, y_south, y_shelf0, y_north, bay)
+    lay = Layout(k, sl, rows, width, height, x_west, x_shelf0, x_east, y_south, y_shelf0, y_north)
     if lay.parking_capacity < n_robots:
         raise ConfigError(
             src,
@@ -506,7 +498,6 @@ def generate_warehouse(
     seed: int = 1,
     map_name: str | None = None,
     charger_sides: int = 1,
-    bay: float = BAY,
 ) -> Path:
     """Write a warehouse world and return the path of its fleet config.
 
@@ -516,15 +507,13 @@ def generate_warehouse(
     row nearest the south corridor first.
 
     ``aisles`` (default grows with ``n_robots``, at least 7), ``shelf_len`` (m, default 10 m
-    up to 49 robots), ``parking_rows`` (default: enough for ``n_robots``, at least 2) and
-    ``bay`` (m, default :data:`BAY`: the roadmap node spacing target along the aisles, one
-    pair of pick stations per node) shape the map; ``chargers`` (default ``max(2, ceil(n/3))``,
-    ``charger_sides=2``: half of them on the north corridor) and ``tasks`` (picking tasks,
-    default ``max(4, n // 2)``) only change the config. ``seed`` picks the task shelves and is
-    written as ``sim.seed``. Same arguments, same bytes. Raises :class:`ConfigError` naming
-    the argument when robots or chargers do not fit.
+    up to 49 robots), ``parking_rows`` (default: enough for ``n_robots``, at least 2) shape
+    the map; ``chargers`` (default ``max(2, ceil(n/3))``, ``charger_sides=2``: half of them on
+    the north corridor) and ``tasks`` (picking tasks, default ``max(4, n // 2)``) only change
+    the config. ``seed`` picks the task shelves and is written as ``sim.seed``. Same arguments,
+    same bytes. Raises :class:`ConfigError` naming the argument when robots or chargers do not fit.
     """
-    lay = plan_layout(n_robots, aisles, shelf_len, parking_rows, bay)
+    lay = plan_layout(n_robots, aisles, shelf_len, parking_rows)
     world = build_world(lay, n_robots, chargers, tasks, seed)
     world = replace(world, chargers=chargers_of(lay, n_robots, chargers, charger_sides))
     out = Path(out_dir)
@@ -538,7 +527,6 @@ def generate_warehouse(
         ("--chargers", chargers),
         ("--parking-rows", parking_rows),
         ("--tasks", tasks),
-        ("--bay", bay if bay != BAY else None),
     ):
         if val is not None:
             cmd += f" {flag} {val:g}" if isinstance(val, float) else f" {flag} {val}"
@@ -580,9 +568,6 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--chargers", type=int, default=None, help="charger count (default max(2, robots/5))")
     p.add_argument("--tasks", type=int, default=None, help="picking tasks (default max(4, robots/2))")
     p.add_argument("--seed", type=int, default=1, help="seed for task choice and sim.seed (default 1)")
-    p.add_argument(
-        "--bay", type=float, default=BAY, help=f"roadmap node spacing along aisles in m (default {BAY:g})"
-    )
     p.add_argument("--shipped", action="store_true", help="regenerate the three shipped configs into --out")
     a = p.parse_args(argv)
     try:
@@ -601,7 +586,6 @@ def main(argv: list[str] | None = None) -> int:
                     tasks=a.tasks,
                     seed=a.seed,
                     map_name=a.map_name,
-                    bay=a.bay,
                 )
             ]
     except ConfigError as e:

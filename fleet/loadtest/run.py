@@ -65,12 +65,6 @@ PATROL_SPACING_M = 8.0
 #: aisle stays within half of it of the chargers beside the corridors.
 WORK_SHELF_MAX_M = 40.0
 
-#: Roadmap node spacing target (m) along the aisles of a load test's floor (the shipped
-#: configs keep :data:`fleet.warehouse.BAY`, 5 m). Traffic management reserves whole nodes, so
-#: a loop of 5 m bays with one robot per 8 m has nearly every node held and robots wait on
-#: each other everywhere (``docs/performance.md``, "Fleet outcomes").
-WORK_BAY_M = 5.0
-
 #: A load test's floor has a charger per this many robots (:func:`work_chargers`).
 ROBOTS_PER_CHARGER = 2
 
@@ -119,7 +113,6 @@ def prepare_config(
             chargers=chargers,
             charger_sides=2,  # robots come off every aisle at both ends: charge at both
             seed=seed,
-            bay=WORK_BAY_M,
         )
     else:
         path = generate_warehouse(out_dir, f"loadtest_{n_robots}", n_robots, seed=seed)
