@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         "--set",
         action="append",
         default=[],
-        help="MODULE.NAME=VALUE: a module constant (float), e.g. fleet.loadtest.run.WORK_BAY_M=5",
+        help="MODULE.NAME=VALUE: a module constant (float), e.g. fleet.traffic.errands.CHARGE_REACH_M=60",
     )
     ap.add_argument(
         "--traffic", action="append", default=[], help="NAME=VALUE: a field of the config's traffic section"

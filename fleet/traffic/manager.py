@@ -228,7 +228,6 @@ class TrafficManager:
         way = errand_way(st, r, seq[0]) if turn_back and not loop else None
         prefix = r.path[r.cur : r.g + 1]
         pm = [False] * len(prefix) if loop else r.must[r.cur : r.g + 1]
-        jp = st.params.join_penalty if loop else None
         # onto a patrol loop: not back the way it came (unless it stands in a dead end), no
         # step another robot is about to drive the other way, where another way exists
         # (errands choose their own way back: errand_way)
@@ -237,11 +236,11 @@ class TrafficManager:
             avoid.add((r.path[r.g], r.path[r.g - 1]))
         moves: Container[tuple[str, str]] = Oncoming(st, robot, avoid) if loop else ()
         if loop and prefix and prefix[-1] not in seq:
-            seq, must = enter_loop(st.roads, prefix[-1], seq, must, jp, moves)
+            seq, must = enter_loop(st.roads, prefix[-1], seq, must, moves)
         if way is not None and len(way) > 1:
             new_nodes, new_must = way[1:] + seq[1:], [False] * (len(way) - 2) + must
         else:
-            new_nodes, new_must = join(st.roads, prefix, seq, must, loop, jp, moves)
+            new_nodes, new_must = join(st.roads, prefix, seq, must, loop, moves)
         r.loop = (list(seq), list(must)) if loop else None
         r.must_passed = 0
         install(st, r, prefix + new_nodes, pm + new_must)

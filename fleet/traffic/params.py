@@ -43,11 +43,7 @@ class TrafficParams:
     manager plans itself (to a charger or parking dock, detours) cost an edge driven against
     the fleet's patrol loops ``1 + flow_penalty`` times its length
     (:meth:`fleet.traffic.roads.RoadIndex.set_flow`), so errands drive with the traffic.
-    ``join_penalty``: a robot given a patrol loop joins it at the node nearest to it and
-    drives there with an against-the-flow edge costing ``1 + join_penalty`` times its length
-    (:func:`fleet.traffic.paths.enter_loop`): higher than ``flow_penalty``, since a robot
-    joining a loop from a charger is in no hurry and a short cut against the flow meets the
-    patrolling robots head-on. ``turn_back``: a robot sent on an errand (``set_path(..., turn_back=True)``: to a charger
+    ``turn_back``: a robot sent on an errand (``set_path(..., turn_back=True)``: to a charger
     or a parking dock) may turn back and drive against the flow where nobody comes, giving
     up the part of its grant beyond the first node at least ``turn_back_m`` ahead of it,
     when that way is shorter (:func:`fleet.traffic.paths.errand_way`); ``turn_back_m`` must
@@ -77,7 +73,6 @@ class TrafficParams:
     hold_far_end: bool = False
     follow: bool = True
     flow_penalty: float = 3.0
-    join_penalty: float = 3.0
     turn_back: bool = True
     turn_back_m: float = 1.5
 

@@ -55,14 +55,12 @@ def join(
     seq: list[str],
     must: list[bool],
     loop: bool = True,
-    penalty: float | None = None,
     avoid_moves: Container[tuple[str, str]] = (),
 ) -> tuple[list[str], list[bool]]:
     """Nodes (and must flags) to append after ``prefix`` to continue on ``seq``: from where
     ``seq`` passes ``prefix[-1]`` (for a path driven once, only where no must-visit node of
     ``seq`` comes before: a task whose last stop is where the robot stands must still
-    visit its first stops), else by a shortest path to ``seq[0]`` (against-the-flow edges
-    weighted by ``penalty`` if given, see :meth:`RoadIndex.shortest`) that drives no step of
+    visit its first stops), else by a shortest path to ``seq[0]`` that drives no step of
     ``avoid_moves`` where such a way exists (the manager passes the step back the robot came
     from, so that a robot given a new task in a one-way aisle drives on through it instead
     of turning back into the robots following it, and, for a patrol loop, the steps other
@@ -75,9 +73,9 @@ def join(
             if not loop and any(must[:i]):
                 break
             return seq[i + 1 :], must[i + 1 :]
-    link = roads.shortest(last, seq[0], frozenset(), penalty=penalty, avoid_moves=avoid_moves)
+    link = roads.shortest(last, seq[0], frozenset(), avoid_moves=avoid_moves)
     if link is None:
-        link = roads.shortest(last, seq[0], frozenset(), penalty=penalty)
+        link = roads.shortest(last, seq[0], frozenset())
     if link is None:
         raise TrafficError(f"no roadmap path from {last!r} to {seq[0]!r}")
     return link[1:] + seq[1:], [False] * (len(link) - 2) + must
@@ -88,16 +86,15 @@ def enter_loop(
     at: str,
     seq: list[str],
     must: list[bool],
-    penalty: float | None = None,
     avoid_moves: Container[tuple[str, str]] = (),
 ) -> tuple[list[str], list[bool]]:
     """The loop ``seq`` (with its must flags) turned to start at the node of least cost from
-    ``at`` (:meth:`RoadIndex.nearest`, against-the-flow edges weighted by ``penalty`` if
-    given): a robot joining its patrol loop from a charger or a parking dock drives onto it
-    at the nearest place, with the traffic, rather than to the loop's first waypoint (often
-    against the flow, or around half the loop). A lap still passes every must-visit node
+    ``at`` (:meth:`RoadIndex.nearest`, driving with the fleet's flow): a robot joining its
+    patrol loop from a charger or a parking dock drives onto it at the nearest place, with
+    the traffic, rather than to the loop's first waypoint (often against the flow, or around
+    half the loop). A lap still passes every must-visit node
     once. ``avoid_moves``: steps not to drive where another way exists (see :func:`join`)."""
-    entry = roads.nearest(at, seq, penalty, avoid_moves)
+    entry = roads.nearest(at, seq, avoid_moves)
     i = seq.index(entry) if entry is not None else 0
     return seq[i:] + seq[:i], must[i:] + must[:i]
 

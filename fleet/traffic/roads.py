@@ -39,7 +39,6 @@ class RoadIndex:
             pa, pb = self.pos[str(a)], self.pos[str(b)]
             self.length[edge_key(str(a), str(b))] = float(d.get("length", math.dist(pa, pb)))
         self.against: dict[tuple[str, str], float] = {}
-        self._against_cache: tuple[float, dict[tuple[str, str], float]] | None = None
 
     def set_flow(self, moves: Iterable[tuple[str, str]], penalty: float) -> None:
         """Prefer the fleet's driving direction: ``moves`` are the directed edges robots
@@ -49,17 +48,6 @@ class RoadIndex:
         ``penalty`` 0 clears the preference."""
         fwd = {(str(a), str(b)) for a, b in moves if edge_key(str(a), str(b)) in self.length}
         self.against = {(b, a): float(penalty) for a, b in fwd if (b, a) not in fwd and penalty > 0}
-        self._against_cache = None
-
-    def _against(self, penalty: float | None) -> dict[tuple[str, str], float]:
-        """The against-the-flow penalties, with every penalty replaced by ``penalty`` if given."""
-        if penalty is None or not self.against:
-            return self.against
-        cached = self._against_cache
-        if cached is None or cached[0] != penalty:
-            cached = (penalty, dict.fromkeys(self.against, float(penalty)))
-            self._against_cache = cached
-        return cached[1]
 
     def nearest_node(self, x: float, y: float) -> str:
         """The node nearest ``(x, y)``; raises :class:`TrafficError` on an empty roadmap."""
@@ -103,20 +91,18 @@ class RoadIndex:
         self,
         a: str,
         candidates: Iterable[str],
-        penalty: float | None = None,
         avoid_moves: Container[tuple[str, str]] = (),
     ) -> str | None:
         """The candidate of least :meth:`costs_from` ``a`` (ties: the least name; one that
         cannot be reached only if none can: then the least name); ``None`` for none. The same
         answer as ``min(candidates, key=lambda c: (costs_from(a).get(c, inf), c))``, but the
-        search stops at the nearest candidate instead of costing the whole roadmap.
-        ``penalty``: edges against the flow cost ``1 + penalty`` times their length instead
-        of the penalty given to :meth:`set_flow`; no step ``(u, v)`` in ``avoid_moves`` is
-        driven (then the answer may differ from :meth:`costs_from`'s)."""
+        search stops at the nearest candidate instead of costing the whole roadmap. No step
+        ``(u, v)`` in ``avoid_moves`` is driven (then the answer may differ from
+        :meth:`costs_from`'s)."""
         want = set(candidates)
         if not want:
             return None
-        adj, lens, against = self.adj, self.length, self._against(penalty)
+        adj, lens, against = self.adj, self.length, self.against
         dist = {a: 0.0}
         heap = [(0.0, a)]
         done: set[str] = set()
@@ -149,13 +135,12 @@ class RoadIndex:
         *,
         flow: bool = True,
         avoid_moves: Container[tuple[str, str]] = (),
-        penalty: float | None = None,
     ) -> list[str] | None:
         """A* from ``a`` to ``b`` by edge length (straight-line heuristic), not entering nodes
         in ``avoid`` nor driving a step ``(u, v)`` in ``avoid_moves``; ``None`` if there is no
         such path of cost at most ``limit`` (m). An edge driven against the flow
         (:meth:`set_flow`) costs ``1 + penalty`` times its length (with ``flow=False``, its
-        length; ``penalty`` given: that penalty instead of :meth:`set_flow`'s)."""
+        length)."""
         if a == b:
             return [a]
         if b in avoid:
@@ -166,7 +151,7 @@ class RoadIndex:
         prev: dict[str, str] = {}
         heap = [(math.dist(pos[a], (bx, by)), 0.0, a)]
         adj, lens = self.adj, self.length
-        against: dict[tuple[str, str], float] = self._against(penalty) if flow else {}
+        against: dict[tuple[str, str], float] = self.against if flow else {}
         closed: set[str] = set()
         while heap:
             f, d, u = heapq.heappop(heap)
