@@ -151,6 +151,9 @@ def main(argv: list[str] | None = None) -> int:
         "--traffic", action="append", default=[], help="NAME=VALUE: a field of the config's traffic section"
     )
     ap.add_argument(
+        "--battery", action="append", default=[], help="NAME=VALUE: a field of the config's battery model"
+    )
+    ap.add_argument(
         "--param", action="append", default=[], help="NAME=VALUE: a TrafficParams default (float)"
     )
     a = ap.parse_args(argv)
@@ -179,8 +182,11 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     over = {k: float(v) for k, v in (t.split("=", 1) for t in a.traffic)}
 
+    bover = {k: float(v) for k, v in (t.split("=", 1) for t in a.battery)}
+
     def on_config(cfg: Any) -> None:
         cfg.traffic = dataclasses.replace(cfg.traffic, **over)
+        cfg.sim = dataclasses.replace(cfg.sim, battery=dataclasses.replace(cfg.sim.battery, **bover))
 
     res = run_loadtest(
         a.robots, a.duration, out_dir=a.out, seed=a.seed, traffic=not a.no_traffic, on_config=on_config
