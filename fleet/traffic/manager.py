@@ -61,7 +61,7 @@ from fleet.traffic.deadlocks import cycles, detect_and_resolve
 from fleet.traffic.failures import avoid_dead, kill, revive, shrink
 from fleet.traffic.grants import extend
 from fleet.traffic.params import TrafficParams
-from fleet.traffic.paths import Oncoming, checked_path, enter_loop, errand_way, install, join, pose_at
+from fleet.traffic.paths import Oncoming, checked_path, errand_way, install, join, pose_at
 from fleet.traffic.reservations import ReservationTable, Resource, edge_key
 from fleet.traffic.roads import RoadIndex
 from fleet.traffic.state import TrackedRobot, TrafficMetrics, TrafficState
@@ -235,8 +235,6 @@ class TrafficManager:
         if loop and r.g >= 1 and r.path[r.g - 1] != r.path[r.g] and st.roads.deg[r.path[r.g]] > 1:
             avoid.add((r.path[r.g], r.path[r.g - 1]))
         moves: Container[tuple[str, str]] = Oncoming(st, robot, avoid) if loop else ()
-        if loop and prefix and prefix[-1] not in seq:
-            seq, must = enter_loop(st.roads, prefix[-1], seq, must, moves)
         if way is not None and len(way) > 1:
             new_nodes, new_must = way[1:] + seq[1:], [False] * (len(way) - 2) + must
         else:

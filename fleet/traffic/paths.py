@@ -81,24 +81,6 @@ def join(
     return link[1:] + seq[1:], [False] * (len(link) - 2) + must
 
 
-def enter_loop(
-    roads: RoadIndex,
-    at: str,
-    seq: list[str],
-    must: list[bool],
-    avoid_moves: Container[tuple[str, str]] = (),
-) -> tuple[list[str], list[bool]]:
-    """The loop ``seq`` (with its must flags) turned to start at the node of least cost from
-    ``at`` (:meth:`RoadIndex.nearest`, driving with the fleet's flow): a robot joining its
-    patrol loop from a charger or a parking dock drives onto it at the nearest place, with
-    the traffic, rather than to the loop's first waypoint (often against the flow, or around
-    half the loop). A lap still passes every must-visit node
-    once. ``avoid_moves``: steps not to drive where another way exists (see :func:`join`)."""
-    entry = roads.nearest(at, seq, avoid_moves)
-    i = seq.index(entry) if entry is not None else 0
-    return seq[i:] + seq[:i], must[i:] + must[:i]
-
-
 class HeldByOthers:
     """The nodes some robot other than ``robot`` holds (a container for
     :meth:`RoadIndex.shortest`'s ``avoid``, looked up in the table when asked)."""

@@ -87,18 +87,11 @@ class RoadIndex:
                 total += lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0))
         return total
 
-    def nearest(
-        self,
-        a: str,
-        candidates: Iterable[str],
-        avoid_moves: Container[tuple[str, str]] = (),
-    ) -> str | None:
+    def nearest(self, a: str, candidates: Iterable[str]) -> str | None:
         """The candidate of least :meth:`costs_from` ``a`` (ties: the least name; one that
         cannot be reached only if none can: then the least name); ``None`` for none. The same
         answer as ``min(candidates, key=lambda c: (costs_from(a).get(c, inf), c))``, but the
-        search stops at the nearest candidate instead of costing the whole roadmap. No step
-        ``(u, v)`` in ``avoid_moves`` is driven (then the answer may differ from
-        :meth:`costs_from`'s)."""
+        search stops at the nearest candidate instead of costing the whole roadmap."""
         want = set(candidates)
         if not want:
             return None
@@ -118,8 +111,6 @@ class RoadIndex:
             if u in want and (best is None or d < best_d or u < best):
                 best, best_d = u, d
             for v in adj[u]:
-                if (u, v) in avoid_moves:
-                    continue
                 nd = d + lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0))
                 if nd < dist.get(v, math.inf):
                     dist[v] = nd

@@ -125,28 +125,3 @@ def test_the_nearest_candidate_is_the_least_of_the_full_costs(seed: int, n: int,
         costs = roads.costs_from(start)
         want = min(cands, key=lambda c: (costs.get(c, math.inf), c)) if cands else None
         assert roads.nearest(start, cands) == want
-
-
-def test_a_robot_joins_its_patrol_loop_where_it_is_nearest_with_the_flow() -> None:
-    """A robot off its loop (here on a spur beside the loop's third corner) enters the loop
-    at the corner nearest to it (with the fleet's flow, when set), not at the loop's first
-    waypoint: before, it drove to the first waypoint (here ``e, c, b, a``, then back over
-    ``b`` and ``c``; on the 100-robot load test robots leaving a charger drove against the
-    flow to it and met patrolling robots head-on on the south corridor)."""
-    from fleet.traffic.manager import TrafficManager
-    from fleet.traffic.params import TrafficParams
-    from fleet.types import Pose2D
-
-    g: nx.Graph[str] = nx.Graph()
-    for n, xy in {"a": (0, 0), "b": (3, 0), "c": (3, 3), "d": (0, 4), "e": (5, 3)}.items():
-        g.add_node(n, pos=xy)
-    g.add_edges_from([("a", "b"), ("b", "c"), ("c", "d"), ("d", "a"), ("c", "e")])
-    m = TrafficManager(g, TrafficParams(loop_min_nodes=4))
-    m.add_robot("r1", Pose2D(5.0, 3.0, math.pi), 0.0)
-    m.set_path("r1", ["a", "b", "c", "d"], 0.0, loop=True)
-    assert m.path("r1")[:5] == ["e", "c", "d", "a", "b"]
-    for t in range(1, 40):  # drive node by node: laps still count every corner once
-        m.cycle(float(t))
-        x, y = m.node_pos(m.grant("r1").nodes[0])
-        m.update("r1", Pose2D(x, y, 0.0), float(t) + 0.5)
-    assert m.laps("r1") >= 2
