@@ -50,7 +50,7 @@ Time is always passed in (seconds); nothing here reads a clock. Units: meters, s
 from __future__ import annotations
 
 import math
-from collections.abc import Container, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING
 
 import networkx as nx
@@ -61,7 +61,7 @@ from fleet.traffic.deadlocks import cycles, detect_and_resolve
 from fleet.traffic.failures import avoid_dead, kill, revive, shrink
 from fleet.traffic.grants import extend
 from fleet.traffic.params import TrafficParams
-from fleet.traffic.paths import Oncoming, checked_path, errand_way, install, join, pose_at
+from fleet.traffic.paths import checked_path, errand_way, install, join, pose_at
 from fleet.traffic.reservations import ReservationTable, Resource, edge_key
 from fleet.traffic.roads import RoadIndex
 from fleet.traffic.state import TrackedRobot, TrafficMetrics, TrafficState
@@ -228,17 +228,10 @@ class TrafficManager:
         way = errand_way(st, r, seq[0]) if turn_back and not loop else None
         prefix = r.path[r.cur : r.g + 1]
         pm = [False] * len(prefix) if loop else r.must[r.cur : r.g + 1]
-        # onto a patrol loop: not back the way it came (unless it stands in a dead end), no
-        # step another robot is about to drive the other way, where another way exists
-        # (errands choose their own way back: errand_way)
-        avoid: set[tuple[str, str]] = set()
-        if loop and r.g >= 1 and r.path[r.g - 1] != r.path[r.g] and st.roads.deg[r.path[r.g]] > 1:
-            avoid.add((r.path[r.g], r.path[r.g - 1]))
-        moves: Container[tuple[str, str]] = Oncoming(st, robot, avoid) if loop else ()
         if way is not None and len(way) > 1:
             new_nodes, new_must = way[1:] + seq[1:], [False] * (len(way) - 2) + must
         else:
-            new_nodes, new_must = join(st.roads, prefix, seq, must, loop, moves)
+            new_nodes, new_must = join(st.roads, prefix, seq, must, loop)
         r.loop = (list(seq), list(must)) if loop else None
         r.must_passed = 0
         install(st, r, prefix + new_nodes, pm + new_must)

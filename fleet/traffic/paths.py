@@ -5,7 +5,7 @@ and the poses a grant hands out along the path. Units: meters, radians, ``map`` 
 from __future__ import annotations
 
 import math
-from collections.abc import Container, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 
 from fleet.errors import TrafficError
 from fleet.traffic.grants import moves_ahead
@@ -50,21 +50,13 @@ def checked_path(
 
 
 def join(
-    roads: RoadIndex,
-    prefix: list[str],
-    seq: list[str],
-    must: list[bool],
-    loop: bool = True,
-    avoid_moves: Container[tuple[str, str]] = (),
+    roads: RoadIndex, prefix: list[str], seq: list[str], must: list[bool], loop: bool = True
 ) -> tuple[list[str], list[bool]]:
     """Nodes (and must flags) to append after ``prefix`` to continue on ``seq``: from where
     ``seq`` passes ``prefix[-1]`` (for a path driven once, only where no must-visit node of
     ``seq`` comes before: a task whose last stop is where the robot stands must still
-    visit its first stops), else by a shortest path to ``seq[0]`` that drives no step of
-    ``avoid_moves`` where such a way exists (the manager passes the step back the robot came
-    from, so that a robot given a new task in a one-way aisle drives on through it instead
-    of turning back into the robots following it, and, for a patrol loop, the steps other
-    robots are about to drive the other way, :class:`Oncoming`). Raises :class:`TrafficError` if ``seq`` cannot be reached."""
+    visit its first stops), else by a shortest path to ``seq[0]``. Raises
+    :class:`TrafficError` if ``seq`` cannot be reached."""
     if not prefix:
         return list(seq), list(must)
     last = prefix[-1]
@@ -73,9 +65,7 @@ def join(
             if not loop and any(must[:i]):
                 break
             return seq[i + 1 :], must[i + 1 :]
-    link = roads.shortest(last, seq[0], frozenset(), avoid_moves=avoid_moves)
-    if link is None:
-        link = roads.shortest(last, seq[0], frozenset())
+    link = roads.shortest(last, seq[0], frozenset())
     if link is None:
         raise TrafficError(f"no roadmap path from {last!r} to {seq[0]!r}")
     return link[1:] + seq[1:], [False] * (len(link) - 2) + must
@@ -95,21 +85,17 @@ class HeldByOthers:
 
 
 class Oncoming:
-    """The steps ``(u, v)`` that another robot is about to drive the other way, ``(v, u)``
-    (and the steps of ``also``),
+    """The steps ``(u, v)`` that another robot is about to drive the other way, ``(v, u)``,
     within its next :data:`~fleet.traffic.params.ONCOMING_NODES` path nodes (a container
     for :meth:`RoadIndex.shortest`'s ``avoid_moves``)."""
 
-    def __init__(self, st: TrafficState, robot: str, also: Container[tuple[str, str]] = ()) -> None:
+    def __init__(self, st: TrafficState, robot: str) -> None:
         self.idx = moves_ahead(st)
         self.robot = robot
-        self.also = also
 
     def __contains__(self, move: object) -> bool:
         if not isinstance(move, tuple):
             return False
-        if move in self.also:
-            return True
         who = self.idx.get((move[1], move[0]))
         return who is not None and (len(who) > 1 or self.robot not in who)
 

@@ -125,26 +125,3 @@ def test_the_nearest_candidate_is_the_least_of_the_full_costs(seed: int, n: int,
         costs = roads.costs_from(start)
         want = min(cands, key=lambda c: (costs.get(c, math.inf), c)) if cands else None
         assert roads.nearest(start, cands) == want
-
-
-def test_a_robot_given_a_loop_does_not_turn_back_at_its_grants_end() -> None:
-    """R drives a -> b -> c (granted to c) and is given the loop s1 -> a -> b. The shortest way
-    to s1 turns back at c into b, the way R came (in a one-way aisle: into the robots behind
-    it); it drives on around c -> s2 -> t -> u -> s1 instead, the way a robot re-assigned in
-    an aisle of the load test now leaves it at its far end."""
-    from fleet.traffic.manager import TrafficManager
-    from fleet.types import Pose2D
-
-    g: nx.Graph[str] = nx.Graph()
-    xy = {"a": (0, 0), "b": (3, 0), "c": (6, 0), "s1": (1.5, 3), "s2": (6, 3), "t": (6, 6), "u": (1.5, 6)}
-    for n, p in xy.items():
-        g.add_node(n, pos=p)
-    g.add_edges_from([("a", "b"), ("b", "c"), ("a", "s1"), ("b", "s1"), ("c", "s2"), ("s2", "t")])
-    g.add_edges_from([("t", "u"), ("u", "s1")])
-    m = TrafficManager(g)
-    m.add_robot("R", Pose2D(0.0, 0.0, 0.0), 0.0)
-    m.set_path("R", ["a", "b", "c"], 0.0)
-    m.cycle(0.0)
-    assert m.grant("R").nodes == ("b", "c")
-    m.set_path("R", ["s1", "a", "b"], 0.1, loop=True)
-    assert m.path("R")[:7] == ["a", "b", "c", "s2", "t", "u", "s1"]
