@@ -87,9 +87,9 @@ def test_picks_under_traffic_management_keep_up_with_picks_without(tmp_path: Pat
 @pytest.mark.xfail(
     strict=True,
     reason="not met: in the load test every robot patrols, and with traffic management the "
-    "100-robot floor jams (mean wait over half the hour); robots on their way to a charger run "
-    "flat in the jam (38 of 100 below 5 % in 3600 s, 13 deadlock episodes; docs/performance.md, "
-    "Fleet outcomes, Charging)",
+    "charging trips and the charger queues of the 100-robot floor collapse the fleet after "
+    "minute 30 (87 of 100 below 5 % in 3600 s, 6 deadlock episodes; 91 and 4 on main "
+    "c10b659; docs/performance.md, Deadlock shapes at 100 robots)",
 )
 def test_no_robot_runs_flat_in_an_hour_with_100_robots(tmp_path: Path) -> None:
     res = run_loadtest(100, 3600.0, out_dir=tmp_path / "lt", endpoint=free_endpoint())

@@ -1,0 +1,215 @@
+"""Why a load-test fleet under traffic management jams: every deadlock episode of one
+``fleet loadtest`` run, classified, and every robot that fell below 5 % of battery.
+
+For each new deadlock episode (a wait-for cycle older than ``traffic.deadlock_s``, the
+report's definition) it prints the time, the cycle's size, each member's purpose (patrol,
+charge, charge-wait, park), the kind of roadmap node it stands on (``aisle`` inside an aisle,
+``end`` an aisle's end on the north / south corridor, ``side`` the west / east corridor,
+``lane`` the parking lanes, ``dock`` a charger / parking spur, ``via`` a spur's junction) and
+the node it waits for. At the end: the episodes counted by shape (sorted purposes and node
+kinds), and the flat robots with where and in which mode they fell below 5 %.
+Deterministic (same seed, same run), so two code versions compare episode by episode.
+
+    python bench/deadlock_shapes.py --robots 100 --duration 900
+    python bench/deadlock_shapes.py --robots 100 --duration 900 --no-traffic
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib
+import os
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+if not os.environ.get("PYTHONPATH"):
+    sys.path.insert(0, str(ROOT))  # run from a checkout; PYTHONPATH chooses another
+
+from fleet.loadtest.run import run_loadtest  # noqa: E402
+from fleet.runtime.runner import FleetRunner  # noqa: E402
+
+LOW = 0.05
+
+
+def kind(node: str) -> str:
+    """The kind of a generated warehouse's roadmap node (see the module docstring)."""
+    if node.startswith("dock:"):
+        return "dock"
+    if node.startswith("via:"):
+        return "via"
+    col, _, sfx = node.partition("_")
+    if sfx.startswith("p"):
+        return "lane"
+    if col in ("w", "e"):
+        return "side"
+    return "end" if sfx in ("s", "n") else "aisle"
+
+
+class Watch:
+    """A runner observer: new deadlock episodes and robots going below :data:`LOW`."""
+
+    def __init__(self, out: Any) -> None:
+        self.out = out
+        self.seen = 0
+        self.shapes: Counter[str] = Counter()
+        self.low: dict[str, tuple[float, str, str]] = {}
+        self.last = -1.0
+        self.waits: Counter[str] = Counter()
+        self.trigger: dict[str, tuple[float, float]] = {}  # robot -> (t, battery) it began to charge
+
+    def __call__(self, now: float, runner: FleetRunner) -> None:
+        policy = getattr(runner, "traffic_policy", None)
+        if now - self.last >= 5.0:
+            self.last = now
+            for rec in runner.records():
+                if rec.mode == "charging" and rec.robot not in self.trigger:
+                    self.trigger[rec.robot] = (now, rec.battery)
+                elif rec.mode != "charging":
+                    self.trigger.pop(rec.robot, None)
+                if rec.battery < LOW and rec.robot not in self.low:
+                    where = "?"
+                    if policy is not None and policy.manager.knows(rec.robot):
+                        where = (
+                            policy.manager.path(rec.robot)[:1][0] if policy.manager.path(rec.robot) else "?"
+                        )
+                    if policy is not None and policy.manager.knows(rec.robot):
+                        r = policy.manager._st.robots[rec.robot]  # noqa: SLF001
+                        print(
+                            f"  {now:7.1f} {rec.robot} below {LOW:.0%}: {policy.purpose(rec.robot)}, "
+                            f"waiting {r.wait_since is not None} on {sorted(r.blockers)}, "
+                            f"ahead {r.path[r.cur : r.cur + 16]}",
+                            file=self.out,
+                        )
+                    t0, b0 = self.trigger.get(rec.robot, (now, rec.battery))
+                    self.low[rec.robot] = (now, f"{rec.mode} since {now - t0:.0f} s, from {b0:.0%}", where)
+        if policy is None:
+            return
+        if now - self.last < 1e-9:
+            st0 = policy.manager._st  # noqa: SLF001
+            for n in st0.waiting:
+                r = st0.robots[n]
+                if not r.path or r.wait_since is None:
+                    continue
+                mine = str(policy.purpose(n) or "none")
+                theirs = ",".join(sorted({str(policy.purpose(b) or "none") for b in r.blockers})) or "-"
+                self.waits[f"{mine:11s} at {kind(r.path[r.cur]):5s} on {theirs}"] += 1
+        events = policy.deadlock_events
+        if policy.deadlocks <= self.seen:
+            return
+        new = events[-(policy.deadlocks - self.seen) :]
+        self.seen = policy.deadlocks
+        st = policy.manager._st  # noqa: SLF001 - a diagnostic reads the manager's state
+        for t, members in new:
+            parts = []
+            for name in members:
+                r = st.robots[name]
+                here = r.path[r.cur] if r.path else "?"
+                want = r.path[r.g + 1] if r.path and r.g + 1 < len(r.path) else "-"
+                purpose = str(policy.purpose(name) or "none")
+                parts.append((purpose, kind(here), name, here, want, sorted(r.blockers)))
+            shape = f"{len(members)}: " + " ".join(sorted(f"{p}@{k}" for p, k, *_ in parts))
+            self.shapes[shape] += 1
+            print(f"t={t:7.1f} {shape}", file=self.out)
+            for p, k, name, here, want, blk in parts:
+                print(
+                    f"    {name:9s} {p:11s} at {here:22s} ({k:5s}) wants {want:22s} on {blk}", file=self.out
+                )
+                r = st.robots[name]
+                print(
+                    f"      path {r.path[max(0, r.cur - 4) : r.cur]} | {r.path[r.cur : r.cur + 6]}",
+                    file=self.out,
+                )
+            about = [
+                (te, msg)
+                for te, msg in st.metrics.events[-400:]
+                if te > t - 60 and any(m in msg for m in members)
+            ]
+            for te, msg in about[-8:]:
+                print(f"      {te:7.1f} {msg}", file=self.out)
+            self.out.flush()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--robots", type=int, default=100)
+    ap.add_argument("--duration", type=float, default=900.0)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--no-traffic", action="store_true")
+    ap.add_argument("--out", default="out/deadlock-shapes")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        help="MODULE.NAME=VALUE: a module constant (float), e.g. fleet.traffic.errands.CHARGE_REACH_M=60",
+    )
+    ap.add_argument(
+        "--traffic", action="append", default=[], help="NAME=VALUE: a field of the config's traffic section"
+    )
+    ap.add_argument(
+        "--battery", action="append", default=[], help="NAME=VALUE: a field of the config's battery model"
+    )
+    ap.add_argument(
+        "--param", action="append", default=[], help="NAME=VALUE: a TrafficParams default (float)"
+    )
+    a = ap.parse_args(argv)
+    if a.param:
+        import fleet.traffic.policy as policy_mod
+        from fleet.traffic.params import TrafficParams
+
+        pover = {k: float(v) for k, v in (p.split("=", 1) for p in a.param)}
+
+        def params(**kw: Any) -> TrafficParams:
+            return TrafficParams(**{**kw, **pover})
+
+        policy_mod.TrafficParams = params  # type: ignore[misc,assignment]
+    for item in a.set:
+        target, value = item.split("=", 1)
+        mod, _, const = target.rpartition(".")
+        setattr(importlib.import_module(mod), const, float(value))
+    watch = Watch(sys.stdout)
+    run = FleetRunner.run
+
+    def run_watched(self: FleetRunner) -> Any:
+        self.observers.append(watch)
+        return run(self)
+
+    FleetRunner.run = run_watched  # type: ignore[method-assign]
+    t0 = time.monotonic()
+    over = {k: float(v) for k, v in (t.split("=", 1) for t in a.traffic)}
+
+    bover = {k: float(v) for k, v in (t.split("=", 1) for t in a.battery)}
+
+    def on_config(cfg: Any) -> None:
+        cfg.traffic = dataclasses.replace(cfg.traffic, **over)
+        cfg.sim = dataclasses.replace(cfg.sim, battery=dataclasses.replace(cfg.sim.battery, **bover))
+
+    res = run_loadtest(
+        a.robots, a.duration, out_dir=a.out, seed=a.seed, traffic=not a.no_traffic, on_config=on_config
+    )
+    d = res.data
+    lowest = min(r["battery_min"] for r in d["per_robot"])
+    print(
+        f"\n{a.robots} robots, {a.duration:g} s: {d['laps_completed']} laps, {d['deadlocks']} deadlocks, "
+        f"{d['collisions']} collisions, lowest battery {lowest:.1%}, "
+        f"{sum(r['battery_min'] < LOW for r in d['per_robot'])} below {LOW:.0%}, mean/p95 wait "
+        f"{d.get('mean_wait_s')}/{d.get('p95_wait_s')} s, {time.monotonic() - t0:.0f} s wall"
+    )
+    print("deadlock shapes:")
+    for shape, n in watch.shapes.most_common():
+        print(f"  {n:4d}  {shape}")
+    print("waiting robot-samples (every 5 s): purpose at node kind on the blockers' purposes")
+    for what, n in watch.waits.most_common(15):
+        print(f"  {n:6d}  {what}")
+    print(f"below {LOW:.0%}:")
+    for name, (t, mode, where) in sorted(watch.low.items(), key=lambda kv: kv[1][0]):
+        print(f"  t={t:7.1f} {name:9s} {mode:9s} at {where} ({kind(where)})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
