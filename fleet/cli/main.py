@@ -5,9 +5,9 @@ One module per command (``fleet.cli.run``, ``fleet.cli.status``, ...), each with
 ``add_parser(subparsers)`` that adds its options and sets its handler; :func:`build_parser`
 composes them in the order of :data:`COMMANDS`. A command line naming a command imports only
 that command's module (``fleet task list`` never loads the simulator or the config stack);
-``fleet --help`` and a command line without a known command import them all. ``--log-level`` (before or after the
-command; default ``$FLEET_LOG_LEVEL`` or ``warning``) configures :mod:`logging` for every
-command (:mod:`fleet.cli.logs`).
+``fleet --help`` and a command line without a known command import them all. ``--log-level``
+(before or after the command; default ``$FLEET_LOG_LEVEL`` or ``warning``) configures
+:mod:`logging` for every command (:mod:`fleet.cli.logs`).
 
 Exit codes: 0 success; 2 bad usage, an invalid config or a bus that cannot be opened (one line
 ``error: <message>`` on stderr, no traceback); 130 interrupted with Ctrl-C (the run is shut
