@@ -32,8 +32,12 @@ setup-browser:
 demo: setup-core
 	$(FLEET) run configs/warehouse_patrol.yaml --duration 300 --speed 10 --report out/demo_report.json --plot out/demo_trajectories.png
 
+# pytest on two workers (pytest-xdist; tests/conftest.py keeps the ROS tests on one worker and
+# a file's tests together), then the `serial` tests alone (they live in tests/fleet/ros, so only
+# that directory is collected again); plain `pytest -q` still runs everything in one process
 test: setup lint
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadgroup -m 'not scale and not serial'
+	$(PY) -m pytest -q -m 'serial and not scale' tests/fleet/ros
 
 # long scale and soak runs (hundreds of robots, simulated hours); CI runs them after `make test`
 test-scale: setup

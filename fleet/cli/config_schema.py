@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 from fleet.cli.common import EXIT_ERROR, EXIT_OK, SubParsers, add_command
-from fleet.config.schema import json_schema_text
 
 EPILOG = """\
 examples:
@@ -38,6 +37,8 @@ def add_parser(sub: SubParsers) -> argparse.ArgumentParser:
 
 def handle(args: argparse.Namespace) -> int:
     """Print the schema, or write it to ``args.out``; exit 2 if the file cannot be written."""
+    from fleet.config.schema import json_schema_text  # the config stack only for this command
+
     text = json_schema_text()
     if args.out is None:
         sys.stdout.write(text)

@@ -3,9 +3,11 @@ option with examples; ``docs/cli.md`` is the reference.
 
 One module per command (``fleet.cli.run``, ``fleet.cli.status``, ...), each with an
 ``add_parser(subparsers)`` that adds its options and sets its handler; :func:`build_parser`
-composes them in the order of :data:`COMMANDS`. ``--log-level`` (before or after the
-command; default ``$FLEET_LOG_LEVEL`` or ``warning``) configures :mod:`logging` for every
-command (:mod:`fleet.cli.logs`).
+composes them in the order of :data:`COMMANDS`. A command line naming a command imports only
+that command's module (``fleet task list`` never loads the simulator or the config stack);
+``fleet --help`` and a command line without a known command import them all. ``--log-level``
+(before or after the command; default ``$FLEET_LOG_LEVEL`` or ``warning``) configures
+:mod:`logging` for every command (:mod:`fleet.cli.logs`).
 
 Exit codes: 0 success; 2 bad usage, an invalid config or a bus that cannot be opened (one line
 ``error: <message>`` on stderr, no traceback); 130 interrupted with Ctrl-C (the run is shut
@@ -14,23 +16,11 @@ down cleanly and its report and plot are still written)."""
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from collections.abc import Callable, Sequence
 
-from fleet.cli import (
-    agent,
-    chaos,
-    config_schema,
-    coordinator,
-    keys,
-    loadtest,
-    run,
-    sim,
-    sim_ros,
-    status,
-    task,
-    validate,
-)
+from fleet.cli import sim_ros
 from fleet.cli.common import EXIT_ERROR, SubParsers, guard
 from fleet.cli.logs import add_log_level, configure_logging, resolve_level
 
@@ -62,28 +52,49 @@ examples:
 exit codes: 0 ok, 2 bad usage / invalid config / bus error, 130 interrupted (Ctrl-C)
 """
 
-#: Each command's ``add_parser``, in the order ``fleet --help`` lists them.
-COMMANDS: tuple[Callable[[SubParsers], argparse.ArgumentParser], ...] = (
-    run.add_parser,
-    status.add_parser,
-    sim.add_parser,
-    sim_ros.add_parser,
-    agent.add_parser,
-    coordinator.add_parser,
-    validate.add_parser,
-    config_schema.add_parser,
-    loadtest.add_parser,
-    chaos.add_parser,
-    task.add_parser,
-    keys.add_parser,
-)
+#: Each command and the module under ``fleet.cli`` whose ``add_parser`` adds it, in the order
+#: ``fleet --help`` lists them (``fleet.cli.task`` adds the task and fleet-control commands).
+COMMANDS: dict[str, str] = {
+    "run": "run",
+    "status": "status",
+    "sim": "sim",
+    "sim-ros": "sim_ros",
+    "agent": "agent",
+    "coordinator": "coordinator",
+    "validate": "validate",
+    "config-schema": "config_schema",
+    "loadtest": "loadtest",
+    "chaos": "chaos",
+    "task": "task",
+    "pause": "task",
+    "resume": "task",
+    "estop": "task",
+    "release": "task",
+    "keys": "keys",
+}
 
 #: Commands whose arguments go, unparsed, to their own parser.
 PASSTHROUGH = {"sim-ros": sim_ros.handle}
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``fleet`` (all subcommands)."""
+def _adders(command: str | None) -> list[Callable[[SubParsers], argparse.ArgumentParser]]:
+    """The ``add_parser`` of ``command``'s module, or of every module (``None`` or unknown)."""
+    modules = [COMMANDS[command]] if command in COMMANDS else list(dict.fromkeys(COMMANDS.values()))
+    adders: list[Callable[[SubParsers], argparse.ArgumentParser]] = [
+        importlib.import_module(f"fleet.cli.{m}").add_parser for m in modules
+    ]
+    return adders
+
+
+def _command_of(argv: list[str]) -> str | None:
+    """The command ``argv`` names (its first word after a leading ``--log-level``), if any."""
+    _, rest = _leading_log_level(argv)
+    return rest[0] if rest and rest[0] in COMMANDS else None
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser of ``fleet``: with every subcommand, or (``command``) with only
+    that command's module (the same parser for that command line, imported faster)."""
     from fleet import __version__
 
     parser = argparse.ArgumentParser(
@@ -96,7 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"fleet {__version__}")
     add_log_level(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for add in COMMANDS:
+    for add in _adders(command):
         add(sub)
     return parser
 
@@ -136,7 +147,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     code = _passthrough(args_list)
     if code is not None:
         return code
-    parser = build_parser()
+    parser = build_parser(_command_of(args_list))
     args = parser.parse_args(args_list)
     if args.command is None:
         parser.print_help()

@@ -92,11 +92,11 @@ class ServiceHost:
         *,
         api_token: str | None = None,
     ) -> None:
-        from fleet.api.server import parse_address
-
         self.config = config
         self.api_address: tuple[str, int] | None = None
         if api is not None:
+            from fleet.api.server import parse_address  # FastAPI and uvicorn only with an API
+
             try:
                 self.api_address = parse_address(api)
             except ValueError as e:

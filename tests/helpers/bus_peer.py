@@ -8,8 +8,12 @@ closes its Zenoh session):
   robot ``LOST``'s records carry an ERROR localization diagnostic.
 * ``alive ENDPOINT ROBOT``: a client holding the token ``fleet/ROBOT/alive``.
 * ``navserver ENDPOINT SPEED``: a router serving a one-robot simulator (the world of
-  ``tests/conformance/conformance_harness.py``, robot ``/robot1`` at its start) at ``SPEED`` x
+  ``tests/fleet/testing/conformance_harness.py``, robot ``/robot1`` at its start) at ``SPEED`` x
   real time.
+* ``navpool - SPEED``: many such servers, one after another, in this one process: each stdin
+  line ``new ENDPOINT`` starts a fresh simulator and router on ENDPOINT (answers
+  ``ready ENDPOINT``), ``stop ENDPOINT`` stops and closes it (answers ``stopped ENDPOINT``);
+  end of input or SIGTERM stops them all.
 """
 
 from __future__ import annotations
@@ -19,10 +23,16 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from fleet.bus.session import open_session
 from fleet.bus.status_bus import StatusBus
 from fleet.messages import StatusRecord
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from sim.simulator import Simulator
 
 
 def wait_until(pred: Callable[[], bool], timeout_s: float, what: str, poll_s: float = 0.005) -> None:
@@ -83,6 +93,8 @@ def main(argv: list[str]) -> int:
     mode, endpoint = argv[0], argv[1]
     if mode == "navserver":
         return navserver(endpoint, float(argv[2]), stop)
+    if mode == "navpool":
+        return navpool(float(argv[2]))
     session = open_session(endpoint, "client")
     bus = StatusBus(session)
     try:
@@ -112,7 +124,8 @@ def main(argv: list[str]) -> int:
     return 0
 
 
-def navserver(endpoint: str, speed: float, stop: threading.Event) -> int:
+def _conformance_sim() -> Simulator:
+    """A fresh simulator of the conformance room with ``/robot1`` at its start."""
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fleet" / "testing"))
@@ -120,17 +133,63 @@ def navserver(endpoint: str, speed: float, stop: threading.Event) -> int:
 
     from fleet.clock import SimClock
     from fleet.robots import RobotSpec
-    from fleet.runtime.serve import serve_simulator
     from sim.simulator import Simulator
 
     sim = Simulator(conformance_grid(), SIM_PARAMS, SimClock())
     sim.add_robot(RobotSpec("robot1", "/robot1", SIM_WORLD.start))
+    return sim
+
+
+def navserver(endpoint: str, speed: float, stop: threading.Event) -> int:
+    from fleet.runtime.serve import serve_simulator
+
+    sim = _conformance_sim()
     session = open_session(endpoint, "router")
     try:
         print("ready", flush=True)
         serve_simulator(sim, session, speed=speed, stop_event=stop, quiet=True)
     finally:
         session.close()
+    return 0
+
+
+def navpool(speed: float) -> int:
+    """Serve one fresh conformance simulator per ``new ENDPOINT`` line (module docstring)."""
+    from fleet.runtime.serve import serve_simulator
+
+    servers: dict[str, tuple[threading.Event, threading.Thread]] = {}
+
+    def serve(sim: Simulator, session: zenoh.Session, ev: threading.Event) -> None:
+        try:
+            serve_simulator(sim, session, speed=speed, stop_event=ev, quiet=True)
+        finally:
+            session.close()
+
+    def stop_one(endpoint: str) -> None:
+        ev, thread = servers.pop(endpoint)
+        ev.set()
+        thread.join()
+
+    def sigterm(*_: object) -> None:
+        raise SystemExit(0)
+
+    signal.signal(signal.SIGTERM, sigterm)  # ends the blocking read of stdin
+    try:
+        for line in sys.stdin:
+            verb, endpoint = line.split()
+            if verb == "new":
+                ev = threading.Event()
+                session = open_session(endpoint, "router")
+                thread = threading.Thread(target=serve, args=(_conformance_sim(), session, ev))
+                servers[endpoint] = (ev, thread)
+                thread.start()
+                print(f"ready {endpoint}", flush=True)
+            elif verb == "stop":
+                stop_one(endpoint)
+                print(f"stopped {endpoint}", flush=True)
+    finally:
+        for endpoint in list(servers):
+            stop_one(endpoint)
     return 0
 
 

@@ -42,6 +42,24 @@ def test_subcommand_help(cmd: str, capsys: pytest.CaptureFixture[str]) -> None:
     assert "example" in out and "--log-level" in out
 
 
+def test_a_command_line_builds_the_same_parser_from_its_module_alone() -> None:
+    """``COMMANDS`` names every command of the full parser, and the parser built for one
+    command (only its module imported) gives it the same options and help."""
+    import argparse
+
+    from fleet.cli.main import COMMANDS, build_parser
+
+    def subparsers(p: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+        (action,) = [a for a in p._actions if isinstance(a, argparse._SubParsersAction)]
+        return dict(action.choices)
+
+    full = subparsers(build_parser())
+    assert list(full) == list(COMMANDS)
+    for cmd in COMMANDS:
+        alone = subparsers(build_parser(cmd))
+        assert cmd in alone and alone[cmd].format_help() == full[cmd].format_help(), cmd
+
+
 def test_no_command_prints_help_and_fails(capsys: pytest.CaptureFixture[str]) -> None:
     assert main([]) == EXIT_ERROR
     assert "usage" in capsys.readouterr().out

@@ -70,7 +70,9 @@ def test_ctrl_c_after_the_simulator_stopped_exits_promptly(tmp_path: Path) -> No
                 tmp_path / "agent.log",
             ),
             "status": spawn(
-                procs, ["status", "--endpoint", ep, "--interval", "0.2"], tmp_path / "status.log"
+                procs,
+                ["status", "--endpoint", ep, "--interval", "0.2", "--connect-timeout", str(START_S)],
+                tmp_path / "status.log",
             ),
         }
         session = open_session(ep, "client", connect_timeout_s=30.0)

@@ -46,7 +46,11 @@ def test_every_process_exits_130_without_a_traceback(sig: signal.Signals, tmp_pa
             "tasks:",
         )  # fmt: skip
         start("agent", ["agent", cfg, "--robots", "2", "--robot", "robot1", "--endpoint", ep], "fleet:")
-        start("status", ["status", "--endpoint", ep, "--interval", "0.2"], "1 alive")
+        start(
+            "status",
+            ["status", "--endpoint", ep, "--interval", "0.2", "--connect-timeout", str(WAIT_S)],
+            "1 alive",
+        )
         start(
             "run",
             ["run", cfg, "--robots", "2", "--endpoint", ep_run, "--no-live", "--duration", "100000",

@@ -86,9 +86,11 @@ def _child_pytest(tmp_path: Path, *args: str, env: dict[str, str] | None = None)
     return out.stdout
 
 
-def _ros_test_ids(tmp_path: Path) -> set[str]:
-    """Node ids of the ``ros`` tests here as collected normally ("file::name[param]")."""
-    out = _child_pytest(tmp_path, "--collect-only", "-q")
+@pytest.fixture(scope="module")
+def ros_test_ids(tmp_path_factory: pytest.TempPathFactory) -> set[str]:
+    """Node ids of the ``ros`` tests here as collected normally ("file::name[param]"); one
+    child collection serves both ways of losing ROS."""
+    out = _child_pytest(tmp_path_factory.mktemp("collect"), "--collect-only", "-q")
     ids = {line.split("tests/fleet/ros/", 1)[-1] for line in out.splitlines() if "::" in line}
     assert ids, out
     return ids
@@ -116,9 +118,9 @@ def _skipped(tmp_path: Path) -> dict[str, str]:
     ids=["disabled", "hidden"],
 )
 def test_ros_tests_are_reported_skipped_with_the_reason_without_ros(
-    tmp_path: Path, how: str, reason: str
+    tmp_path: Path, ros_test_ids: set[str], how: str, reason: str
 ) -> None:
-    expected = _ros_test_ids(tmp_path)
+    expected = ros_test_ids
     if how == "disabled":
         _child_pytest(tmp_path, "-rs", env={"FLEET_DISABLE_ROS": "1"})
     else:

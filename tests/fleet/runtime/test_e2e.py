@@ -88,7 +88,7 @@ def test_status_once_sees_every_robot_of_a_run(tmp_path: Path) -> None:
         output(run).wait_line("fleet:", 60)
         # waits until every robot holding a liveliness token has sent a status
         res = subprocess.run(
-            [*FLEET, "status", "--once", "--endpoint", ep, "--wait", "60", "--settle", "10"],
+            [*FLEET, "status", "--once", "--endpoint", ep, "--wait", "60", "--settle", "10", "--connect-timeout", "60"],
             capture_output=True, text=True, timeout=120, cwd=ROOT,
         )  # fmt: skip
         assert res.returncode == 0, res.stderr

@@ -14,6 +14,7 @@ from typing import Any
 
 import pytest
 from conftest import REPO, LiveFleet, wait_for
+from ports import free_endpoint
 from websockets.sync.client import connect
 
 BAD: list[tuple[Any, int, str, str]] = [
@@ -189,5 +190,8 @@ def test_cli_and_client_example(live: Callable[..., LiveFleet]) -> None:
 
 @pytest.mark.parametrize("bad", ["nohost", "127.0.0.1:99999", "127.0.0.1:x"])
 def test_bad_api_address_is_a_clear_error(bad: str) -> None:
-    r = fleet_cli("run", "configs/warehouse_patrol.yaml", "--duration", "1", "--api", bad, "--no-live")
+    r = fleet_cli(
+        "run", "configs/warehouse_patrol.yaml", "--duration", "1", "--api", bad, "--no-live",
+        "--endpoint", free_endpoint(),  # its own bus: the default port may be taken on this machine
+    )  # fmt: skip
     assert r.returncode == 2 and "api" in r.stderr and "Traceback" not in r.stderr

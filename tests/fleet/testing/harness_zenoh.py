@@ -9,15 +9,16 @@ process, connected as a client on a free loopback port. ``advance(s)`` waits (wa
 until the robot's state messages report ``s`` more simulated seconds, and for at least two
 state messages, so a request sent before the call has been applied and reported.
 
-Every case gets a fresh simulator process; the next case's one starts while the current case
-runs, and the spare is stopped after the last case of this backend.
+Every case gets a fresh simulator and a fresh router on a new port, served by one long-lived
+process (``bus_peer.py navpool``, started at the first case and stopped after the last case of
+this backend), so a case pays neither a Python start-up nor an exit.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
 import selectors
-import signal
 import socket
 import subprocess
 import sys
@@ -29,7 +30,6 @@ from pathlib import Path
 
 import pytest
 from conformance_harness import register_backend
-from prestart import Pool
 
 from fleet.navigation import NavigationBackend
 from fleet.testing.conformance import ConformanceHarness, ConformanceWorld
@@ -75,52 +75,70 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-@dataclass
-class _Server:
-    """A running ``bus_peer.py navserver`` (it printed ``ready``) and its endpoint."""
+class _NavPool:
+    """The ``bus_peer.py navpool`` process: one fresh served simulator per case."""
 
-    proc: subprocess.Popen[str]
-    endpoint: str
+    def __init__(self) -> None:
+        self.proc: subprocess.Popen[str] | None = None
+
+    def _process(self) -> subprocess.Popen[str]:
+        if self.proc is None or self.proc.poll() is not None:
+            env = dict(
+                os.environ,
+                PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
+            )
+            self.proc = subprocess.Popen(
+                [sys.executable, str(REPO / "tests/helpers/bus_peer.py"), "navpool", "-", str(SPEED)],
+                cwd=REPO,
+                env=env,
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.DEVNULL,
+                text=True,
+            )
+        return self.proc
+
+    def _ask(self, verb: str, endpoint: str, answer: str) -> None:
+        proc = self._process()
+        assert proc.stdin is not None
+        proc.stdin.write(f"{verb} {endpoint}\n")
+        proc.stdin.flush()
+        got = _read_line(proc, START_TIMEOUT_S).strip()
+        assert got == f"{answer} {endpoint}", f"the simulator process answered {got!r} to {verb}"
+
+    def start(self) -> str:
+        """A fresh simulator served by a fresh router; its endpoint."""
+        endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        self._ask("new", endpoint, "ready")
+        return endpoint
+
+    def release(self, endpoint: str) -> None:
+        self._ask("stop", endpoint, "stopped")
 
     def stop(self) -> None:
-        proc = self.proc
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(3)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
+        proc, self.proc = self.proc, None
+        if proc is None:
+            return
+        if proc.stdin is not None:
+            proc.stdin.close()  # end of input: it stops its servers and exits
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
         if proc.stdout is not None:
             proc.stdout.close()
 
 
-def _start_server() -> _Server:
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    env = dict(
-        os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
-    )
-    proc = subprocess.Popen(
-        [sys.executable, str(REPO / "tests/helpers/bus_peer.py"), "navserver", endpoint, str(SPEED)],
-        cwd=REPO,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    server = _Server(proc, endpoint)
-    try:
-        ready = _read_line(proc, START_TIMEOUT_S).strip()
-        assert ready == "ready", f"the simulator process did not start within {START_TIMEOUT_S} s"
-    except BaseException:
-        server.stop()
-        raise
-    return server
+_POOL = _NavPool()
+atexit.register(_POOL.stop)
 
 
-#: The spare simulator process and the ones being stopped.
-_POOL: Pool[_Server] = Pool("zenoh-bridge")
-between_cases = _POOL.between_cases
+def between_cases(next_backend: str | None) -> None:
+    """Called by ``conftest.py`` after each conformance test: the process ends after the last
+    case of this backend."""
+    if next_backend != "zenoh-bridge":
+        _POOL.stop()
 
 
 @register_backend("zenoh-bridge")
@@ -130,11 +148,9 @@ def zenoh_bridge_harness() -> Iterator[ConformanceHarness]:
     from fleet.bus.nav_client import ZenohNavBackend
     from fleet.bus.session import open_session
 
-    spare = _POOL.take()
-    server = spare.take() if spare is not None else _start_server()
+    endpoint = _POOL.start()
     try:
-        _POOL.prepare(_start_server)
-        session = open_session(server.endpoint, "client")
+        session = open_session(endpoint, "client")
         try:
             backend = ZenohNavBackend(session, "/robot1", timeout_s=2.0)
             try:
@@ -145,4 +161,4 @@ def zenoh_bridge_harness() -> Iterator[ConformanceHarness]:
         finally:
             session.close()
     finally:
-        _POOL.stop_later(server)
+        _POOL.release(endpoint)
