@@ -20,10 +20,12 @@ charger each robot is given.
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
 from fleet.coordination.tasks import FloatMatrix, IndexMatrix
 from fleet.types import Pose2D
@@ -43,6 +45,11 @@ ON_CHARGER_M = 0.5
 #: rather than each taking the nearest one (a charger serves several robots: a working robot
 #: spends about a fifth of its time charging).
 SHARE_PENALTY_M = 12.0
+#: How many distinct works' charger distances :class:`ChargerAllocation` remembers.
+TRAVEL_MEMO = 4096
+
+FloatArray = npt.NDArray[np.float64]
+
 #: The rank (m) of a task's preferred robot: below any travel cost, so it is matched first.
 PREFERRED_RANK = -1e9
 #: Each level of a task's priority lowers its rank by this much (m): a higher-priority task
@@ -155,6 +162,7 @@ class ChargerAllocation:
     def __init__(self, poses: Sequence[Pose2D], distances: Distances | None = None) -> None:
         self.poses = list(poses)
         self.load = [0] * len(self.poses)
+        self._load = np.zeros(len(self.poses))  # ``load`` as floats, for the vectorized choice
         self._distances = distances
         #: Each charger's column in the ``distances`` rows (its nearest roadmap node).
         self.columns: list[int] = []
@@ -163,6 +171,13 @@ class ChargerAllocation:
             self.columns = [distances.index[rm.nearest_node(c.x, c.y)] for c in self.poses]
         #: The work (roadmap nodes) each robot's charger was chosen for.
         self._chosen_for: dict[str, tuple[str, ...]] = {}
+        #: Mean travel distance to every charger, by the source nodes it was computed from
+        #: (route copies share their work, so a fleet of thousands computes each once).
+        self._travel_memo: OrderedDict[tuple[str, ...], FloatArray] = OrderedDict()
+        #: The chargers in buckets (:func:`_cell`, for :meth:`on_charger`).
+        self._cells: dict[tuple[int, int], list[Pose2D]] = {}
+        for c in self.poses:
+            self._cells.setdefault(_cell(c.x, c.y), []).append(c)
 
     def charger_for(self, v: RobotView, near: Sequence[str] = ()) -> Pose2D | None:
         """``v``'s charger pose (``None`` without chargers). Chosen now if ``v`` has none, or
@@ -174,30 +189,44 @@ class ChargerAllocation:
         if v.charger is not None and (not work or self._chosen_for.get(v.name) == work):
             return self.poses[v.charger]
         if v.charger is not None:
-            self.load[v.charger] -= 1
+            self._add(v.charger, -1)
         dist = self._travel(v, work)
-        best = min(range(len(self.poses)), key=lambda i: (dist[i] + SHARE_PENALTY_M * self.load[i], i))
+        # the least ``dist[i] + SHARE_PENALTY_M * load[i]``, ties to the lower index
+        best = int(np.argmin(dist + SHARE_PENALTY_M * self._load))
         v.charger = best
-        self.load[best] += 1
+        self._add(best, 1)
         self._chosen_for[v.name] = work
         return self.poses[best]
 
-    def _travel(self, v: RobotView, work: tuple[str, ...]) -> list[float]:
+    def _add(self, i: int, k: int) -> None:
+        self.load[i] += k
+        self._load[i] = self.load[i]
+
+    def _travel(self, v: RobotView, work: tuple[str, ...]) -> FloatArray:
         """Distance (m) to every charger: mean roadmap distance from ``work``'s nodes (the
         robot's nearest node without work); straight line from the robot without a roadmap."""
         pose = v.obs.pose if v.obs is not None else None
         d = self._distances
         if d is None or not self.columns:
-            return [pose.distance_to(c) if pose is not None else 0.0 for c in self.poses]
-        sources = [n for n in work if n in d.index]
+            return np.array([pose.distance_to(c) if pose is not None else 0.0 for c in self.poses])
+        sources = tuple(n for n in work if n in d.index)
         if not sources and pose is not None:
-            sources = [d.roadmap.nearest_node(pose.x, pose.y)]
+            sources = (d.roadmap.nearest_node(pose.x, pose.y),)
         if not sources:
-            return [0.0] * len(self.poses)
+            return np.zeros(len(self.poses))
+        known = self._travel_memo.get(sources)
+        if known is not None:
+            self._travel_memo.move_to_end(sources)
+            return known
         total = np.zeros(len(self.columns))
         for n in sources:
             total += d.row(n)[self.columns]
-        return [float(x) for x in np.nan_to_num(total / len(sources), posinf=1e9)]
+        out = np.nan_to_num(total / len(sources), posinf=1e9)
+        out.flags.writeable = False
+        self._travel_memo[sources] = out
+        if len(self._travel_memo) > TRAVEL_MEMO:
+            self._travel_memo.popitem(last=False)
+        return out
 
     def free(self, v: RobotView) -> None:
         """``v`` (dead) gives its charger back."""
@@ -207,6 +236,22 @@ class ChargerAllocation:
         self._chosen_for.pop(v.name, None)
 
     def on_charger(self, v: RobotView) -> bool:
-        """``v`` stands within :data:`ON_CHARGER_M` of a charger."""
+        """``v`` stands within :data:`ON_CHARGER_M` of a charger (only the chargers in the
+        buckets around it are measured)."""
         pose = v.obs.pose if v.obs is not None else None
-        return pose is not None and any(pose.distance_to(c) <= ON_CHARGER_M for c in self.poses)
+        if pose is None:
+            return False
+        ci, cj = _cell(pose.x, pose.y)
+        return any(
+            pose.distance_to(c) <= ON_CHARGER_M
+            for i in (ci - 1, ci, ci + 1)
+            for j in (cj - 1, cj, cj + 1)
+            for c in self._cells.get((i, j), ())
+        )
+
+
+def _cell(x: float, y: float) -> tuple[int, int]:
+    """The bucket (``2 * ON_CHARGER_M`` wide) of ``(x, y)``: a pose within
+    :data:`ON_CHARGER_M` of a charger (rounding included) lies in the charger's bucket or one of
+    the eight around it."""
+    return (math.floor(x / (2 * ON_CHARGER_M)), math.floor(y / (2 * ON_CHARGER_M)))

@@ -122,6 +122,9 @@ class RobotAgent:
             process and hands them over with :meth:`deliver` / :meth:`deliver_grant`).
         status_max_period_s: publish on change, and at least this often (simulated s, > 0);
             ``None``: publish at every ``status_hz`` period whether or not anything changed.
+        clear_blackboard: start from the blackboard's defaults, removing what an earlier agent
+            of ``namespace`` in this process left (the default); ``False`` when the caller
+            already cleared it (:func:`nodes.blackboard.clear_robot_blackboards` for a fleet).
 
     ``published`` counts the records published on the bus.
     """
@@ -144,6 +147,7 @@ class RobotAgent:
         chargers: Sequence[Pose2D] = (),
         leases: Callable[[], Lease | None] | None = None,
         status_max_period_s: float | None = None,
+        clear_blackboard: bool = True,
     ) -> None:
         from fleet.robots import BatteryModel
         from nodes.blackboard import clear_robot_blackboard, robot_blackboard
@@ -166,8 +170,10 @@ class RobotAgent:
         self._last_sent: StatusRecord | None = None
         self.published = 0
         # py_trees' blackboard is process-global: start from the defaults, not from what an
-        # earlier agent of the same namespace in this process left behind
-        clear_robot_blackboard(self.namespace)
+        # earlier agent of the same namespace in this process left behind (a caller that
+        # builds a whole fleet clears every namespace in one pass and says clear_blackboard=False)
+        if clear_blackboard:
+            clear_robot_blackboard(self.namespace)
         self.bb = robot_blackboard(self.namespace, name=f"agent{self.namespace}")
         self.traffic = traffic
         battery = battery_model or BatteryModel()

@@ -202,6 +202,9 @@ class FleetRunner:
         #: Called as ``observer(sim_time, runner)`` once per agent tick, after the agents and
         #: the coordinator cycle (e.g. to sample fleet metrics; see :mod:`fleet.loadtest`).
         self.observers: list[Callable[[float, FleetRunner], None]] = []
+        #: Called with a line on each phase of the set-up (world, coordinator, agents every few
+        #: wall seconds), which takes minutes for thousands of robots; ``None``: silent.
+        self.on_setup: Callable[[str], None] | None = None
 
     # -- the run -------------------------------------------------------------------------
 
@@ -263,7 +266,9 @@ class FleetRunner:
         self.bus = StatusBus(session, batch_source=process_batch_source() if batch else None)
         self.bus.subscribe_statuses(self.bus_view.see)
         guard = self.bus.guard_orders(self.agent_names)  # counts what arrives while we start
+        phase = _SetupProgress(self.on_setup, self._wall)
         self.world = world = factory(self.config, specs, session)
+        phase.done(f"world: {len(specs)} robots")
         sim = getattr(world, "sim", None)
         self._world_latch = (
             WorldLatch(self.latch, sim) if sim is not None and hasattr(sim, "fault_of") else None
@@ -277,7 +282,15 @@ class FleetRunner:
             self.lease_watch = LeaseWatch(session)
         if self.run_coordinator:
             self.coordinator = self._make_coordinator(world, self.bus)
-        self.agents = [self._make_agent(spec.namespace, world, self.bus) for spec in specs]
+            phase.done("coordinator" + (" and traffic manager" if self.traffic else ""))
+        from nodes.blackboard import clear_robot_blackboards
+
+        clear_robot_blackboards(s.namespace for s in specs)  # one pass, not one per agent
+        self.agents = []
+        for spec in specs:
+            self.agents.append(self._make_agent(spec.namespace, world, self.bus))
+            phase.every(f"agents: {len(self.agents)} of {len(specs)}")
+        phase.done(f"agents: {len(specs)}")
         self.scheduler = TickScheduler(
             self.agents, [world.backend(s.namespace) for s in specs], mode=self.ticking
         )
@@ -377,6 +390,7 @@ class FleetRunner:
             tree_file=self.tree_file,
             chargers=[c.pose for c in self.config.chargers],
             leases=self.lease_watch.current if self.lease_watch is not None else None,
+            clear_blackboard=False,  # _setup cleared every local namespace in one pass
         )
 
     def _loop(self, world: World) -> None:
@@ -562,6 +576,33 @@ class FleetRunner:
             session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves Session.close unannotated
         except Exception as e:  # noqa: BLE001 - already closed by the bus
             logger.debug("closing the session: %s", e)
+
+
+class _SetupProgress:
+    """Set-up progress lines: ``done(what)`` after each phase, ``every(what)`` inside a long
+    one (at most every :attr:`interval_s` wall seconds); each line says the phase's wall
+    seconds and the set-up's so far."""
+
+    interval_s = 10.0
+
+    def __init__(self, out: Callable[[str], None] | None, wall: WallClock) -> None:
+        self.out, self.wall = out, wall
+        self.t0 = self.t_phase = self.t_line = wall.now()
+
+    def every(self, what: str) -> None:
+        if self.out is not None and self.wall.now() - self.t_line >= self.interval_s:
+            self._line(what, self.wall.now())
+
+    def done(self, what: str) -> None:
+        now = self.wall.now()
+        if self.out is not None:
+            self._line(f"{what} ready in {now - self.t_phase:.1f} s", now)
+        self.t_phase = now
+
+    def _line(self, what: str, now: float) -> None:
+        assert self.out is not None
+        self.t_line = now
+        self.out(f"setup: {what} (set-up {now - self.t0:.0f} s so far)")
 
 
 def _sum_counts(counts: Iterable[Mapping[str, int]]) -> dict[str, int]:
