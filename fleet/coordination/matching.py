@@ -19,6 +19,7 @@ charger each robot is given.
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -133,7 +134,73 @@ def rank(
 def greedy_match(ranks: FloatMatrix) -> list[tuple[int, int]]:
     """Greedy min-cost matching of rows (robots) to columns (tasks): the lowest finite entry
     first, then the lowest among the rows and columns left; ties go to the lower flat index
-    (row-major). Returns ``(row, column)`` pairs in matching order."""
+    (row-major). Returns ``(row, column)`` pairs in matching order.
+
+    The pairs and their order are those of taking the entries in the order of a stable sort of
+    the whole matrix (:func:`greedy_match_sorted`), without sorting it: each row offers its
+    cheapest few columns (:data:`ROW_CANDIDATES`, ties at the last included), sorted by
+    ``(rank, column)``; a heap merges the rows by ``(rank, flat index)``; a row whose offered
+    columns are all taken offers its cheapest free ones again. Time about one pass over the
+    matrix plus ``n log n``, instead of sorting ``rows x columns`` entries (10,000 x 10,000 for
+    a 10,000-robot fleet's first assignment)."""
+    n_rows, n_cols = ranks.shape
+    pairs: list[tuple[int, int]] = []
+    n = min(n_rows, n_cols)
+    if n == 0:
+        return pairs
+    used_c = np.zeros(n_cols, dtype=bool)
+    offers: list[list[int]] = [[] for _ in range(n_rows)]
+    heap: list[tuple[float, int, int]] = []  # (rank, flat index, row)
+    for i in range(n_rows):
+        _offer(ranks, i, used_c, offers, heap)
+    while heap and len(pairs) < n:
+        _, _, i = heapq.heappop(heap)
+        j = offers[i].pop()
+        if used_c[j]:
+            if offers[i]:
+                k = offers[i][-1]
+                heapq.heappush(heap, (float(ranks[i, k]), i * n_cols + k, i))
+            else:
+                _offer(ranks, i, used_c, offers, heap)
+            continue
+        used_c[j] = True
+        offers[i] = []
+        pairs.append((i, j))
+    return pairs
+
+
+#: Columns each row offers at once in :func:`greedy_match` (more when ranks tie at the last).
+ROW_CANDIDATES = 8
+
+
+def _offer(
+    ranks: FloatMatrix,
+    i: int,
+    used_c: npt.NDArray[np.bool_],
+    offers: list[list[int]],
+    heap: list[tuple[float, int, int]],
+) -> None:
+    """Row ``i``'s cheapest finite free columns (all those ranked no higher than its
+    :data:`ROW_CANDIDATES`-th), stacked cheapest last in ``offers[i]``; its first goes on
+    the heap. A row with no finite free column offers nothing."""
+    row = ranks[i]
+    free = np.flatnonzero(~used_c & np.isfinite(row))
+    if len(free) == 0:
+        return
+    vals = row[free]
+    if len(free) > ROW_CANDIDATES:
+        kth = np.partition(vals, ROW_CANDIDATES - 1)[ROW_CANDIDATES - 1]
+        keep = vals <= kth
+        free, vals = free[keep], vals[keep]
+    order = np.lexsort((free, vals))  # by rank, then column
+    offers[i] = [int(j) for j in free[order[::-1]]]
+    k = offers[i][-1]
+    heapq.heappush(heap, (float(row[k]), i * ranks.shape[1] + k, i))
+
+
+def greedy_match_sorted(ranks: FloatMatrix) -> list[tuple[int, int]]:
+    """The reference of :func:`greedy_match`: a stable sort of every entry, then one pass
+    (time and memory of the whole sorted matrix; kept to test the fast one against)."""
     n_rows, n_cols = ranks.shape
     pairs: list[tuple[int, int]] = []
     used_r: set[int] = set()
