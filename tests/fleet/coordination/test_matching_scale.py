@@ -112,3 +112,20 @@ def test_on_charger_equals_testing_every_charger(dx: float, dy: float, k: int) -
     assert v.obs is not None and v.obs.pose is not None
     pose = v.obs.pose
     assert alloc.on_charger(v) == any(pose.distance_to(q) <= ON_CHARGER_M for q in chargers)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), radius=st.sampled_from([0.05, 0.25, 0.3, 0.45, 1.0]))
+def test_free_at_equals_is_free_point_by_point(seed: int, radius: float) -> None:
+    """On the shipped warehouse map, at random points on and off the map and near walls."""
+    from pathlib import Path
+
+    from fleet.maps import load_map
+
+    grid = load_map(Path(__file__).parents[3] / "configs" / "maps" / "warehouse.yaml")
+    rng = np.random.default_rng(seed)
+    xmin, xmax, ymin, ymax = grid.extent
+    xs = rng.uniform(xmin - 1.0, xmax + 1.0, 400)
+    ys = rng.uniform(ymin - 1.0, ymax + 1.0, 400)
+    got = grid.free_at(xs, ys, radius)
+    assert got.tolist() == [grid.is_free(float(x), float(y), radius) for x, y in zip(xs, ys, strict=True)]
