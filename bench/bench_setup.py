@@ -28,8 +28,8 @@ PHASES = ("floor", "world", "coordinator", "agents", "first_period")
 def one(n: int, out: Path, tick_hz: float) -> dict[str, float]:
     """Time the phases of one size in this process."""
     from fleet.bus.session import free_endpoint
+    from fleet.loadtest.memory import rss_mb
     from fleet.loadtest.run import prepare_config
-    from fleet.loadtest.soak import rss_mb
     from fleet.runtime.runner import FleetRunner
     from fleet.viz.display import NullDisplay
 

@@ -138,7 +138,8 @@ class OccupancyGrid:
         wy = self.origin_y + (gy + 0.5) * res - ys[:, None, None]
         mask = wx * wx + wy * wy <= (radius + 0.5 * res) ** 2
         blocked = (self.cells[gy, gx] != FREE) & mask
-        return inside & ~blocked.reshape(len(xs), -1).any(axis=1)
+        out: npt.NDArray[np.bool_] = inside & ~blocked.reshape(len(xs), -1).any(axis=1)
+        return out
 
 
 class MapMode(StrEnum):

@@ -125,7 +125,7 @@ class FleetConfig:
         """The robot called ``name`` (the first of that name). Raises ``KeyError`` if there is
         none. Looked up in an index of :attr:`robots`, rebuilt when the list changed under it, so
         a fleet of thousands asks in constant time."""
-        index = self.__dict__.get("_robot_index")
+        index: dict[str, int] | None = self.__dict__.get("_robot_index")
         i = index.get(name) if index is not None else None
         if i is None or i >= len(self.robots) or self.robots[i].name != name:
             index = {}

@@ -422,7 +422,7 @@ def _with_memory(out: Callable[[str], None] | None) -> Callable[[str], None] | N
     """``out`` with this process's resident memory appended to each line."""
     if out is None:
         return None
-    from fleet.loadtest.soak import rss_mb
+    from fleet.loadtest.memory import rss_mb
 
     def line(text: str) -> None:
         out(f"{text}, {rss_mb():.0f} MB resident")

@@ -48,6 +48,7 @@ from fleet.runtime.backends import world_factory
 from fleet.runtime.latch import Latch, LatchedBackend, WorldLatch
 from fleet.runtime.report import ReportBuilder, RunReport
 from fleet.runtime.scheduler import TickScheduler
+from fleet.runtime.setup_progress import SetupProgress
 from fleet.runtime.trajectory import BusView
 from fleet.runtime.worlds import World, WorldFactory
 from fleet.types import Mode, TreeKind
@@ -266,7 +267,7 @@ class FleetRunner:
         self.bus = StatusBus(session, batch_source=process_batch_source() if batch else None)
         self.bus.subscribe_statuses(self.bus_view.see)
         guard = self.bus.guard_orders(self.agent_names)  # counts what arrives while we start
-        phase = _SetupProgress(self.on_setup, self._wall)
+        phase = SetupProgress(self.on_setup, self._wall)
         self.world = world = factory(self.config, specs, session)
         phase.done(f"world: {len(specs)} robots")
         sim = getattr(world, "sim", None)
@@ -286,6 +287,7 @@ class FleetRunner:
         from nodes.blackboard import clear_robot_blackboards
 
         clear_robot_blackboards(s.namespace for s in specs)  # one pass, not one per agent
+        self._charger_poses = tuple(c.pose for c in self.config.chargers)  # shared by the agents
         self.agents = []
         for spec in specs:
             self.agents.append(self._make_agent(spec.namespace, world, self.bus))
@@ -388,7 +390,7 @@ class FleetRunner:
             status_hz=self.config.status_hz,
             status_max_period_s=self.config.status_max_period_s,
             tree_file=self.tree_file,
-            chargers=[c.pose for c in self.config.chargers],
+            chargers=self._charger_poses,
             leases=self.lease_watch.current if self.lease_watch is not None else None,
             clear_blackboard=False,  # _setup cleared every local namespace in one pass
         )
@@ -576,33 +578,6 @@ class FleetRunner:
             session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves Session.close unannotated
         except Exception as e:  # noqa: BLE001 - already closed by the bus
             logger.debug("closing the session: %s", e)
-
-
-class _SetupProgress:
-    """Set-up progress lines: ``done(what)`` after each phase, ``every(what)`` inside a long
-    one (at most every :attr:`interval_s` wall seconds); each line says the phase's wall
-    seconds and the set-up's so far."""
-
-    interval_s = 10.0
-
-    def __init__(self, out: Callable[[str], None] | None, wall: WallClock) -> None:
-        self.out, self.wall = out, wall
-        self.t0 = self.t_phase = self.t_line = wall.now()
-
-    def every(self, what: str) -> None:
-        if self.out is not None and self.wall.now() - self.t_line >= self.interval_s:
-            self._line(what, self.wall.now())
-
-    def done(self, what: str) -> None:
-        now = self.wall.now()
-        if self.out is not None:
-            self._line(f"{what} ready in {now - self.t_phase:.1f} s", now)
-        self.t_phase = now
-
-    def _line(self, what: str, now: float) -> None:
-        assert self.out is not None
-        self.t_line = now
-        self.out(f"setup: {what} (set-up {now - self.t0:.0f} s so far)")
 
 
 def _sum_counts(counts: Iterable[Mapping[str, int]]) -> dict[str, int]:

@@ -129,3 +129,22 @@ def test_free_at_equals_is_free_point_by_point(seed: int, radius: float) -> None
     ys = rng.uniform(ymin - 1.0, ymax + 1.0, 400)
     got = grid.free_at(xs, ys, radius)
     assert got.tolist() == [grid.is_free(float(x), float(y), radius) for x, y in zip(xs, ys, strict=True)]
+
+
+@settings(max_examples=100, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_nearest_charger_equals_min_over_the_chargers(seed: int) -> None:
+    """On a lattice (many ties in ``|dx| + |dy|``, also on ``x``), and with duplicate poses."""
+    from fleet.runtime.charger_index import nearest_charger
+
+    rng = np.random.default_rng(seed)
+    chargers = tuple(
+        Pose2D(float(x), float(y), float(t))
+        for x, y, t in zip(
+            rng.integers(0, 6, 30), rng.integers(0, 4, 30), rng.integers(0, 3, 30), strict=True
+        )
+    )
+    for _ in range(30):
+        pose = Pose2D(float(rng.integers(-2, 8)) / 2, float(rng.integers(-2, 6)) / 2, 0.0)
+        want = min(chargers, key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y))
+        assert nearest_charger(chargers, pose) is want
