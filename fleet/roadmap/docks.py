@@ -177,6 +177,9 @@ def _free(grid: OccupancyGrid | None, p: tuple[float, float], q: tuple[float, fl
     if grid is None:
         return True
     n = max(1, math.ceil(math.dist(p, q) / grid.resolution))
+    if radius > 0:  # every sample in one array pass: the same answers as is_free one by one
+        k = np.arange(n + 1)
+        return bool(grid.free_at(p[0] + (q[0] - p[0]) * k / n, p[1] + (q[1] - p[1]) * k / n, radius).all())
     return all(
         grid.is_free(p[0] + (q[0] - p[0]) * k / n, p[1] + (q[1] - p[1]) * k / n, radius) for k in range(n + 1)
     )
