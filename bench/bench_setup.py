@@ -7,10 +7,10 @@ Each size runs in its own process (so the resident memory is that size's alone):
 generated and loaded (:func:`fleet.loadtest.run.prepare_config`), then a
 :class:`fleet.runtime.runner.FleetRunner` builds the world, the coordinator with traffic
 management and one agent per robot, and runs its first agent period (every robot's first tick
-and the coordinator's first cycle, which assigns every route). Prints one row per size: wall
-seconds per phase, the growth against the previous size (phase ratio / size ratio: 1.0 is
-linear, 2.0 quadratic) and the resident memory once the first period is done (MB, and per
-robot in kB). Wall seconds on a shared machine: compare within one run.
+and the coordinator's first cycle, which assigns every route). Prints one row per size: the
+process's CPU seconds per phase (not wall seconds: the machine is shared), the growth against
+the previous size (phase ratio / size ratio: 1.0 is linear, 2.0 at twice the size is
+quadratic) and the resident memory once the first period is done (MB, and per robot in kB).
 """
 
 from __future__ import annotations
@@ -34,30 +34,29 @@ def one(n: int, out: Path, tick_hz: float) -> dict[str, float]:
     from fleet.viz.display import NullDisplay
 
     t: dict[str, float] = {}
-    w = time.monotonic()
+    c = time.process_time()
     cfg = prepare_config(n, out, tick_hz=tick_hz, status_hz=1.0)
-    t["floor"] = time.monotonic() - w
+    t["floor"] = time.process_time() - c
     runner = FleetRunner(
         cfg, duration=0.5 / tick_hz, speed=0.0, endpoint=free_endpoint(), live=False, display=NullDisplay()
     )
-    marks: list[tuple[str, float]] = []
+    marks: list[tuple[str, float]] = []  # (phase, process CPU s at its end)
 
     def on_setup(line: str) -> None:
         print(f"  {n}: {line}", file=sys.stderr, flush=True)
         if " ready in " in line:
-            marks.append((line.split(":", 2)[1].strip(), time.monotonic()))
+            marks.append((line.split(":", 2)[1].strip(), time.process_time()))
 
     first: list[float] = []
     runner.on_setup = on_setup
-    runner.observers.append(lambda _now, _r: first.append(time.monotonic()) if not first else None)
-    w = time.monotonic()
+    runner.observers.append(lambda _now, _r: first.append(time.process_time()) if not first else None)
+    prev = time.process_time()
     runner.run()
-    prev = w
     for name, at in marks:
         key = name.split()[0]
         t[key] = at - prev
         prev = at
-    t["first_period"] = (first[0] if first else time.monotonic()) - prev
+    t["first_period"] = (first[0] if first else time.process_time()) - prev
     t["rss_mb"] = rss_mb()
     return t
 
@@ -73,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(one(a.one, a.out / f"n{a.one}", a.tick_hz)))
         return 0
     rows: list[tuple[int, dict[str, float]]] = []
-    print("robots | " + " | ".join(f"{k} s" for k in PHASES) + " | total s | RSS MB | kB/robot")
+    print("robots | " + " | ".join(f"{k} CPU s" for k in PHASES) + " | total CPU s | RSS MB | kB/robot")
     for n in a.sizes:
         cmd = [sys.executable, __file__, "--one", str(n), "--out", str(a.out), "--tick-hz", str(a.tick_hz)]
         res = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, check=True)

@@ -308,7 +308,10 @@ def run_loadtest(
         status_max_period_s=status_max_period_s,
     )
     if setup is not None:
-        setup(f"setup: floor and config of {len(cfg.robots)} robots ready in {time.monotonic() - w0:.1f} s")
+        setup(
+            f"setup: floor and config of {len(cfg.robots)} robots ready in {time.monotonic() - w0:.1f} s "
+            f"(process CPU {time.process_time():.0f} s)"
+        )
     if workers > len(cfg.robots):
         raise ConfigError(
             "fleet loadtest", "--workers", f"more workers ({workers}) than robots ({len(cfg.robots)})"

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Protocol
 
@@ -14,7 +15,8 @@ class _Wall(Protocol):
 class SetupProgress:
     """Set-up progress lines: ``done(what)`` after each phase, ``every(what)`` inside a long
     one (at most every :attr:`interval_s` wall seconds); each line says the phase's wall
-    seconds and the set-up's so far."""
+    seconds, the set-up's so far and this process's CPU seconds so far (on a shared machine
+    the CPU seconds are the figures to compare)."""
 
     interval_s = 10.0
 
@@ -35,7 +37,8 @@ class SetupProgress:
     def _line(self, what: str, now: float) -> None:
         assert self.out is not None
         self.t_line = now
-        self.out(f"setup: {what} (set-up {now - self.t0:.0f} s so far)")
+        cpu = time.process_time()
+        self.out(f"setup: {what} (set-up {now - self.t0:.0f} s so far, process CPU {cpu:.0f} s)")
 
 
 __all__ = ["SetupProgress"]
