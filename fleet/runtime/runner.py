@@ -266,7 +266,7 @@ class FleetRunner:
         batch = self.config.status_batch and len(specs) > 1 and self.secure is None
         self.bus = StatusBus(session, batch_source=process_batch_source() if batch else None)
         self.bus.subscribe_statuses(self.bus_view.see)
-        guard = self.bus.guard_orders(self.agent_names)  # counts what arrives while we start
+        guard = self.bus.guard_orders(self.agent_names, wildcard=self.secure is None)  # counts early orders
         phase = SetupProgress(self.on_setup, self._wall)
         self.world = world = factory(self.config, specs, session)
         phase.done(f"world: {len(specs)} robots")
