@@ -153,6 +153,12 @@ class FleetConfig:
         """
         names = route.node_names
         if all(n is not None for n in names):
-            dense = self.roadmap.expand_route([n for n in names if n is not None], closed=True)
-            return self.roadmap.poses_for(dense, closed=True)
+            # route copies share their waypoints: each lap is expanded once (per roadmap)
+            memo: dict[tuple[str | None, ...], tuple[Roadmap, tuple[Pose2D, ...]]]
+            memo = self.__dict__.setdefault("_lap_memo", {})
+            got = memo.get(names)
+            if got is None or got[0] is not self.roadmap:
+                dense = self.roadmap.expand_route([n for n in names if n is not None], closed=True)
+                got = memo[names] = (self.roadmap, self.roadmap.poses_for(dense, closed=True))
+            return got[1]
         return route.waypoints
