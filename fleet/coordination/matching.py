@@ -69,6 +69,58 @@ def travel_costs(
     given by their entry nodes ``entry_idx[task, k]`` (indexes in ``distances``) and extra
     distances ``entry_off[task, k]``, and the entry ``k`` each robot would start at.
     ``offsets=False`` promises ``entry_off`` is all zeros (it is then skipped). ``inf``:
+    unreachable.
+
+    Tasks with the same entries (route copies) are priced once, and each task's padding (its
+    last entry repeated up to the widest task) is left out: the cheapest entry (the first of
+    equal ones) and its cost are those of :func:`travel_costs_rows`, float for float. The
+    widest task of a load-test floor (its perimeter loop, thousands of nodes) made the padded
+    rows robots x tasks x thousands."""
+    roadmap = distances.roadmap
+    n_tasks, width = entry_idx.shape
+    both = np.concatenate([entry_idx.astype(float), entry_off], axis=1)
+    uniq, inverse = np.unique(both, axis=0, return_inverse=True)
+    u_idx = uniq[:, :width].astype(np.int64)
+    u_off = uniq[:, width:]
+    # each unique task's entries without the padding (trailing copies of its last entry)
+    same = (u_idx == u_idx[:, -1:]) & (u_off == u_off[:, -1:])
+    lengths = width - np.argmin(same[:, ::-1], axis=1) + 1
+    lengths[same.all(axis=1)] = 1
+    keep = np.arange(width)[None, :] < lengths[:, None]
+    flat_idx, flat_off = u_idx[keep], u_off[keep]
+    seg = np.repeat(np.arange(len(uniq)), lengths)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    pos_in = np.arange(len(flat_idx)) - starts[seg]
+    costs = np.full((len(poses), n_tasks), np.inf)
+    entry = np.zeros((len(poses), n_tasks), dtype=np.int64)
+    for i, pose in enumerate(poses):
+        start = roadmap.nearest_node(pose.x, pose.y)
+        sx, sy = roadmap.pos(start)
+        d = distances.row(start)[flat_idx]
+        snap = math.hypot(sx - pose.x, sy - pose.y)
+        v = d + flat_off if offsets else d
+        low = np.minimum.reduceat(v, starts)
+        at = np.flatnonzero(v == low[seg])  # every entry at its task's minimum
+        first = at[np.unique(seg[at], return_index=True)[1]]  # the first per task
+        k = pos_in[first]
+        c = snap + d[first] + flat_off[first] if offsets else snap + d[first]
+        costs[i] = c[inverse]
+        entry[i] = k[inverse]
+    return costs, entry
+
+
+def travel_costs_rows(
+    distances: Distances,
+    poses: Sequence[Pose2D],
+    entry_idx: IndexMatrix,
+    entry_off: FloatMatrix,
+    offsets: bool = True,
+) -> tuple[FloatMatrix, IndexMatrix]:
+    """The reference of :func:`travel_costs` (every padded entry of every task, per robot;
+    kept to test the fast one against). Travel costs (m) ``[robot, task]`` from ``poses`` (one per robot, map frame) to tasks
+    given by their entry nodes ``entry_idx[task, k]`` (indexes in ``distances``) and extra
+    distances ``entry_off[task, k]``, and the entry ``k`` each robot would start at.
+    ``offsets=False`` promises ``entry_off`` is all zeros (it is then skipped). ``inf``:
     unreachable."""
     roadmap = distances.roadmap
     n_tasks = entry_idx.shape[0]

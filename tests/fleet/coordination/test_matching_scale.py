@@ -16,6 +16,7 @@ from fleet.coordination.matching import (
     ChargerAllocation,
     greedy_match,
     greedy_match_sorted,
+    travel_costs,
 )
 from fleet.coordination.views import Observation, RobotView
 from fleet.roadmap.distances import Distances
@@ -148,3 +149,39 @@ def test_nearest_charger_equals_min_over_the_chargers(seed: int) -> None:
         pose = Pose2D(float(rng.integers(-2, 8)) / 2, float(rng.integers(-2, 6)) / 2, 0.0)
         want = min(chargers, key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y))
         assert nearest_charger(chargers, pose) is want
+
+
+@settings(max_examples=80, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), offsets=st.booleans())
+def test_travel_costs_equal_the_padded_rows(seed: int, offsets: bool) -> None:
+    """Route copies (equal rows), padded rows of several widths, ties between entries,
+    unreachable nodes: the same costs and entries, float for float."""
+    from fleet.coordination.matching import travel_costs_rows
+
+    rm = _grid_roadmap(12)
+    island = Roadmap.from_config_dict(
+        {
+            "nodes": {**{n: list(rm.pos(n)) for n in rm.nodes}, "far": [500.0, 500.0]},
+            "edges": [[a, b] for a, b in rm.graph.edges],
+        }
+    )
+    d = Distances(island)
+    rng = np.random.default_rng(seed)
+    n_nodes = len(d.names)
+    rows = []
+    for _ in range(int(rng.integers(1, 9))):
+        k = int(rng.integers(1, 7))
+        idx = rng.integers(0, n_nodes, k)
+        off = rng.choice([0.0, 0.5, 1.0], k) if offsets else np.zeros(k)
+        for _ in range(int(rng.integers(1, 4))):  # copies
+            rows.append((idx, off))
+    width = max(len(i) for i, _ in rows)
+    m = np.zeros((len(rows), width), dtype=np.int64)
+    o = np.zeros((len(rows), width))
+    for r, (idx, off) in enumerate(rows):
+        m[r, :], o[r, :] = idx[-1], off[-1]
+        m[r, : len(idx)], o[r, : len(off)] = idx, off
+    poses = [Pose2D(float(x), float(y), 0.0) for x, y in rng.uniform(-5, 120, (6, 2))]
+    c1, e1 = travel_costs(d, poses, m, o, offsets)
+    c2, e2 = travel_costs_rows(d, poses, m, o, offsets)
+    assert np.array_equal(c1, c2) and np.array_equal(e1, e2)
