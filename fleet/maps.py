@@ -120,6 +120,27 @@ class OccupancyGrid:
         mask = wx * wx + wy * wy <= (radius + 0.5 * self.resolution) ** 2
         return bool(np.all(self.cells[y0:y1, x0:x1][mask] == FREE))
 
+    def free_at(
+        self, xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64], radius: float
+    ) -> npt.NDArray[np.bool_]:
+        """:meth:`is_free` of every point ``(xs[k], ys[k])`` with ``radius > 0``, as one array
+        pass (the same cells and the same float expressions, so the same answers): a config's
+        roadmap of thousands of edges is checked sample by sample along every edge."""
+        res = self.resolution
+        r = int(math.ceil(radius / res))
+        cx = np.floor((xs - self.origin_x) / res).astype(np.int64)
+        cy = np.floor((ys - self.origin_y) / res).astype(np.int64)
+        inside = (cx - r >= 0) & (cy - r >= 0) & (cx + r + 1 <= self.width) & (cy + r + 1 <= self.height)
+        d = np.arange(-r, r + 1)
+        gx = np.clip(cx[:, None, None] + d[None, None, :], 0, self.width - 1)  # [point, row, col]
+        gy = np.clip(cy[:, None, None] + d[None, :, None], 0, self.height - 1)
+        wx = self.origin_x + (gx + 0.5) * res - xs[:, None, None]
+        wy = self.origin_y + (gy + 0.5) * res - ys[:, None, None]
+        mask = wx * wx + wy * wy <= (radius + 0.5 * res) ** 2
+        blocked = (self.cells[gy, gx] != FREE) & mask
+        out: npt.NDArray[np.bool_] = inside & ~blocked.reshape(len(xs), -1).any(axis=1)
+        return out
+
 
 class MapMode(StrEnum):
     """How map_server turns pixels into cells (see the module docstring)."""

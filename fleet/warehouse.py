@@ -22,9 +22,9 @@ Layout (map frame, meters; ``x`` east, ``y`` north; 0.1 m cells; 0.2 m walls all
     ─────────────────────────────────────────────────────────────
     south wall
 
-Roadmap nodes sit on the aisle center lines (``a<i>_s`` / ``a<i>_n`` at the corridor center
-lines, ``a<i>_<j>`` in between, one per shelf bay of about 5 m) and the west / east corridors. Every edge keeps at least 1 m from shelves and walls, so robots of
-radius 0.3 m can use it and two of them can pass in an aisle. Stations are pick poses in the
+Roadmap nodes sit on the aisle center lines (``a<i>_s`` / ``a<i>_n`` at the corridor center lines,
+``a<i>_<j>`` in between, one per shelf bay of about 5 m) and the west / east corridors. Every edge
+keeps 1 m from shelves and walls: robots of radius 0.3 m can use it, two can pass in an aisle. Stations are pick poses in the
 aisles (``pick_a<i>_<j>_e`` / ``_w``, 0.4 m off the center line, facing the shelf) and
 drop-off poses (``drop<k>``) at the east wall.
 
@@ -40,14 +40,13 @@ plus one ``perimeter`` loop: every loop runs clockwise (shared corridors are dri
 
 The default (``n_robots <= 49``) warehouse is 30 m x 20 m with 7 aisles and two parking rows of
 25 spots; larger fleets get more aisles, longer shelves and more parking rows. Deterministic.
-
-Command line: ``python -m fleet.warehouse --robots N --out DIR`` (``--help`` for options;
-``--shipped`` regenerates the configs shipped in ``configs/``).
+Command line: ``python -m fleet.warehouse --robots N --out DIR`` (``--help``; ``--shipped``: the shipped configs).
 """
 
 from __future__ import annotations
 
 import argparse
+import bisect
 import math
 import random
 from dataclasses import dataclass, replace
@@ -108,8 +107,9 @@ class Layout:
         x0 = WALL + PARK_MARGIN
         n = int(math.floor((self.width - 2 * x0) / PARK_DX + 1e-9)) + 1
         xs = [x0 + s * PARK_DX for s in range(n)]
-        cx = [x for _, x in self.connectors()]
-        return [x for x in xs if all(abs(x - c) >= 1.0 - 1e-9 for c in cx)]
+        cx = sorted(x for _, x in self.connectors())  # the two nearest connectors decide:
+        near = [cx[max(0, k - 1) : k + 1] for k in (bisect.bisect_left(cx, x) for x in xs)]
+        return [x for x, cs in zip(xs, near, strict=True) if all(abs(x - c) >= 1.0 - 1e-9 for c in cs)]
 
     @property
     def spots_per_row(self) -> int:

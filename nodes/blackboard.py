@@ -210,7 +210,24 @@ def read_key(namespace: str, key: str) -> Callable[[], object]:
 def clear_robot_blackboard(namespace: str) -> None:
     """Remove every stored key under ``namespace`` (e.g. when a robot leaves the fleet).
     Clients stay registered; reading a key through them afterwards raises ``KeyError``
-    until :func:`ensure_defaults` is called again."""
+    until :func:`ensure_defaults` is called again. One pass over the whole blackboard: to
+    clear many robots, :func:`clear_robot_blackboards` does it in one pass for all."""
     prefix = normalize_namespace(namespace) + "/"
     for name in [k for k in Blackboard.storage if k.startswith(prefix)]:
+        del Blackboard.storage[name]
+
+
+def clear_robot_blackboards(namespaces: Iterable[str]) -> None:
+    """:func:`clear_robot_blackboard` for every one of ``namespaces``, in one pass over the
+    blackboard (a fleet of thousands of robots would otherwise scan it once per robot)."""
+    by_head: dict[str, list[str]] = {}  # "/robot1/" -> the prefixes under it ("/robot1/arm/")
+    for ns in namespaces:
+        prefix = normalize_namespace(ns) + "/"
+        by_head.setdefault(prefix[: prefix.index("/", 1) + 1], []).append(prefix)
+    doomed = []
+    for k in Blackboard.storage:
+        under = by_head.get(k[: k.find("/", 1) + 1])
+        if under is not None and any(k.startswith(p) for p in under):
+            doomed.append(k)
+    for name in doomed:
         del Blackboard.storage[name]

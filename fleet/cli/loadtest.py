@@ -225,6 +225,7 @@ def handle(args: argparse.Namespace) -> int:
             status_max_period_s=args.status_max_period or None,
             on_line=lambda line: print(f"fleet loadtest: {line}", flush=True),
             secure=args.secure,
+            on_setup=lambda line: print(f"fleet loadtest: {line}", flush=True),
         )
     finally:
         display.close()

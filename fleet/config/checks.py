@@ -13,6 +13,8 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
+import numpy as np
+
 from fleet.config.fields import suggest
 from fleet.config.model import NamedPose, PickTask, Route
 from fleet.config.schema import NamedPoseEntry, RobotEntry, RouteEntry, TaskEntry
@@ -57,18 +59,27 @@ class Placer:
             )
 
     def segment(self, a: tuple[float, float], b: tuple[float, float], field: str, what: str) -> None:
-        """Raise unless every point of segment ``a``-``b``, sampled every map cell, is clear."""
+        """Raise unless every point of segment ``a``-``b``, sampled every map cell, is clear
+        (all samples in one array pass; the first blocked one is named)."""
         (ax, ay), (bx, by) = a, b
         n = max(1, math.ceil(math.hypot(bx - ax, by - ay) / self.grid.resolution))
-        for k in range(n + 1):
-            x, y = ax + (bx - ax) * k / n, ay + (by - ay) * k / n
-            if not self.grid.is_free(x, y, self.radius):
-                raise ConfigError(
-                    self.file,
-                    field,
-                    f"{what} passes through an obstacle at ({x:.2f}, {y:.2f}) "
-                    f"(clearance robot_model.radius = {self.radius:g} m)",
-                )
+        k = np.arange(n + 1)
+        xs, ys = ax + (bx - ax) * k / n, ay + (by - ay) * k / n
+        if self.radius > 0:
+            free = self.grid.free_at(xs, ys, self.radius)
+        else:
+            free = np.array(
+                [self.grid.is_free(float(x), float(y), self.radius) for x, y in zip(xs, ys, strict=True)]
+            )
+        if not free.all():
+            i = int(np.argmin(free))
+            x, y = float(xs[i]), float(ys[i])
+            raise ConfigError(
+                self.file,
+                field,
+                f"{what} passes through an obstacle at ({x:.2f}, {y:.2f}) "
+                f"(clearance robot_model.radius = {self.radius:g} m)",
+            )
 
 
 class NearIndex:

@@ -122,11 +122,20 @@ class FleetConfig:
     traffic: TrafficSettings = field(default_factory=TrafficSettings)
 
     def robot(self, name: str) -> RobotSpec:
-        """The robot called ``name``. Raises ``KeyError`` if there is none."""
-        for r in self.robots:
-            if r.name == name:
-                return r
-        raise KeyError(f"no robot named {name!r}")
+        """The robot called ``name`` (the first of that name). Raises ``KeyError`` if there is
+        none. Looked up in an index of :attr:`robots`, rebuilt when the list changed under it, so
+        a fleet of thousands asks in constant time."""
+        index: dict[str, int] | None = self.__dict__.get("_robot_index")
+        i = index.get(name) if index is not None else None
+        if i is None or i >= len(self.robots) or self.robots[i].name != name:
+            index = {}
+            for k, r in enumerate(self.robots):
+                index.setdefault(r.name, k)
+            self.__dict__["_robot_index"] = index
+            i = index.get(name)
+            if i is None:
+                raise KeyError(f"no robot named {name!r}")
+        return self.robots[i]
 
     def route(self, name: str) -> Route:
         """The route called ``name``. Raises ``KeyError`` if there is none."""
@@ -144,6 +153,12 @@ class FleetConfig:
         """
         names = route.node_names
         if all(n is not None for n in names):
-            dense = self.roadmap.expand_route([n for n in names if n is not None], closed=True)
-            return self.roadmap.poses_for(dense, closed=True)
+            # route copies share their waypoints: each lap is expanded once (per roadmap)
+            memo: dict[tuple[str | None, ...], tuple[Roadmap, tuple[Pose2D, ...]]]
+            memo = self.__dict__.setdefault("_lap_memo", {})
+            got = memo.get(names)
+            if got is None or got[0] is not self.roadmap:
+                dense = self.roadmap.expand_route([n for n in names if n is not None], closed=True)
+                got = memo[names] = (self.roadmap, self.roadmap.poses_for(dense, closed=True))
+            return got[1]
         return route.waypoints

@@ -506,8 +506,11 @@ class TaskBook:
 def patrol_routes(config: FleetConfig) -> list[PatrolRoute]:
     """The config's routes as :class:`PatrolRoute` values (one lap each, roadmap node per pose)."""
     out = []
+    nodes_of: dict[int, tuple[str, ...]] = {}  # by the lap's identity: route copies share it
     for r in config.routes:
         poses = config.route_poses(r)
-        nodes = tuple(config.roadmap.nearest_node(p.x, p.y) for p in poses)
+        nodes = nodes_of.get(id(poses))
+        if nodes is None:
+            nodes = nodes_of[id(poses)] = tuple(config.roadmap.nearest_node(p.x, p.y) for p in poses)
         out.append(PatrolRoute(r.name, poses, nodes, r.robot))
     return out

@@ -262,6 +262,7 @@ def run_loadtest(
     status_max_period_s: float | None = DEFAULT_STATUS_MAX_PERIOD_S,
     on_line: Callable[[str], None] | None = None,
     secure: Path | None = None,
+    on_setup: Callable[[str], None] | None = None,
 ) -> LoadTestResult:
     """Run one load test (see the module docstring) and write its report and plots.
 
@@ -273,6 +274,8 @@ def run_loadtest(
     here, default all; ``on_line`` gets their progress lines); 0 runs them in this process.
     ``secure``: a key directory (``fleet keys init``): the bus is secured with it (this process
     hosts the router; workers connect as its ``worker`` identity, checked before anything runs).
+    ``on_setup`` gets a line after each set-up phase (the floor, the config, the world, the
+    coordinator, the agents: minutes for thousands of robots) with the resident memory.
     Raises :class:`ConfigError` for bad arguments, :class:`BusError` / :class:`BackendError`
     when the bus or backend cannot be set up.
     """
@@ -292,6 +295,8 @@ def run_loadtest(
         keys = checked_secure(secure, "worker" if workers else ROUTER_USER)
     rates = {"--tick-hz": tick_hz, "--status-hz": status_hz, "--sample-s": sample_s}
     paths = _check(n_robots, backend, rates, out_dir, report_path, plot_dir)
+    setup = _with_memory(on_setup)
+    w0 = time.monotonic()
     cfg = prepare_config(
         n_robots,
         paths.out_dir,
@@ -302,6 +307,11 @@ def run_loadtest(
         seed=seed,
         status_max_period_s=status_max_period_s,
     )
+    if setup is not None:
+        setup(
+            f"setup: floor and config of {len(cfg.robots)} robots ready in {time.monotonic() - w0:.1f} s "
+            f"(process CPU {time.process_time():.0f} s)"
+        )
     if workers > len(cfg.robots):
         raise ConfigError(
             "fleet loadtest", "--workers", f"more workers ({workers}) than robots ({len(cfg.robots)})"
@@ -334,6 +344,7 @@ def run_loadtest(
         log_dir=paths.out_dir / "workers",
         on_line=on_line,
         secure=keys,
+        on_setup=setup,
     )
     data = report.to_dict()
     data["loadtest"] = loadtest_block(
@@ -370,6 +381,7 @@ def _run(
     log_dir: Path | None = None,
     on_line: Callable[[str], None] | None = None,
     secure: Secure | None = None,
+    on_setup: Callable[[str], None] | None = None,
 ) -> RunReport:
     """The fleet run of a load test, sampled by ``sampler`` (its final state included); with
     ``spec`` the agents run in its workers. ``ticks`` gets the trees ticked (``tree_ticks``)
@@ -398,6 +410,7 @@ def _run(
             cfg, spec, local_workers=local_workers, log_dir=log_dir, progress=on_line, **kw
         )
     runner.observers.append(sampler)
+    runner.on_setup = on_setup
     sampler.start()
     report = runner.run()
     if ticks is not None and runner.scheduler is not None:
@@ -406,6 +419,18 @@ def _run(
     if runner.world is not None and report.sim_time_s > (sampler.t[-1] if sampler.t else -1) + 1e-6:
         sampler.sample(report.sim_time_s, runner, time.monotonic())  # the final state
     return report
+
+
+def _with_memory(out: Callable[[str], None] | None) -> Callable[[str], None] | None:
+    """``out`` with this process's resident memory appended to each line."""
+    if out is None:
+        return None
+    from fleet.loadtest.memory import rss_mb
+
+    def line(text: str) -> None:
+        out(f"{text}, {rss_mb():.0f} MB resident")
+
+    return line
 
 
 def _plot(

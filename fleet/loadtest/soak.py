@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from fleet.errors import ConfigError
+from fleet.loadtest.memory import rss_mb
 
 if TYPE_CHECKING:
     from fleet.runtime.report import RunReport
@@ -30,20 +31,6 @@ if TYPE_CHECKING:
 
 #: Default share of the run counted as warm-up.
 DEFAULT_WARMUP = 0.25
-
-
-def rss_mb() -> float:
-    """This process's resident set size now (MB); the peak (``ru_maxrss``) where ``/proc`` is missing."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 @dataclass(frozen=True)

@@ -173,35 +173,60 @@ def _split(g: nx.Graph[str], index: _EdgeIndex, a: str, b: str, t: float, fx: fl
     return via
 
 
+def _room(a: np.ndarray, n: int) -> np.ndarray:
+    """``a`` with room for a row at index ``n`` (twice the rows when full)."""
+    if n < len(a):
+        return a
+    out = np.full((max(8, 2 * len(a)), a.shape[1]), np.nan)
+    out[: len(a)] = a
+    return out
+
+
 def _free(grid: OccupancyGrid | None, p: tuple[float, float], q: tuple[float, float], radius: float) -> bool:
     if grid is None:
         return True
     n = max(1, math.ceil(math.dist(p, q) / grid.resolution))
+    if radius > 0:  # every sample in one array pass: the same answers as is_free one by one
+        k = np.arange(n + 1)
+        return bool(grid.free_at(p[0] + (q[0] - p[0]) * k / n, p[1] + (q[1] - p[1]) * k / n, radius).all())
     return all(
         grid.is_free(p[0] + (q[0] - p[0]) * k / n, p[1] + (q[1] - p[1]) * k / n, radius) for k in range(n + 1)
     )
 
 
 class _EdgeIndex:
-    """Node positions and edge segments as growable NumPy arrays, for nearest queries."""
+    """Node positions and edge segments as growable NumPy arrays, for nearest queries (the
+    arrays grow by doubling, so joining thousands of docks does not copy them per dock)."""
 
     def __init__(self, g: nx.Graph[str]) -> None:
         self.names: list[str] = [str(n) for n in g.nodes]
-        self.xy = np.array([g.nodes[n]["pos"] for n in g.nodes], dtype=float).reshape(-1, 2)
+        self._xy = np.array([g.nodes[n]["pos"] for n in g.nodes], dtype=float).reshape(-1, 2)
         self.edges: list[tuple[str, str] | None] = [(str(a), str(b)) for a, b in g.edges]
-        self.seg = np.array(
+        self._seg = np.array(
             [(*g.nodes[a]["pos"], *g.nodes[b]["pos"]) for a, b in g.edges], dtype=float
         ).reshape(-1, 4)
         self.slot = {frozenset(e): i for i, e in enumerate(self.edges) if e is not None}
 
+    @property
+    def xy(self) -> np.ndarray:
+        """Node positions, one row per name."""
+        return self._xy[: len(self.names)]
+
+    @property
+    def seg(self) -> np.ndarray:
+        """Edge segments ``(ax, ay, bx, by)``, one row per edge (NaN: removed)."""
+        return self._seg[: len(self.edges)]
+
     def add_node(self, name: str, xy: tuple[float, float]) -> None:
+        self._xy = _room(self._xy, len(self.names))
+        self._xy[len(self.names)] = xy
         self.names.append(name)
-        self.xy = np.vstack([self.xy, [xy]])
 
     def add_edge(self, a: str, b: str, pa: tuple[float, float], pb: tuple[float, float]) -> None:
         self.slot[frozenset((a, b))] = len(self.edges)
+        self._seg = _room(self._seg, len(self.edges))
+        self._seg[len(self.edges)] = (*pa, *pb)
         self.edges.append((a, b))
-        self.seg = np.vstack([self.seg, [(*pa, *pb)]])
 
     def remove_edge(self, a: str, b: str) -> None:
         i = self.slot.pop(frozenset((a, b)))
@@ -216,7 +241,12 @@ class _EdgeIndex:
         return self.names[k], float(d[k])
 
     def nearest_nodes(self, x: float, y: float, k: int) -> list[str]:
+        """The ``k`` nearest nodes, nearest first, ties to the earlier: the first ``k`` of a
+        stable sort, from the few at most as far as the ``k``-th."""
         d = np.hypot(self.xy[:, 0] - x, self.xy[:, 1] - y)
+        if len(d) > k:
+            few = np.flatnonzero(d <= np.partition(d, k - 1)[k - 1])
+            return [self.names[i] for i in few[np.argsort(d[few], kind="stable")][:k]]
         return [self.names[i] for i in np.argsort(d, kind="stable")[:k]]
 
     def nearest(self, x: float, y: float) -> tuple[float, tuple[str, str] | None, float]:

@@ -34,7 +34,62 @@ DEFAULT_VCLASS = "passenger"
 #: How many shortest paths a roadmap remembers (the oldest is forgotten first).
 PATH_MEMO = 65536
 
+#: Roadmaps with at least this many nodes answer :meth:`Roadmap.nearest_node` from a grid of
+#: buckets (:class:`_NodeGrid`) instead of testing every node: the same node, far faster on the
+#: floors of thousands of robots, which ask once per robot and charger.
+GRID_FROM_NODES = 256
+
 _Node = TypeVar("_Node", bound=Hashable)
+
+
+class _NodeGrid:
+    """Node positions in square buckets, for the nearest node to a point: the node of least
+    squared distance, ties to the lower index, exactly as the whole-array ``argmin`` gives it
+    (the candidates' squared distances are the same NumPy expression over the same values).
+    """
+
+    def __init__(self, xy: np.ndarray) -> None:
+        self.xy = xy
+        lo = xy.min(axis=0)
+        span = np.maximum(xy.max(axis=0) - lo, 1e-9)
+        # about two nodes per bucket
+        self.cell = float(max(math.sqrt(float(span[0] * span[1]) * 2.0 / len(xy)), 1e-6))
+        self.lo = lo
+        self.shape = (int(span[0] // self.cell) + 1, int(span[1] // self.cell) + 1)
+        ij = np.minimum(((xy - lo) // self.cell).astype(np.int64), np.array(self.shape) - 1)
+        key = ij[:, 0] * self.shape[1] + ij[:, 1]
+        order = np.argsort(key, kind="stable")
+        self.order = order
+        self.starts = np.searchsorted(key[order], np.arange(self.shape[0] * self.shape[1] + 1))
+        self._blocks: dict[tuple[int, int], np.ndarray] = {}
+
+    def _block(self, ci: int, cj: int) -> np.ndarray:
+        """Indexes (ascending) of the nodes in the 3 x 3 buckets around bucket ``(ci, cj)``."""
+        got = self._blocks.get((ci, cj))
+        if got is None:
+            nx_, ny_ = self.shape
+            parts = [
+                self.order[self.starts[i * ny_ + j] : self.starts[i * ny_ + j + 1]]
+                for i in range(max(0, ci - 1), min(nx_, ci + 2))
+                for j in range(max(0, cj - 1), min(ny_, cj + 2))
+            ]
+            got = self._blocks[(ci, cj)] = np.sort(np.concatenate(parts))
+        return got
+
+    def nearest(self, x: float, y: float) -> int:
+        """Index of the node nearest ``(x, y)`` (see the class docstring): from the 3 x 3
+        buckets around the point when the best of them is nearer than a bucket's width
+        (every node outside them is at least that far), else from every node."""
+        ci = min(max(int((x - self.lo[0]) // self.cell), 0), self.shape[0] - 1)
+        cj = min(max(int((y - self.lo[1]) // self.cell), 0), self.shape[1] - 1)
+        idx = self._block(ci, cj)
+        if len(idx):
+            d2 = (self.xy[idx, 0] - x) ** 2 + (self.xy[idx, 1] - y) ** 2
+            k = int(np.argmin(d2))
+            if math.sqrt(float(d2[k])) * (1 + 1e-9) + 1e-9 < self.cell:
+                return int(idx[k])
+        d2 = (self.xy[:, 0] - x) ** 2 + (self.xy[:, 1] - y) ** 2
+        return int(np.argmin(d2))
 
 
 class Roadmap:
@@ -61,6 +116,7 @@ class Roadmap:
         #: Shortest paths already found (the graph is read-only): route copies and patrol
         #: loops ask for the same legs again and again. Bounded by :data:`PATH_MEMO`.
         self._paths: dict[tuple[str, str], tuple[str, ...]] = {}
+        self._grid: _NodeGrid | None = None  # built on the first nearest-node query of a big roadmap
 
     # ------------------------------------------------------------------ constructors
 
@@ -284,8 +340,12 @@ class Roadmap:
         """
         if not self._names:
             raise ValueError("the roadmap has no nodes")
-        d2 = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
-        return self._names[int(np.argmin(d2))]
+        if len(self._names) < GRID_FROM_NODES:
+            d2 = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
+            return self._names[int(np.argmin(d2))]
+        if self._grid is None:
+            self._grid = _NodeGrid(self._xy)
+        return self._names[self._grid.nearest(x, y)]
 
     def shortest_path(self, a: str, b: str) -> list[str]:
         """Node names of a shortest path (by edge ``length``) from ``a`` to ``b``, both included.

@@ -77,6 +77,7 @@ from fleet.diagnostics import (
 )
 from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
 from fleet.runtime.agent_bus import AgentBus, ControlBus, Declared
+from fleet.runtime.charger_index import nearest_charger
 from fleet.runtime.order_gate import OrderGate
 from fleet.runtime.status_record import TreeView, observation, status_changed
 from fleet.runtime.watched import WatchedBackend, wake_aware
@@ -125,6 +126,8 @@ class RobotAgent:
             process and hands them over with :meth:`deliver` / :meth:`deliver_grant`).
         status_max_period_s: publish on change, and at least this often (simulated s, > 0);
             ``None``: publish at every ``status_hz`` period whether or not anything changed.
+        clear_blackboard: clear what an earlier agent of ``namespace`` left on the blackboard;
+            ``False``: the caller did (:func:`nodes.blackboard.clear_robot_blackboards`).
 
     ``published`` counts the records published on the bus.
     """
@@ -147,6 +150,7 @@ class RobotAgent:
         chargers: Sequence[Pose2D] = (),
         leases: Callable[[], Lease | None] | None = None,
         status_max_period_s: float | None = None,
+        clear_blackboard: bool = True,
     ) -> None:
         from fleet.robots import BatteryModel
         from nodes.blackboard import clear_robot_blackboard, robot_blackboard
@@ -170,9 +174,8 @@ class RobotAgent:
         self._last_published: float | None = None
         self._last_sent: StatusRecord | None = None
         self.published = 0
-        # py_trees' blackboard is process-global: start from the defaults, not from what an
-        # earlier agent of the same namespace in this process left behind
-        clear_robot_blackboard(self.namespace)
+        if clear_blackboard:  # the blackboard is process-global: not what an earlier agent left
+            clear_robot_blackboard(self.namespace)
         self.bb = robot_blackboard(self.namespace, name=f"agent{self.namespace}")
         self.traffic = traffic
         battery = battery_model or BatteryModel()
@@ -367,9 +370,7 @@ class RobotAgent:
     def _default_charger(self, pose: Pose2D | None) -> None:
         """Set the blackboard ``charger`` to the config charger nearest ``pose`` (the robot's)."""
         if pose is not None:
-            self.bb.charger = min(
-                self.chargers, key=lambda c: (abs(c.x - pose.x) + abs(c.y - pose.y), c.x, c.y)
-            )
+            self.bb.charger = nearest_charger(self.chargers, pose)
 
     def tick(self, tree: bool = True) -> StatusRecord:
         """Apply queued orders, check the safety watchdog, tick the tree once (unless the

@@ -201,6 +201,8 @@ class ReportBuilder:
     local: Sequence[str]
     t0: float = 0.0
     t_end: float | None = None
+    #: Laps per robot of the report being built (asked of the coordinator once, not per row).
+    _laps: dict[str, int] = field(default_factory=dict, init=False, repr=False)
 
     # long: one keyword per part of the report, passed straight through
     def build(
@@ -233,6 +235,7 @@ class ReportBuilder:
         well-formed messages it ignored: orders and grants not from the live coordinator,
         clock and navigation states not from a live simulator (``docs/protocol.md``)."""
         names = [r.name for r in self.config.robots if r.name in records or r.name in self.local]
+        self._laps = state.laps_by_robot() if state is not None else {}
         rows = [self._row(n, records.get(n), state, charges or {}, min_battery or {}) for n in names]
         fleet_goals = _merge_goals(rows, goals or {})
         for row in rows:
@@ -297,7 +300,7 @@ class ReportBuilder:
         spec = self.config.robot(name)
         dead = state is not None and name in state.robots and not state.robots[name].alive
         if state is not None:
-            laps = state.laps_by_robot().get(name, 0)
+            laps = self._laps.get(name, 0)
         else:
             laps = int(rec.laps) if rec is not None else 0
         return RobotReport(

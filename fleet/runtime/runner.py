@@ -48,6 +48,7 @@ from fleet.runtime.backends import world_factory
 from fleet.runtime.latch import Latch, LatchedBackend, WorldLatch
 from fleet.runtime.report import ReportBuilder, RunReport
 from fleet.runtime.scheduler import TickScheduler
+from fleet.runtime.setup_progress import SetupProgress
 from fleet.runtime.trajectory import BusView
 from fleet.runtime.worlds import World, WorldFactory
 from fleet.types import Mode, TreeKind
@@ -205,6 +206,9 @@ class FleetRunner:
         #: Called as ``observer(sim_time, runner)`` once per agent tick, after the agents and
         #: the coordinator cycle (e.g. to sample fleet metrics; see :mod:`fleet.loadtest`).
         self.observers: list[Callable[[float, FleetRunner], None]] = []
+        #: Called with a line on each phase of the set-up (world, coordinator, agents every few
+        #: wall seconds), which takes minutes for thousands of robots; ``None``: silent.
+        self.on_setup: Callable[[str], None] | None = None
 
     # -- the run -------------------------------------------------------------------------
 
@@ -265,11 +269,13 @@ class FleetRunner:
         batch = self.config.status_batch and len(specs) > 1 and self.secure is None
         self.bus = StatusBus(session, batch_source=process_batch_source() if batch else None)
         self.bus.subscribe_statuses(self.bus_view.see)
-        guard = self.bus.guard_orders(self.agent_names)  # counts what arrives while we start
+        guard = self.bus.guard_orders(self.agent_names, wildcard=self.secure is None)  # counts early orders
+        phase = SetupProgress(self.on_setup, self._wall)
         self.world = world = factory(self.config, specs, session)
         keep_state = getattr(world, "keep_state", None)
         if self.state_dir is not None and callable(keep_state):
             keep_state(self.state_dir)  # an in-process simulator resumes its robots, and keeps them
+        phase.done(f"world: {len(specs)} robots")
         sim = getattr(world, "sim", None)
         self._world_latch = (
             WorldLatch(self.latch, sim) if sim is not None and hasattr(sim, "fault_of") else None
@@ -283,7 +289,16 @@ class FleetRunner:
             self.lease_watch = LeaseWatch(session)
         if self.run_coordinator:
             self.coordinator = self._make_coordinator(world, self.bus)
-        self.agents = [self._make_agent(spec.namespace, world, self.bus) for spec in specs]
+            phase.done("coordinator" + (" and traffic manager" if self.traffic else ""))
+        from nodes.blackboard import clear_robot_blackboards
+
+        clear_robot_blackboards(s.namespace for s in specs)  # one pass, not one per agent
+        self._charger_poses = tuple(c.pose for c in self.config.chargers)  # shared by the agents
+        self.agents = []
+        for spec in specs:
+            self.agents.append(self._make_agent(spec.namespace, world, self.bus))
+            phase.every(f"agents: {len(self.agents)} of {len(specs)}")
+        phase.done(f"agents: {len(specs)}")
         self.scheduler = TickScheduler(
             self.agents, [world.backend(s.namespace) for s in specs], mode=self.ticking
         )
@@ -380,8 +395,9 @@ class FleetRunner:
             status_hz=self.config.status_hz,
             status_max_period_s=self.config.status_max_period_s,
             tree_file=self.tree_file,
-            chargers=[c.pose for c in self.config.chargers],
+            chargers=self._charger_poses,
             leases=self.lease_watch.current if self.lease_watch is not None else None,
+            clear_blackboard=False,  # _setup cleared every local namespace in one pass
         )
         if self.coordinator is not None:  # every tick's status, as the coordinator reads it
             agent.on_observation = self.coordinator.feed_observation

@@ -229,3 +229,27 @@ def test_open_session_errors_are_clear(zenoh_endpoint: str) -> None:
             open_session(zenoh_endpoint, "router")
     with pytest.raises(BusError, match="bad Zenoh endpoint"):
         open_session("127.0.0.1:7447", "router")
+
+
+@pytest.mark.parametrize("wildcard", [False, True])
+def test_early_orders_are_guarded_per_robot_or_by_wildcard_alike(zenoh_endpoint: str, wildcard: bool) -> None:
+    """Before the agents subscribe, orders and grants for this process's robots are counted
+    (valid ones in ``early``, bad ones in ``malformed`` with the key named); other robots' keys
+    are not this process's business. Two wildcard subscribers count what one per key counts."""
+    with open_session(zenoh_endpoint, "router") as router, open_session(zenoh_endpoint, "client") as client:
+        bus = StatusBus(router)
+        try:
+            guard = bus.guard_orders(["r1", "r2"], wildcard=wildcard)
+            idle = TaskMessage(None, "idle", "r1").to_json()
+            settle(lambda: client.put(task_key("r1"), idle), lambda: bus.early > 0, 30, "an early order")
+            before = bus.early
+            client.put(task_key("r9"), idle)  # not one of ours (sent first: the wildcard
+            client.put(task_key("r9"), b"{not json")  # subscriber takes fleet/*/task in order)
+            client.put(grant_key("r2"), Grant("r2", 1, 0, "a", (), ()).to_json())
+            client.put(task_key("r2"), b"{not json")
+            wait_until(lambda: bus.early == before + 1 and bus.malformed == 1, 30, "one grant, one bad task")
+            assert bus.last_malformed.startswith("fleet/r2/task: ")
+            guard.undeclare()
+        finally:
+            bus.shutdown()
+        assert bus.malformed == 1
