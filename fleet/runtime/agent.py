@@ -596,6 +596,4 @@ def _check_rate(name: str, value: float | None, unit: str) -> None:
 
 
 def _pose(p: Pose2D | Iterable[float]) -> Pose2D:
-    if isinstance(p, Pose2D):
-        return p
-    return Pose2D(*(float(v) for v in p))
+    return p if isinstance(p, Pose2D) else Pose2D(*(float(v) for v in p))

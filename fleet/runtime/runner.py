@@ -35,7 +35,7 @@ from __future__ import annotations
 import logging
 import sys
 import threading
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
@@ -45,8 +45,9 @@ from fleet.errors import BackendError, ConfigError
 from fleet.messages import StatusRecord
 from fleet.runtime.arguments import check_args
 from fleet.runtime.backends import world_factory
+from fleet.runtime.closing import close_logged
 from fleet.runtime.latch import Latch, LatchedBackend, WorldLatch
-from fleet.runtime.report import ReportBuilder, RunReport
+from fleet.runtime.report import ReportBuilder, RunReport, sum_counts
 from fleet.runtime.scheduler import TickScheduler
 from fleet.runtime.setup_progress import SetupProgress
 from fleet.runtime.trajectory import BusView
@@ -540,7 +541,7 @@ class FleetRunner:
             goals={name: log.metrics for name, log in self.goal_logs.items()},
             safety_stops={a.name: a.watchdog.trips for a in self.agents},
             min_battery={a.name: a.min_battery for a in self.agents},
-            mode_ticks=_sum_counts(a.mode_ticks for a in self.agents),
+            mode_ticks=sum_counts(a.mode_ticks for a in self.agents),
             bus_trajectory=self.bus_view.trajectory,
             malformed=self.malformed(),
             rejected=self.rejected(),
@@ -573,38 +574,21 @@ class FleetRunner:
 
     def _close(self, session: zenoh.Session) -> None:
         if self.host is not None:
-            _try(self.host.close, "closing the task service")
+            close_logged(self.host.close, "closing the task service", logger)
         for a in self.agents:
-            _try(a.close, f"closing agent {a.name}")
+            close_logged(a.close, f"closing agent {a.name}", logger)
         if self.lease_watch is not None:
-            _try(self.lease_watch.close, "closing the lease watch")
+            close_logged(self.lease_watch.close, "closing the lease watch", logger)
         if self.lease is not None:
-            _try(self.lease.release, "releasing the coordinator lease")
+            close_logged(self.lease.release, "releasing the coordinator lease", logger)
         if self.world is not None:
-            _try(self.world.close, "closing the backend")
+            close_logged(self.world.close, "closing the backend", logger)
         if self.bus is not None:
-            _try(self.bus.close, "closing the bus")
+            close_logged(self.bus.close, "closing the bus", logger)
         try:
             session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves Session.close unannotated
         except Exception as e:  # noqa: BLE001 - already closed by the bus
             logger.debug("closing the session: %s", e)
-
-
-def _sum_counts(counts: Iterable[Mapping[str, int]]) -> dict[str, int]:
-    """Key-wise sum of count mappings."""
-    out: dict[str, int] = {}
-    for c in counts:
-        for k, v in c.items():
-            out[k] = out.get(k, 0) + v
-    return out
-
-
-def _try(close: Callable[[], None], what: str) -> None:
-    """Call ``close``; log (not raise) what goes wrong, so the rest still gets closed."""
-    try:
-        close()
-    except Exception as e:  # noqa: BLE001 - keep closing the rest
-        logger.warning("%s: %s", what, e)
 
 
 __all__ = ["FleetRunner"]

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from fleet.errors import ConfigError
 from fleet.messages import FleetControl
+from fleet.runtime.closing import close_logged
 from fleet.service.records import iso
 from fleet.service.service import TaskService
 from fleet.service.store import TaskStore
@@ -182,10 +183,7 @@ class ServiceHost:
         if self.face is not None:
             closers.append(self.face.close)
         for close in closers:
-            try:
-                close()
-            except Exception as e:  # noqa: BLE001 - keep closing the rest
-                logger.warning("closing the task service: %s", e)
+            close_logged(close, "closing the task service", logger)
         self.api = None
         self.face = None
         if self.store is not None:
