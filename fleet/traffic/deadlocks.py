@@ -14,16 +14,12 @@ import math
 
 import networkx as nx
 
-from fleet.traffic.grants import moves_ahead
 from fleet.traffic.paths import install, next_must, splice
 from fleet.traffic.reservations import Resource, edge_key
 from fleet.traffic.state import TrackedRobot, TrafficState
 
 #: How many of another robot's next path nodes a robot stepping aside must not stop on.
 SIDESTEP_CLEAR_NODES = 12
-#: A node off every robot's next path nodes is looked for at most this many edges away (a
-#: longer side step is a long detour; on the 6-robot warehouse 3-4 edges cost a robot a lap).
-SIDESTEP_CLEAR_DEPTH = 2
 
 
 def cycles(st: TrafficState, now: float = math.inf, min_wait: float = -math.inf) -> list[set[str]]:
@@ -176,32 +172,18 @@ def reroute(st: TrafficState, r: TrackedRobot, avoid: set[str], now: float, boun
 
 def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | None:
     """Nodes from ``r``'s grant end to the nearest node within ``sidestep_depth`` edges that
-    is reachable over free nodes and edges, not on the next part of ``others``' paths and,
-    where such a node exists within :data:`SIDESTEP_CLEAR_DEPTH` edges, not on the next :data:`~fleet.traffic.params.ONCOMING_NODES`
-    path nodes of any other robot either. Without that last rule a robot stepped into the
-    aisle or onto the corridor node a third robot was about to enter from the other side:
-    on the 100-robot load test nearly every deadlock episode was such a side step meeting
-    that robot head-on (``bench/deadlock_shapes.py``)."""
+    is reachable over free nodes and edges and not on the next part of ``others``' paths."""
+    start = r.path[r.g]
     avoid: set[str] = set()
     for o in others:
         orr = st.robots.get(o)
         if orr is not None:
             avoid.update(orr.path[orr.cur : orr.cur + SIDESTEP_CLEAR_NODES])
-    busy = {b for (_, b), who in moves_ahead(st).items() if len(who) > 1 or r.name not in who}
-    return _aside_avoiding(st, r, avoid | busy, SIDESTEP_CLEAR_DEPTH) or _aside_avoiding(
-        st, r, avoid, st.params.sidestep_depth
-    )
-
-
-def _aside_avoiding(st: TrafficState, r: TrackedRobot, avoid: set[str], depth: int) -> list[str] | None:
-    """The way of :func:`_aside` to the nearest node not in ``avoid``, at most ``depth``
-    edges away."""
-    start = r.path[r.g]
     holder, adj, claims = st.table.holder, st.roads.adj, st.claims
     parent: dict[str, str] = {start: start}
     frontier = [start]
     target = None
-    for _ in range(depth):
+    for _ in range(st.params.sidestep_depth):
         nxt: list[str] = []
         for u in frontier:
             for v in adj[u]:

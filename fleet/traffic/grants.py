@@ -72,23 +72,6 @@ def following(st: TrafficState, r: TrackedRobot, out: list[int]) -> bool:
     return st.roads.deg[far] == 2 or not oncoming(st, r, far, path[out[-2]])
 
 
-def leaving_corridor(st: TrafficState, r: TrackedRobot, idx: list[int]) -> set[str]:
-    """The robots ``r`` must let out first when its next block ``idx`` is a junction alone
-    and its path goes on from there into a single-lane corridor: the live robots whose next
-    :data:`ONCOMING_NODES` path nodes come out of that corridor into the junction. Taking the
-    junction would close their way out while ``r`` waits for the corridor they stand in (on
-    the 100-robot load test a robot that had stepped aside into an aisle met, on its way
-    back, a robot leaving a charger for the same aisle mouth)."""
-    j = idx[0]
-    path, deg = r.path, st.roads.deg
-    if len(idx) != 1 or j + 1 >= len(path) or deg[path[j]] <= 2 or deg[path[j + 1]] != 2:
-        return set()
-    who = moves_ahead(st).get((path[j + 1], path[j]))
-    if not who:
-        return set()
-    return {n for n in who if n != r.name}
-
-
 def oncoming(st: TrafficState, r: TrackedRobot, far: str, last: str) -> bool:
     """Whether another live robot's next :data:`ONCOMING_NODES` path nodes go from the
     junction ``far`` into the corridor node ``last`` (the opposite way to ``r``)."""
@@ -142,10 +125,6 @@ def extend(st: TrafficState, r: TrackedRobot, now: float) -> None:
             h = table.holder(x)
             if h is not None:
                 blockers.add(h)
-        coming = leaving_corridor(st, r, idx)
-        if coming:
-            bad.append(path[idx[0]])
-            blockers |= coming
         for x in res:
             cl = claims.get(x)
             if cl is not None and cl != name and cl in robots and robots[cl].alive:

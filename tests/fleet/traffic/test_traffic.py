@@ -274,9 +274,6 @@ def _two_way_standoff() -> tuple[TrafficManager, Roadmap]:
     tm.add_robot("A", Pose2D(0, 0), 0.0)
     tm.add_robot("B", Pose2D(6, 0), 0.0)
     tm.set_path("A", ["a", "b", "c", "d"], 0.0)
-    # B gets its path once A holds the junction b (given both at once, A would wait at a
-    # and let B out of the corridor first: fleet.traffic.grants.leaving_corridor)
-    tm.cycle(0.0)
     tm.set_path("B", ["d", "c", "b", "a"], 0.0)
     return tm, rm
 
