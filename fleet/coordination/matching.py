@@ -73,9 +73,10 @@ def travel_costs(
 
     Tasks with the same entries (route copies) are priced once, and each task's padding (its
     last entry repeated up to the widest task) is left out: the cheapest entry (the first of
-    equal ones) and its cost are those of :func:`travel_costs_rows`, float for float. The
-    widest task of a load-test floor (its perimeter loop, thousands of nodes) made the padded
-    rows robots x tasks x thousands."""
+    equal ones) and its cost are those of pricing every padded entry of every task per robot
+    (the code this replaced; ``tests/fleet/coordination/test_matching_scale.py`` keeps it as
+    the reference), float for float. The widest task of a load-test floor (its perimeter
+    loop, thousands of nodes) made the padded rows robots x tasks x thousands."""
     roadmap = distances.roadmap
     n_tasks, width = entry_idx.shape
     both = np.concatenate([entry_idx.astype(float), entry_off], axis=1)
@@ -106,39 +107,6 @@ def travel_costs(
         c = snap + d[first] + flat_off[first] if offsets else snap + d[first]
         costs[i] = c[inverse]
         entry[i] = k[inverse]
-    return costs, entry
-
-
-def travel_costs_rows(
-    distances: Distances,
-    poses: Sequence[Pose2D],
-    entry_idx: IndexMatrix,
-    entry_off: FloatMatrix,
-    offsets: bool = True,
-) -> tuple[FloatMatrix, IndexMatrix]:
-    """The reference of :func:`travel_costs` (every padded entry of every task, per robot;
-    kept to test the fast one against). Travel costs (m) ``[robot, task]`` from ``poses`` (one per robot, map frame) to tasks
-    given by their entry nodes ``entry_idx[task, k]`` (indexes in ``distances``) and extra
-    distances ``entry_off[task, k]``, and the entry ``k`` each robot would start at.
-    ``offsets=False`` promises ``entry_off`` is all zeros (it is then skipped). ``inf``:
-    unreachable."""
-    roadmap = distances.roadmap
-    n_tasks = entry_idx.shape[0]
-    costs = np.full((len(poses), n_tasks), np.inf)
-    entry = np.zeros((len(poses), n_tasks), dtype=np.int64)
-    cols = np.arange(n_tasks)
-    for i, pose in enumerate(poses):
-        start = roadmap.nearest_node(pose.x, pose.y)
-        sx, sy = roadmap.pos(start)
-        d = distances.row(start)[entry_idx]
-        snap = math.hypot(sx - pose.x, sy - pose.y)
-        if offsets:
-            k = np.argmin(d + entry_off, axis=1)
-            costs[i] = snap + d[cols, k] + entry_off[cols, k]
-        else:
-            k = np.argmin(d, axis=1)
-            costs[i] = snap + d[cols, k]
-        entry[i] = k
     return costs, entry
 
 
@@ -189,11 +157,11 @@ def greedy_match(ranks: FloatMatrix) -> list[tuple[int, int]]:
     (row-major). Returns ``(row, column)`` pairs in matching order.
 
     The pairs and their order are those of taking the entries in the order of a stable sort of
-    the whole matrix (:func:`greedy_match_sorted`), without sorting it: each row offers its
-    cheapest few columns (:data:`ROW_CANDIDATES`, ties at the last included), sorted by
-    ``(rank, column)``; a heap merges the rows by ``(rank, flat index)``; a row whose offered
-    columns are all taken offers twice as many of its cheapest free ones. Time about one pass over the
-    matrix plus ``n log n``, instead of sorting ``rows x columns`` entries (10,000 x 10,000 for
+    the whole matrix (the reference kept in ``tests/fleet/coordination/test_matching_scale.py``),
+    without sorting it: each row offers its cheapest few columns (:data:`ROW_CANDIDATES`, ties
+    at the last included), sorted by ``(rank, column)``; a heap merges the rows by ``(rank,
+    flat index)``; a row whose offered columns are all taken offers twice as many of its
+    cheapest free ones. Time about one pass over the matrix plus ``n log n``, instead of sorting ``rows x columns`` entries (10,000 x 10,000 for
     a 10,000-robot fleet's first assignment)."""
     n_rows, n_cols = ranks.shape
     pairs: list[tuple[int, int]] = []
@@ -252,28 +220,6 @@ def _offer(
     offers[i] = [int(j) for j in free[order[::-1]]]
     k = offers[i][-1]
     heapq.heappush(heap, (float(row[k]), i * ranks.shape[1] + k, i))
-
-
-def greedy_match_sorted(ranks: FloatMatrix) -> list[tuple[int, int]]:
-    """The reference of :func:`greedy_match`: a stable sort of every entry, then one pass
-    (time and memory of the whole sorted matrix; kept to test the fast one against)."""
-    n_rows, n_cols = ranks.shape
-    pairs: list[tuple[int, int]] = []
-    used_r: set[int] = set()
-    used_c: set[int] = set()
-    n = min(n_rows, n_cols)
-    if n == 0:
-        return pairs
-    for f in np.argsort(ranks, axis=None, kind="stable"):
-        i, j = divmod(int(f), n_cols)
-        if i in used_r or j in used_c or not math.isfinite(ranks[i, j]):
-            continue
-        used_r.add(i)
-        used_c.add(j)
-        pairs.append((i, j))
-        if len(pairs) == n:
-            break
-    return pairs
 
 
 class ChargerAllocation:

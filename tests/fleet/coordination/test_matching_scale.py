@@ -5,6 +5,7 @@ made in one array pass, the on-charger test from buckets."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from hypothesis import given, settings
@@ -15,13 +16,65 @@ from fleet.coordination.matching import (
     SHARE_PENALTY_M,
     ChargerAllocation,
     greedy_match,
-    greedy_match_sorted,
     travel_costs,
 )
+from fleet.coordination.tasks import FloatMatrix, IndexMatrix
 from fleet.coordination.views import Observation, RobotView
 from fleet.roadmap.distances import Distances
 from fleet.roadmap.graph import Roadmap
 from fleet.types import Mode, Pose2D
+
+
+def _travel_costs_rows(
+    distances: Distances,
+    poses: Sequence[Pose2D],
+    entry_idx: IndexMatrix,
+    entry_off: FloatMatrix,
+    offsets: bool = True,
+) -> tuple[FloatMatrix, IndexMatrix]:
+    """The reference of :func:`~fleet.coordination.matching.travel_costs`, the code it
+    replaced: every padded entry of every task priced per robot (same arguments, same
+    results)."""
+    roadmap = distances.roadmap
+    n_tasks = entry_idx.shape[0]
+    costs = np.full((len(poses), n_tasks), np.inf)
+    entry = np.zeros((len(poses), n_tasks), dtype=np.int64)
+    cols = np.arange(n_tasks)
+    for i, pose in enumerate(poses):
+        start = roadmap.nearest_node(pose.x, pose.y)
+        sx, sy = roadmap.pos(start)
+        d = distances.row(start)[entry_idx]
+        snap = math.hypot(sx - pose.x, sy - pose.y)
+        if offsets:
+            k = np.argmin(d + entry_off, axis=1)
+            costs[i] = snap + d[cols, k] + entry_off[cols, k]
+        else:
+            k = np.argmin(d, axis=1)
+            costs[i] = snap + d[cols, k]
+        entry[i] = k
+    return costs, entry
+
+
+def _greedy_match_sorted(ranks: FloatMatrix) -> list[tuple[int, int]]:
+    """The reference of :func:`~fleet.coordination.matching.greedy_match` (the code it
+    replaced): a stable sort of every entry, then one pass."""
+    n_rows, n_cols = ranks.shape
+    pairs: list[tuple[int, int]] = []
+    used_r: set[int] = set()
+    used_c: set[int] = set()
+    n = min(n_rows, n_cols)
+    if n == 0:
+        return pairs
+    for f in np.argsort(ranks, axis=None, kind="stable"):
+        i, j = divmod(int(f), n_cols)
+        if i in used_r or j in used_c or not math.isfinite(ranks[i, j]):
+            continue
+        used_r.add(i)
+        used_c.add(j)
+        pairs.append((i, j))
+        if len(pairs) == n:
+            break
+    return pairs
 
 
 @settings(max_examples=300, deadline=None)
@@ -42,7 +95,7 @@ def test_greedy_match_equals_the_whole_sorted_matrix(
     ranks[rng.random((rows, cols)) < inf_share] = math.inf
     if rows and cols and seed % 3 == 0:
         ranks[rng.integers(0, rows), rng.integers(0, cols)] = -1e9  # a preferred robot
-    assert greedy_match(ranks) == greedy_match_sorted(ranks)
+    assert greedy_match(ranks) == _greedy_match_sorted(ranks)
 
 
 def test_greedy_match_equals_the_sorted_matrix_on_a_fleet_sized_one() -> None:
@@ -51,7 +104,7 @@ def test_greedy_match_equals_the_sorted_matrix_on_a_fleet_sized_one() -> None:
     base = rng.uniform(0, 300, size=(400, 40)).round(1)
     ranks = np.repeat(base, 10, axis=1)  # 40 loops, 10 copies each
     ranks[rng.random(ranks.shape) < 0.01] = math.inf
-    assert greedy_match(ranks) == greedy_match_sorted(ranks)
+    assert greedy_match(ranks) == _greedy_match_sorted(ranks)
 
 
 def _grid_roadmap(n: int) -> Roadmap:
@@ -156,8 +209,6 @@ def test_nearest_charger_equals_min_over_the_chargers(seed: int) -> None:
 def test_travel_costs_equal_the_padded_rows(seed: int, offsets: bool) -> None:
     """Route copies (equal rows), padded rows of several widths, ties between entries,
     unreachable nodes: the same costs and entries, float for float."""
-    from fleet.coordination.matching import travel_costs_rows
-
     rm = _grid_roadmap(12)
     island = Roadmap.from_config_dict(
         {
@@ -183,5 +234,5 @@ def test_travel_costs_equal_the_padded_rows(seed: int, offsets: bool) -> None:
         m[r, : len(idx)], o[r, : len(off)] = idx, off
     poses = [Pose2D(float(x), float(y), 0.0) for x, y in rng.uniform(-5, 120, (6, 2))]
     c1, e1 = travel_costs(d, poses, m, o, offsets)
-    c2, e2 = travel_costs_rows(d, poses, m, o, offsets)
+    c2, e2 = _travel_costs_rows(d, poses, m, o, offsets)
     assert np.array_equal(c1, c2) and np.array_equal(e1, e2)
