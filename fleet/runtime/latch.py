@@ -166,6 +166,5 @@ class LatchedBackend:
             self.inner.cancel_goal(goal_id)
 
     def robot_state(self) -> RobotState:
-        if self.latch.version != self._seen_version:
-            self._check()
+        self._check()
         return self._read_state()
