@@ -44,11 +44,22 @@ DEFAULT_STATE_ROOT = Path("out") / "state"
 
 
 def default_state_dir(config: FleetConfig) -> Path:
-    """``out/state/<fleet>-<UTC time>-<pid>`` (the root may be moved with ``$FLEET_STATE_ROOT``):
-    a new book per run (resume one with ``--state``)."""
+    """A new, empty ``out/state/<fleet>-<UTC time>-<pid>[-<n>]`` (the root may be moved with
+    ``$FLEET_STATE_ROOT``): a new book per run (resume one with ``--state``). The directory is
+    created here, so two runs started in the same second by one process never share (and so
+    never resume) a book."""
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%d-%H%M%S")
     root = Path(os.environ.get("FLEET_STATE_ROOT") or DEFAULT_STATE_ROOT)
-    return root / f"{config.name}-{stamp}-{os.getpid()}"
+    root.mkdir(parents=True, exist_ok=True)
+    base = f"{config.name}-{stamp}-{os.getpid()}"
+    for n in range(1, 10_000):
+        path = root / (base if n == 1 else f"{base}-{n}")
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue
+        return path
+    raise ConfigError(str(root), "state", "no new state directory could be made here")
 
 
 def traffic_view(policy: ReservationTraffic) -> Callable[[], dict[str, Any]]:

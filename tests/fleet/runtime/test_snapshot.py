@@ -82,3 +82,20 @@ def test_a_robot_docked_at_the_kill_is_charging_at_its_agents_first_look(tmp_pat
     with pytest.raises(ConfigError) as e:
         resume_simulator(config, tmp_path)
     assert e.value.field == "robots.robot1.charging"
+
+
+def test_runs_started_in_the_same_second_each_get_a_new_state_directory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without ``--state`` every run gets its own empty book: a second run of the same process
+    in the same second must not resume the first one's robots (this once made a run start at
+    the previous run's end time)."""
+    from fleet.runtime.service_host import default_state_dir
+
+    monkeypatch.setenv("FLEET_STATE_ROOT", str(tmp_path))
+    config = load_config(PATROL)
+    dirs = [default_state_dir(config) for _ in range(3)]
+    assert len(set(dirs)) == 3
+    for d in dirs:
+        assert d.is_dir() and not any(d.iterdir())
+        assert d.parent == tmp_path and d.name.startswith(config.name)
