@@ -171,9 +171,16 @@ def test_goals_refused_until_startup_which_stops_at_the_failing_node(
 
 
 def test_lifecycle_shutdown_finalizes_and_refuses_goals(cold_server: ServerProcess, ros_context: Any) -> None:
+    """Stands on its own: robot1 is brought up here (a STARTUP of an active graph is a no-op),
+    whatever the tests before it left; each manager is addressed by name, so the shutdown
+    below does not depend on how much of the graph discovery had shown this client yet."""
+    from nav2_msgs.srv import ManageLifecycleNodes
+
     nav = Commander("/robot1", ros_context)
     try:
-        nav.setInitialPose(_ps(1.0, 4.0))
+        for manager in ("lifecycle_manager_localization", "lifecycle_manager_navigation"):
+            assert _manage(nav, manager, ManageLifecycleNodes.Request.STARTUP), manager
+        nav.setInitialPose(pose2d_to_pose_stamped(start_pose("/robot1")))
         nav.waitUntilNav2Active()
         results = nav.lifecycleShutdown()
         assert results.get("/robot1/lifecycle_manager_navigation/manage_nodes") is True, results
