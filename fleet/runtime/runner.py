@@ -520,8 +520,9 @@ class FleetRunner:
             duration_s=self.duration,
             laps=st.laps_completed() if st is not None else None,
             charging=sum(1 for r in recs if r.mode == Mode.CHARGING),
-            # a remote simulator's clock is the fleet's, which ran before this process
-            clock_s=world.clock.now() if world is not None and world.remote else None,
+            # a remote simulator's clock is the fleet's, which ran before this process; so is a
+            # simulator resumed from --state (its clock starts where the killed run left it)
+            clock_s=world.clock.now() if world is not None and (world.remote or self._t0 > 0) else None,
         )
 
     def _report(self, world: World, wall_s: float, interrupted: bool) -> RunReport:

@@ -20,6 +20,9 @@ from fleet.runtime.snapshot import SNAPSHOT_FILE, SimSnapshot, read
 
 #: Hang guard (wall s) of each wait: a few seconds on an idle machine.
 WAIT_S = 180.0
+#: Simulated s the first run runs before the kill: more than a paced restart (speed 5) reaches
+#: by its first progress line (5 wall s), so a line counting from the restart would show less.
+RAN_S = 40.0
 #: Meters a robot's saved pose must be from its start pose for the resume to show.
 AWAY_M = 2.0
 
@@ -42,11 +45,17 @@ def test_kill_9_of_fleet_run_resumes_robots_batteries_and_clock(tmp_path: Path) 
 
         def away() -> bool:
             snap = _snapshot(path) if path.exists() else None
-            return snap is not None and all(
-                n in snap.robots and snap.robots[n].pose.distance_to(starts[n]) > AWAY_M for n in starts
+            return (
+                snap is not None
+                and snap.t > RAN_S
+                and all(
+                    n in snap.robots and snap.robots[n].pose.distance_to(starts[n]) > AWAY_M for n in starts
+                )
             )
 
-        wait_for(away, WAIT_S, f"both robots {AWAY_M} m from their start poses in {path}", step=0.2)
+        wait_for(
+            away, WAIT_S, f"t > {RAN_S} s, both robots {AWAY_M} m from their start poses in {path}", step=0.2
+        )
         first.send_signal(signal.SIGKILL)
         assert first.wait(timeout=WAIT_S) == -signal.SIGKILL
         before = _snapshot(path)
@@ -81,6 +90,10 @@ def test_kill_9_of_fleet_run_resumes_robots_batteries_and_clock(tmp_path: Path) 
                 WAIT_S,
                 "both robots on tasks again",
             )
+            # its progress lines count on the fleet's clock too, as its event lines do
+            line = output(again).wait_line(" s sim, ", WAIT_S)
+            shown = float(line.split("t=", 1)[1].split(" s sim", 1)[0])
+            assert shown >= before.t - 1e-6, (line, before.t)
             bus.bus.close()
         finally:
             session.close()
