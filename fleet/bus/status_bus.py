@@ -28,6 +28,7 @@ import os
 import re
 import socket
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -56,6 +57,10 @@ from fleet.messages.status_batch import MAX_BATCH_RECORDS, check_status, decode_
 
 #: At most this many events wait in :meth:`StatusBus.drain_events` (oldest dropped first).
 MAX_EVENTS = 10000
+
+#: A queued status record waits at most this long (wall s) for its batch to fill: agents ticking
+#: in turn fill a batch over tens of ms, which was most of the bus's latency (docs/performance.md).
+MAX_BATCH_DELAY_S = 0.005
 
 T = TypeVar("T")
 
@@ -121,10 +126,14 @@ class StatusBus:
     logs only). See the module docstring for threading and malformed-message handling.
 
     Batching: with ``batch_source`` (a name for this process, one key chunk, e.g.
-    ``loadtest-w2``) :meth:`publish_status` only queues the record and :meth:`flush_statuses`
+    ``loadtest-w2``) :meth:`publish_status` queues the record and :meth:`flush_statuses`
     sends every queued record in batches of :data:`MAX_BATCH_RECORDS` on
     ``fleet/batch/<batch_source>/status`` (one put per batch); the runner flushes after each
-    round of agent ticks. Without it every record is its own put on ``fleet/<robot>/status``.
+    round of agent ticks. A batch also goes out as soon as it is full, or when its oldest record
+    has waited ``batch_delay_s`` (wall s, :data:`MAX_BATCH_DELAY_S`; checked when a record is
+    published; ``None``: only when full or flushed), so a record's wait does not grow with the
+    number of agents ticking after it. Without ``batch_source`` every record is its own put on
+    ``fleet/<robot>/status``.
 
     Counters (read at any time): ``received`` valid status, task and grant messages,
     ``malformed`` dropped payloads (``last_malformed`` says why: ``<key>: <field>: <reason>``),
@@ -140,6 +149,7 @@ class StatusBus:
         robot: str | None = None,
         max_events: int = MAX_EVENTS,
         batch_source: str | None = None,
+        batch_delay_s: float | None = MAX_BATCH_DELAY_S,
     ) -> None:
         self.session = session
         self.robot = robot
@@ -147,6 +157,8 @@ class StatusBus:
         self.batch_source = batch_source
         self._batch_key = None if batch_source is None else status_batch_key(batch_source)
         self._queued: list[StatusRecord] = []
+        self._batch_delay_s = float("inf") if batch_delay_s is None else float(batch_delay_s)
+        self._queued_since = 0.0  # time.monotonic() of the oldest queued record
         #: Status puts sent (one per record, or one per batch when batching).
         self.status_puts = 0
         self.received = 0
@@ -189,12 +201,18 @@ class StatusBus:
 
     def publish_status(self, rec: StatusRecord) -> None:
         """Publish ``rec`` on ``fleet/<rec.robot>/status`` (congestion: drop, the next record
-        replaces a lost one), or queue it for the next :meth:`flush_statuses` when batching.
+        replaces a lost one), or queue it when batching: the batch goes out when full, when its
+        oldest record has waited ``batch_delay_s`` or at :meth:`flush_statuses`.
         ValueError for a robot name that cannot be a key chunk or a non-finite number; the
         record's types are not checked again here (receivers do)."""
         if self._batch_key is not None:
-            self._queued.append(check_status(rec))
-            if len(self._queued) >= MAX_BATCH_RECORDS:  # a full batch waits for nothing
+            queued = self._queued
+            now = time.monotonic()
+            if not queued:
+                self._queued_since = now
+            queued.append(check_status(rec))
+            # a full batch waits for nothing, an old one no longer
+            if len(queued) >= MAX_BATCH_RECORDS or now - self._queued_since >= self._batch_delay_s:
                 self.flush_statuses()
             return
         pub = self._status_pubs.get(rec.robot)

@@ -114,6 +114,11 @@ def decode_batch(data: Buffer) -> DecodedBatch:
         data = data.encode("utf-8")
     if len(data) > MAX_BATCH_BYTES:
         raise ValueError(f"payload: {len(data)} bytes is larger than {MAX_BATCH_BYTES}")
+    try:  # the common case, every record valid: one decoder pass over the whole batch
+        whole = _WHOLE_DECODER.decode(data)
+        return DecodedBatch(whole.source, whole.records, [])
+    except (msgspec.ValidationError, msgspec.DecodeError):
+        pass  # the batch itself, then its records one by one, to say what is wrong
     try:
         batch = _BATCH_DECODER.decode(data)
     except msgspec.ValidationError as e:
@@ -122,11 +127,6 @@ def decode_batch(data: Buffer) -> DecodedBatch:
         raise ValueError(f"payload: not a MessagePack status batch ({str(e)[:80]})") from None
     if not isinstance(batch, _BatchIn):
         raise ValueError(f"batch.v: unsupported version 0 (expected {BUS_VERSION})")
-    try:  # the common case, every record valid: one decoder call for the whole batch
-        whole = _WHOLE_DECODER.decode(data)
-        return DecodedBatch(whole.source, list(whole.records), [])
-    except (msgspec.ValidationError, msgspec.DecodeError):
-        pass  # find the bad records one by one
     good: list[StatusRecord] = []
     errors: list[str] = []
     for i, raw in enumerate(batch.records):
