@@ -35,7 +35,7 @@ SMALL_ARGS: dict[str, list[str]] = {
     "bench_coordinator.py": ["--routes", "200", "--robots", "200", "--cycles", "20"],
     "bench_zenoh.py": ["--robots", "200", "--hz", "10", "--seconds", "3", "--publishers", "1"],
     "bench_secure_bus.py": ["--robots", "5", "--messages", "500", "--fleet", "100"],
-    "bench_status.py": ["--robots", "1000", "--hz", "1", "--seconds", "3", "--workers", "2"],
+    "status_bus.py": ["--robots", "1000", "--hz", "10", "--seconds", "3", "--workers", "2"],
     "sumo_steps.py": ["--robots", "200", "--steps", "300"],
     "bench_sim.py": ["--robots", "200", "--steps", "200"],
     "sim_vs_sumo.py": ["--robots", "200", "--steps", "200"],

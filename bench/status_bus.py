@@ -117,10 +117,14 @@ class SeqTally:
         else:
             self.duplicate += 1
 
+    def gaps(self) -> int:
+        """Numbers skipped by a later record and still missing."""
+        return sum(len(m) for m in self.missing.values())
+
     def lost(self, sent: dict[str, int]) -> int:
-        """Records of ``sent`` (robot -> how many it sent, numbered from 1) never received."""
-        gaps = sum(len(m) for m in self.missing.values())
-        return gaps + sum(max(0, n - self.last.get(r, 0)) for r, n in sent.items())
+        """Records of ``sent`` (robot -> how many it sent, numbered from 1) never received:
+        :meth:`gaps` plus every robot's tail after its last received record."""
+        return self.gaps() + sum(max(0, n - self.last.get(r, 0)) for r, n in sent.items())
 
     def in_order(self) -> bool:
         """Every robot's records arrived in sequence order, none twice."""
@@ -142,6 +146,7 @@ class StatusBusResult:
     sent: int
     received: int
     lost: int
+    lost_in_gaps: int
     late: int
     duplicate: int
     p50_ms: float
@@ -154,6 +159,7 @@ class StatusBusResult:
     worker_cpu_us_per_record: float
     subscriber_cpu_s: float
     puts: int
+    load_average: float
 
     @property
     def ok(self) -> bool:
@@ -366,6 +372,7 @@ def run(
     with lock:
         vals = sorted(tally.latencies)
         lost = tally.lost(sent_by_robot)
+        gaps = tally.gaps()
     return StatusBusResult(
         mode=mode,
         batch_delay_ms=None if batch_delay_s is None else batch_delay_s * 1e3,
@@ -378,6 +385,7 @@ def run(
         sent=sent,
         received=tally.received,
         lost=lost,
+        lost_in_gaps=gaps,
         late=tally.late,
         duplicate=tally.duplicate,
         p50_ms=percentile_ms(vals, 0.50),
@@ -390,6 +398,7 @@ def run(
         worker_cpu_us_per_record=sum(o["cpu_s"] for o in outs) / sent * 1e6 if sent else float("nan"),
         subscriber_cpu_s=time.process_time() - cpu0,
         puts=int(sum(o["puts"] for o in outs)),
+        load_average=os.getloadavg()[0],
     )
 
 
@@ -423,7 +432,9 @@ def _row(r: StatusBusResult) -> str:
         f"{r.robots:6d} {r.workers:7d} {delay:>5s} {r.events:6d} {r.sent:9d} {r.received:9d} {r.lost:5d} {r.late:4d} "
         f"{r.duplicate:3d} {r.p50_ms:7.2f} {r.p95_ms:7.2f} {r.p99_ms:7.2f} {r.max_ms:7.2f} "
         f"{r.malformed:4d}/{r.malformed_sent:<4d} {r.puts:6d}   (workers <= {r.max_worker_lag_ms:.1f} ms "
-        f"late, {r.worker_cpu_us_per_record:.1f} µs CPU/record; subscriber CPU {r.subscriber_cpu_s:.1f} s)"
+        f"late, {r.worker_cpu_us_per_record:.1f} µs CPU/record; subscriber CPU {r.subscriber_cpu_s:.1f} s; "
+        f"load {r.load_average:.1f})"
+        + (f" lost in gaps {r.lost_in_gaps}" if r.lost else "")
         + ("" if r.ok else "  << LOSS, DISORDER OR MISCOUNT")
     )
 
@@ -468,6 +479,13 @@ def main(argv: list[str] | None = None) -> int:
         help="the subscriber StatusBus's max_events; a list runs each (default 0, as the runner's; "
         "10000: the runner's before this work)",
     )
+    ap.add_argument(
+        "--compare",
+        action="store_true",
+        help="each size and worker count twice, one right after the other: as before this work "
+        "(batch delay none, subscriber events 10000), then as now (the defaults); overrides "
+        "--batch-delay-ms and --events",
+    )
     ap.add_argument("--malformed", type=int, default=4, help="bad batches injected by worker 0 (default 4)")
     ap.add_argument("--json", action="store_true", help="also print each result as a JSON line")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
@@ -486,7 +504,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     for robots in a.robots:
         for workers in a.workers:
-            for delay, events in itertools.product(a.batch_delay_ms, a.events):
+            pairs = (
+                [(None, 10000), (MAX_BATCH_DELAY_S, 0)]
+                if a.compare
+                else list(itertools.product(a.batch_delay_ms, a.events))
+            )
+            for delay, events in pairs:
                 r = run(
                     robots,
                     workers,

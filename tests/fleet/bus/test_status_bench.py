@@ -33,6 +33,7 @@ def test_tally_counts_gaps_late_and_doubled_records_per_robot(bench: ModuleType)
     assert t.duplicate == 1  # the second a3
     assert t.missing == {"a": {4}}
     # a sent 7 (4 and 7 missing), b sent 3 (3 missing), c sent 2 (none arrived)
+    assert t.gaps() == 1
     assert t.lost({"a": 7, "b": 3, "c": 2}) == 2 + 1 + 2
     assert not t.in_order()
     clean = bench.SeqTally()
