@@ -73,7 +73,8 @@ def _views(n: int, batch: bool, endpoint: str) -> tuple[dict[str, StatusRecord],
     router-side subscriber; returns its latest table, every record it received, and puts sent."""
     with open_session(endpoint, "router") as router, open_session(endpoint, "client") as client:
         sub = StatusBus(router)
-        pub = StatusBus(client, batch_source="loadtest-w1" if batch else None)
+        # no batch delay: batches of 500 whatever the machine's speed (the delay: below)
+        pub = StatusBus(client, batch_source="loadtest-w1" if batch else None, batch_delay_s=None)
         try:
             seen: list[StatusRecord] = []
             sub.subscribe_statuses(seen.append)
@@ -147,3 +148,25 @@ def test_malformed_batches_on_the_bus_are_counted_and_the_good_records_kept(zeno
             assert "c" not in sub.latest() and sub.latest()["b"].seq == 5
         finally:
             sub.shutdown()
+
+
+def test_a_batch_leaves_once_its_oldest_record_waited_the_delay(zenoh_endpoint: str) -> None:
+    """``batch_delay_s``: with 0 every queued record is already old enough, so each goes out
+    with the next publish; with an hour nothing leaves before the flush (or a full batch).
+    No clock is read by the test: the two ends of the range decide alone."""
+    with open_session(zenoh_endpoint, "router") as session:
+        eager = StatusBus(session, batch_source="p0", batch_delay_s=0.0)
+        patient = StatusBus(session, batch_source="p1", batch_delay_s=3600.0)
+        try:
+            for bus in (eager, patient):
+                for i in range(3):
+                    bus.publish_status(record(f"robot{i}", 1))
+            assert eager.status_puts == 3 and eager.flush_statuses() == 0
+            assert patient.status_puts == 0 and patient.flush_statuses() == 3
+            assert patient.status_puts == 1
+            for i in range(MAX_BATCH_RECORDS):  # a full batch does not wait for the hour
+                patient.publish_status(record(f"robot{i}", 2))
+            assert patient.status_puts == 2 and patient.flush_statuses() == 0
+        finally:
+            eager.close()
+            patient.shutdown()
