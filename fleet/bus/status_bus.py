@@ -58,8 +58,8 @@ from fleet.messages.status_batch import MAX_BATCH_RECORDS, check_status, decode_
 #: At most this many events wait in :meth:`StatusBus.drain_events` (oldest dropped first).
 MAX_EVENTS = 10000
 
-#: A queued status record waits at most this long (wall s) for its batch to fill: agents ticking
-#: in turn fill a batch over tens of ms, which was most of the bus's latency (docs/performance.md).
+#: A queued status record waits at most this long (wall s) for its batch to fill (agents ticking
+#: in turn filled one over tens of ms: most of the latency, docs/performance.md "Target 4").
 MAX_BATCH_DELAY_S = 0.005
 
 T = TypeVar("T")
@@ -103,14 +103,8 @@ class BusHandle:
 
 
 StatusCallback = Callable[[StatusRecord], None]
-
-
 TaskCallback = Callable[[TaskMessage], None]
-
-
 GrantCallback = Callable[[Grant], None]
-
-
 RobotCallback = Callable[[str], None]
 
 
@@ -125,15 +119,12 @@ class StatusBus:
     :meth:`shutdown` does that and closes the session. ``robot`` is this process's robot (for
     logs only). See the module docstring for threading and malformed-message handling.
 
-    Batching: with ``batch_source`` (a name for this process, one key chunk, e.g.
-    ``loadtest-w2``) :meth:`publish_status` queues the record and :meth:`flush_statuses`
-    sends every queued record in batches of :data:`MAX_BATCH_RECORDS` on
-    ``fleet/batch/<batch_source>/status`` (one put per batch); the runner flushes after each
-    round of agent ticks. A batch also goes out as soon as it is full, or when its oldest record
-    has waited ``batch_delay_s`` (wall s, :data:`MAX_BATCH_DELAY_S`; checked when a record is
-    published; ``None``: only when full or flushed), so a record's wait does not grow with the
-    number of agents ticking after it. Without ``batch_source`` every record is its own put on
-    ``fleet/<robot>/status``.
+    Batching: with ``batch_source`` (this process's name, one key chunk, e.g. ``loadtest-w2``)
+    :meth:`publish_status` queues the record; batches of up to :data:`MAX_BATCH_RECORDS` go out
+    on ``fleet/batch/<batch_source>/status`` when full, when the oldest record has waited
+    ``batch_delay_s`` (wall s, checked as a record is queued; ``None``: never) and at
+    :meth:`flush_statuses` (the runner's, after each round of agent ticks). Without it every
+    record is its own put on ``fleet/<robot>/status``.
 
     Counters (read at any time): ``received`` valid status, task and grant messages,
     ``malformed`` dropped payloads (``last_malformed`` says why: ``<key>: <field>: <reason>``),
@@ -201,10 +192,9 @@ class StatusBus:
 
     def publish_status(self, rec: StatusRecord) -> None:
         """Publish ``rec`` on ``fleet/<rec.robot>/status`` (congestion: drop, the next record
-        replaces a lost one), or queue it when batching: the batch goes out when full, when its
-        oldest record has waited ``batch_delay_s`` or at :meth:`flush_statuses`.
-        ValueError for a robot name that cannot be a key chunk or a non-finite number; the
-        record's types are not checked again here (receivers do)."""
+        replaces a lost one), or queue it when batching (see the class). ValueError for a robot
+        name that cannot be a key chunk or a non-finite number; the record's types are not
+        checked again here (receivers do)."""
         if self._batch_key is not None:
             queued = self._queued
             now = time.monotonic()
@@ -282,9 +272,12 @@ class StatusBus:
             try:
                 cb(arg)
             except Exception as e:  # noqa: BLE001 - never raise into Zenoh's thread
-                with self._lock:
-                    self.callback_errors += 1
-                    self.last_callback_error = f"{getattr(cb, '__qualname__', cb)}: {e!r}"
+                self._callback_failed(cb, e)
+
+    def _callback_failed(self, cb: object, e: Exception) -> None:
+        with self._lock:
+            self.callback_errors += 1
+            self.last_callback_error = f"{getattr(cb, '__qualname__', cb)}: {e!r}"
 
     def _on_status_sample(self, sample: zenoh.Sample) -> None:
         key = "?"
@@ -319,20 +312,27 @@ class StatusBus:
         """Valid records: the latest table, the event queue, then the callbacks."""
         try:
             with self._lock:
+                self.received += len(recs)
+                latest = self._latest
                 for rec in recs:
-                    self.received += 1
-                    self._latest[rec.robot] = rec
-                    self._push(BusEvent("status", rec.robot, rec))
+                    latest[rec.robot] = rec
+                if self._max_events > 0:  # no event built for a bus that keeps none
+                    for rec in recs:
+                        self._push(BusEvent("status", rec.robot, rec))
                 cbs = list(self._status_cbs)
-            for rec in recs:
-                self._call(cbs, rec)
+            for cb in cbs:  # each callback gets the batch's records in order
+                for rec in recs:
+                    try:
+                        cb(rec)
+                    except Exception as e:  # noqa: BLE001 - never raise into Zenoh's thread
+                        self._callback_failed(cb, e)
         except Exception as e:  # noqa: BLE001
             self._bad(key, f"internal: {e!r}")
 
     def subscribe_statuses(self, callback: StatusCallback | None = None) -> BusHandle:
-        """Subscribe to ``fleet/*/status`` and the batches ``fleet/batch/*/status`` (once per
-        bus) and keep the latest record per robot (:meth:`latest`). ``callback(rec)``, if given, runs on Zenoh's thread for every valid
-        record; the returned handle removes it."""
+        """Subscribe to ``fleet/*/status`` and ``fleet/batch/*/status`` (once per bus), keep the
+        latest record per robot (:meth:`latest`) and call ``callback(rec)``, if given, on Zenoh's
+        thread for every valid record, in order per robot; the handle removes the callback."""
         with self._lock:
             if callback is not None:
                 self._status_cbs.append(callback)
