@@ -15,7 +15,8 @@ of publishing on change).
 ``--spread F``: a worker builds its robots' records over the first ``F`` of each period, one
 after another, as agents ticking in turn do (0: all at once, the heaviest burst for the
 subscriber; 0.8, the default: as a worker whose agents fill 80 % of the period). The workers'
-periods are offset by ``1 / workers`` of a period, as independent processes' are.
+periods are offset by ``1 / workers`` of a period, as independent processes' are. Before the
+clock starts each worker warms its link with a few rounds of an ignored robot's records.
 
 Accounting: every record carries its robot's sequence number (``seq``, 1, 2, ...) and is
 stamped (``t``) with the wall time at which it was *built*, so its latency is everything after:
