@@ -49,11 +49,16 @@ from pathlib import Path
 import zenoh
 
 import fleet
+import fleet.bus.status_bus as status_bus_module
 from fleet.bus.keys import status_batch_key, status_key
 from fleet.bus.session import open_session
-from fleet.bus.status_bus import MAX_BATCH_DELAY_S, StatusBus
+from fleet.bus.status_bus import StatusBus
 from fleet.messages import StatusRecord
-from fleet.messages.status_batch import MAX_BATCH_RECORDS
+from fleet.messages.status_batch import MAX_BATCH_RECORDS, decode_batch, encode_batch
+
+#: The batch delay of this checkout's StatusBus (none in one from before it; --cpu-per-record
+#: can then still measure that checkout: PYTHONPATH=<checkout> python bench/status_bus.py ...).
+MAX_BATCH_DELAY_S: float | None = getattr(status_bus_module, "MAX_BATCH_DELAY_S", None)
 
 #: Wall seconds the subscriber waits for the last records after the workers finished.
 DRAIN_S = 10.0
@@ -417,6 +422,32 @@ def run(
     )
 
 
+def cpu_per_record(events: int, batches: int = 100, repeats: int = 9) -> float:
+    """CPU µs per record for the subscriber's share: decode a 500-record batch, take it into a
+    ``StatusBus`` keeping ``events`` events, call one coordinator-like callback (lock +
+    append); the best of ``repeats`` rounds of ``batches`` batches (process CPU time)."""
+    data = encode_batch("w0", [record(f"robot{i}", 5, 1.0) for i in range(MAX_BATCH_RECORDS)])
+    lock, inbox = threading.Lock(), []
+
+    def cb(rec: StatusRecord) -> None:
+        with lock:
+            inbox.append(rec)
+
+    with zenoh.open(zenoh.Config.from_json5('{mode: "peer", scouting: {multicast: {enabled: false}}}')) as s:
+        bus = StatusBus(s, max_events=events)
+        bus.subscribe_statuses(cb)
+        take = bus._take  # noqa: SLF001 - what the Zenoh callback runs after taking the payload
+        best = float("inf")
+        for _ in range(repeats):
+            t0 = time.process_time()
+            for _ in range(batches):
+                take("k", decode_batch(data).records)
+            best = min(best, time.process_time() - t0)
+            inbox.clear()
+        bus.close()
+    return best / (batches * MAX_BATCH_RECORDS) * 1e6
+
+
 def _ints(text: str) -> list[int]:
     vals = [int(v) for v in text.split(",") if v.strip()]
     if not vals or min(vals) < 1:
@@ -484,7 +515,7 @@ def main(argv: list[str] | None = None) -> int:
         "--batch-delay-ms",
         type=_delays,
         default=[MAX_BATCH_DELAY_S],
-        help=f"the workers' StatusBus batch_delay_s, in ms; a list runs each (default {MAX_BATCH_DELAY_S * 1e3:g}; "
+        help=f"the workers' StatusBus batch_delay_s, in ms; a list runs each (default {(MAX_BATCH_DELAY_S or 0) * 1e3:g}; "
         "none: a batch leaves only when full or at the round's end, as before)",
     )
     ap.add_argument(
@@ -503,10 +534,22 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--malformed", type=int, default=4, help="bad batches injected by worker 0 (default 4)")
     ap.add_argument("--json", action="store_true", help="also print each result as a JSON line")
+    ap.add_argument(
+        "--cpu-per-record",
+        action="store_true",
+        help="only the subscriber's CPU per record (decode, intake, a callback), with the event "
+        "queue off and on; no processes, no router",
+    )
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.worker:
         return worker(WorkerSpec(**json.loads(a.worker)))
+    if a.cpu_per_record:
+        for events in (0, 10000):
+            print(
+                f"subscriber CPU per record, max_events={events}: {cpu_per_record(events):.2f} µs", flush=True
+            )
+        return 0
     if a.hz <= 0 or a.seconds <= 0 or not 0 <= a.spread < 1 or a.malformed < 0:
         ap.error("--hz and --seconds must be positive, --spread in [0, 1), --malformed >= 0")
     ok = True

@@ -56,7 +56,7 @@ def pose_tuple(p: Pose2D | tuple[float, float, float]) -> tuple[float, float, fl
     return (float(x), float(y), float(th))
 
 
-class StatusRecord(Struct, frozen=True, tag_field="v", tag=1, omit_defaults=True):
+class StatusRecord(Struct, frozen=True, tag_field="v", tag=1, omit_defaults=True, gc=False):
     """One robot's status (``fleet/<robot>/status``), also its wire form.
 
     ``t`` is simulated seconds; ``pose`` ``(x, y, theta)`` in the ``map`` frame or ``None``;
