@@ -4,6 +4,7 @@ dropped with the field named. Real Zenoh sessions on loopback."""
 
 from __future__ import annotations
 
+import gc
 import math
 
 import msgspec
@@ -170,3 +171,11 @@ def test_a_batch_leaves_once_its_oldest_record_waited_the_delay(zenoh_endpoint: 
         finally:
             eager.close()
             patient.shutdown()
+
+
+def test_status_records_are_not_tracked_by_the_garbage_collector() -> None:
+    """A subscriber keeps thousands of records (latest table, coordinator inbox); untracked,
+    they cost the collector nothing (docs/performance.md, "Target 4")."""
+    recs = decode_batch(encode_batch("p", [record(f"robot{i}", i) for i in range(3)])).records
+    assert recs and not any(gc.is_tracked(r) for r in recs)
+    assert not gc.is_tracked(StatusRecord.from_json(recs[0].to_json()))
