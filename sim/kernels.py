@@ -261,4 +261,54 @@ def pair_offsets(
     return k
 
 
+@jit
+def cell_pairs(
+    order: np.ndarray,
+    pos_hi: np.ndarray,
+    lo2: np.ndarray,
+    hi2: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    r2: float,
+    a: np.ndarray,
+    b: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """The candidate pairs of :func:`sim.spatial.neighbor_pairs` closer than ``sqrt(r2)``, in
+    its order: for every sorted position ``p`` the points ``p + 1 .. pos_hi[p] - 1`` (its
+    cell and the next), then for every ``p`` the points ``lo2[p] .. hi2[p] - 1`` (the row
+    above); ``i = order[p]``, ``j = order[q]``, kept when ``dx * dx + dy * dy < r2`` with
+    ``dx = x[j] - x[i]``. Writes the kept pairs to ``a``, ``b``; returns how many."""
+    k = 0
+    n = order.shape[0]
+    for p in range(n):
+        i = order[p]
+        for q in range(p + 1, pos_hi[p]):
+            j = order[q]
+            dx = x[j] - x[i]
+            dy = y[j] - y[i]
+            if dx * dx + dy * dy < r2:
+                a[k] = i
+                b[k] = j
+                k += 1
+    for p in range(n):
+        i = order[p]
+        for q in range(lo2[p], hi2[p]):
+            j = order[q]
+            dx = x[j] - x[i]
+            dy = y[j] - y[i]
+            if dx * dx + dy * dy < r2:
+                a[k] = i
+                b[k] = j
+                k += 1
+    return k
+
+
+def warm_up_pairs() -> None:
+    """Compile (or load from the cache) :func:`cell_pairs`."""
+    ints = np.zeros(0, dtype=np.int64)
+    floats = np.zeros(0)
+    cell_pairs(ints, ints, ints, ints, floats, floats, 1.0, ints, ints)
+
+
 register_warm_up(warm_up)
+register_warm_up(warm_up_pairs)

@@ -21,12 +21,15 @@ from sim import kernels
 _EMPTY = np.zeros(0, dtype=np.int64)
 
 
-def neighbor_pairs(x: np.ndarray, y: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+def neighbor_pairs(
+    x: np.ndarray, y: np.ndarray, radius: float, compiled: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Directed pairs ``(i, j)``, ``i != j``, of points closer than ``radius`` (both orders are
     returned: ``(i, j)`` and ``(j, i)``, each pair once per order). ``x``, ``y`` are 1-D float
     arrays of equal length. The result is deterministic (same input, same arrays); its order
     is not meaningful: the first half holds each unordered pair once, the second half the same
-    pairs reversed."""
+    pairs reversed. ``compiled``: expand the ranges and test the distances in one compiled
+    loop (:func:`sim.kernels.cell_pairs`): the same pairs in the same order."""
     n = int(x.shape[0])
     if n < 2:
         return _EMPTY, _EMPTY
@@ -43,6 +46,15 @@ def neighbor_pairs(x: np.ndarray, y: np.ndarray, radius: float) -> tuple[np.ndar
     hi1 = np.searchsorted(skey, skey + 1, "right")
     lo2 = np.searchsorted(skey, skey + (w - 1), "left")
     hi2 = np.searchsorted(skey, skey + (w + 1), "right")
+    if compiled:
+        tot = int((hi1 - pos - 1).sum() + (hi2 - lo2).sum())
+        if tot == 0:
+            return _EMPTY, _EMPTY
+        a = np.empty(tot, dtype=np.int64)
+        b = np.empty(tot, dtype=np.int64)
+        k = kernels.cell_pairs(order, hi1, lo2, hi2, x, y, radius * radius, a, b)
+        a, b = a[:k], b[:k]
+        return np.concatenate((a, b)), np.concatenate((b, a))
     lo = np.concatenate((pos + 1, lo2))
     cnt = np.concatenate((hi1 - pos - 1, hi2 - lo2))
     tot = int(cnt.sum())
@@ -121,7 +133,7 @@ class NeighborPairs:
         n = int(x.shape[0])
         if n != self._n or step - self._built >= PAIR_REUSE_STEPS:
             skin = 2.0 * self._max_speed * dt * PAIR_REUSE_STEPS
-            self.i, self.j = neighbor_pairs(x, y, self.radius + skin)
+            self.i, self.j = neighbor_pairs(x, y, self.radius + skin, self.compiled)
             self._n, self._built = n, step
         pi, pj = self.i, self.j
         if self.compiled and self.short < self.radius:

@@ -218,3 +218,21 @@ def test_kernels_that_cannot_compile_leave_the_numpy_code_running(
     for _ in range(60):
         sim.step()
     assert sim.robot_table().distance_m.sum() > 10.0
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1), n=st.integers(0, 300), span=st.floats(0.5, 40.0), r=st.floats(0.2, 3.0)
+)
+def test_compiled_neighbor_pairs_are_numpys_pairs_in_numpys_order(
+    seed: int, n: int, span: float, r: float
+) -> None:
+    from sim.spatial import neighbor_pairs
+
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(-span, span, n), rng.uniform(0.0, span, n)
+    if n > 3:
+        x[1], y[1] = x[0], y[0] + r  # a pair at exactly the radius: not a neighbor
+    want = neighbor_pairs(x, y, r)
+    got = neighbor_pairs(x, y, r, compiled=True)
+    assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist()
