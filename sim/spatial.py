@@ -126,6 +126,9 @@ class NeighborPairs:
         self.sdx = self.sdy = self.sd2 = self.d2
         self._n = -1
         self._built = 0
+        #: the compiled pass's output arrays, kept while the list keeps its length
+        self._floats = np.empty((6, 0))
+        self._ints = np.empty((2, 0), dtype=np.int64)
 
     def update(self, x: np.ndarray, y: np.ndarray, step: int, dt: float) -> None:
         """Refresh the pairs of the robots at ``(x, y)`` (one entry per robot) for step number
@@ -138,9 +141,11 @@ class NeighborPairs:
         pi, pj = self.i, self.j
         if self.compiled and self.short < self.radius:
             m = pi.shape[0]
-            dx, dy, d2, sdx, sdy, sd2 = (np.empty(m) for _ in range(6))
-            si = np.empty(m, dtype=np.int64)
-            sj = np.empty(m, dtype=np.int64)
+            if self._floats.shape[1] != m:  # a new list: new buffers, reused until the next
+                self._floats = np.empty((6, m))
+                self._ints = np.empty((2, m), dtype=np.int64)
+            dx, dy, d2, sdx, sdy, sd2 = self._floats
+            si, sj = self._ints
             k = kernels.pair_offsets(pi, pj, x, y, self.short * self.short, dx, dy, d2, si, sj, sdx, sdy, sd2)
             self.dx, self.dy, self.d2 = dx, dy, d2
             self.si, self.sj, self.sdx, self.sdy, self.sd2 = si[:k], sj[:k], sdx[:k], sdy[:k], sd2[:k]
