@@ -59,7 +59,7 @@ class PathFollower:
         self.params = params
         self.avoidance = avoidance
         self.compiled = kernels.enabled() if compiled is None else compiled and kernels.ready()
-        self._scratch = np.zeros((4, 0))
+        self._scratch = np.zeros((3, 0))
         self._rows = np.zeros(0, dtype=np.int64)
 
     def follow(self, F: np.ndarray, now: float, obst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -349,18 +349,19 @@ class PathFollower:
         s = self.state
         av = self.avoidance
         if self._scratch.shape[1] < s.n:
-            self._scratch = np.zeros((4, s.capacity))
+            self._scratch = np.zeros((3, s.capacity))
             self._rows = np.zeros(s.capacity, dtype=np.int64)
-        hx, hy, cap, best = self._scratch
+        hx, hy, best = self._scratch
         contact, lat = av.contact, av.lat
         reach = math.hypot(AVOID_LOOKAHEAD_M + contact, lat)
-        a, dx, dy, d2 = av.pairs.candidates(reach)
-        # candidates() gives every pair once the reach passes the pair radius
-        reach2 = reach * reach if reach < av.pairs.radius else math.inf
+        pairs = av.pairs
+        pi, pj = pairs.index_pairs(reach)
+        # index_pairs() gives every pair once the reach passes the pair radius
+        reach2 = reach * reach if reach < pairs.radius else math.inf
         margin = 2.0 * self.params.model.radius
         k = follower_kernels.way_blocked(
-            fi, desired, rem_d, sd, s.n, a, dx, dy, d2, reach2, contact, lat, AVOID_LOOKAHEAD_M,
-            margin, self.params.goal_tolerance, hx, hy, cap, best, self._rows,
+            fi, desired, rem_d, sd, s.n, pi, pj, pairs.x0, pairs.y0, reach2, contact, lat,
+            AVOID_LOOKAHEAD_M, margin, self.params.goal_tolerance, hx, hy, best, self._rows,
         )  # fmt: skip
         return self._rows[:k].copy()
 

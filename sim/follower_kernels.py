@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from sim.kernels import corridor_min, jit, register_warm_up
+from sim.kernels import jit, register_warm_up
 
 
 @jit
@@ -316,10 +316,10 @@ def way_blocked(
     rem: np.ndarray,
     side: np.ndarray,
     n: int,
-    a: np.ndarray,
-    dx: np.ndarray,
-    dy: np.ndarray,
-    d2: np.ndarray,
+    pi: np.ndarray,
+    pj: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
     reach2: float,
     contact: float,
     lat: float,
@@ -328,29 +328,53 @@ def way_blocked(
     tol: float,
     hx: np.ndarray,
     hy: np.ndarray,
-    cap: np.ndarray,
     best: np.ndarray,
     blocked_out: np.ndarray,
 ) -> int:  # pragma: no cover - compiled
     """What ``PathFollower._avoid`` asks of ``Avoidance.corridor_free`` and then tests, for a
     step without dynamic obstacles: robot ``fi[q]`` heading for ``desired[q]`` (rad) is
-    blocked when the first robot in its corridor (:func:`sim.kernels.corridor_min` over the
-    directed pairs ``a``, ``dx``, ``dy``, ``d2`` with ``d2 < reach2``) is closer than ``look``
-    m and that, plus ``margin`` and then ``tol`` m, is short of its remaining path ``rem[q]``. Unblocked robots
-    get ``side[q] = 0``; the blocked ones' ``q`` are written to ``blocked_out`` in order, and
-    their number returned. ``hx``, ``hy``, ``cap``, ``best``: scratch of at least ``n``."""
+    blocked when the first robot in its corridor is closer than ``look`` m and that, plus
+    ``margin`` and then ``tol`` m, is short of its remaining path ``rem[q]``. The corridor
+    test is :func:`sim.kernels.corridor_min`'s over the directed pairs ``(pi[p], pj[p])``
+    with ``d2 < reach2``, their offsets computed from the positions ``x``, ``y`` as
+    :func:`sim.kernels.pair_offsets` computes them. Unblocked robots get ``side[q] = 0``; the
+    blocked ones' ``q`` are written to ``blocked_out`` in order, and their number returned.
+    ``hx``, ``hy``, ``best``: scratch of at least ``n``."""
     for i in range(n):
         hx[i] = 0.0
         hy[i] = 0.0
-        cap[i] = 0.0
         best[i] = 0.0
     for q in range(fi.shape[0]):
         i = fi[q]
         hx[i] = math.cos(desired[q])
         hy[i] = math.sin(desired[q])
-        cap[i] = look
         best[i] = look
-    corridor_min(a, dx, dy, d2, reach2, hx, hy, cap, contact, lat, best)
+    cc = contact * contact
+    lim = look + contact
+    for p in range(pi.shape[0]):
+        i = pi[p]
+        hxa = hx[i]
+        hya = hy[i]
+        if hxa == 0.0 and hya == 0.0:
+            continue  # not following: nothing is ahead of it (along = 0)
+        j = pj[p]
+        dx = x[j] - x[i]
+        dy = y[j] - y[i]
+        if not dx * dx + dy * dy < reach2:
+            continue
+        along = dx * hxa + dy * hya
+        if not along > 0.0:
+            continue
+        lateral = abs(dx * hya - dy * hxa)
+        if not (lateral < lat and along < lim):
+            continue
+        if lateral >= contact:
+            gap = along - contact
+        else:
+            gap = along - math.sqrt(max(cc - lateral * lateral, 0.0))
+        gap = max(0.0, gap)
+        if gap < best[i]:
+            best[i] = gap
     nb = 0
     for q in range(fi.shape[0]):
         b = best[fi[q]]
@@ -382,8 +406,8 @@ def warm_up() -> None:
         ints, ints, ints, floats, floats, floats, flags, floats, floats, flags, flags,
     )  # fmt: skip
     way_blocked(
-        ints, floats, floats, ints, 0, ints, floats, floats, floats, 1.0, 0.6, 0.65, 1.5, 0.6, 0.1,
-        floats, floats, floats, floats, ints,
+        ints, floats, floats, ints, 0, ints, ints, floats, floats, 1.0, 0.6, 0.65, 1.5, 0.6, 0.1,
+        floats, floats, floats, ints,
     )  # fmt: skip
 
 

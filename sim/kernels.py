@@ -303,11 +303,44 @@ def cell_pairs(
     return k
 
 
+@jit
+def short_pairs(
+    pi: np.ndarray,
+    pj: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    short2: float,
+    si: np.ndarray,
+    sj: np.ndarray,
+    sdx: np.ndarray,
+    sdy: np.ndarray,
+    sd2: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """The pairs of :func:`pair_offsets`'s short list (``d2 < short2``, in order, with their
+    offsets) without storing the offsets of every pair; returns how many."""
+    k = 0
+    for p in range(pi.shape[0]):
+        a = pi[p]
+        b = pj[p]
+        ex = x[b] - x[a]
+        ey = y[b] - y[a]
+        e2 = ex * ex + ey * ey
+        if e2 < short2:
+            si[k] = a
+            sj[k] = b
+            sdx[k] = ex
+            sdy[k] = ey
+            sd2[k] = e2
+            k += 1
+    return k
+
+
 def warm_up_pairs() -> None:
-    """Compile (or load from the cache) :func:`cell_pairs`."""
+    """Compile (or load from the cache) :func:`cell_pairs` and :func:`short_pairs`."""
     ints = np.zeros(0, dtype=np.int64)
     floats = np.zeros(0)
     cell_pairs(ints, ints, ints, ints, floats, floats, 1.0, ints, ints)
+    short_pairs(ints, ints, floats, floats, 1.0, ints, ints, floats, floats, floats)
 
 
 register_warm_up(warm_up)
