@@ -337,7 +337,7 @@ def way_blocked(
     ``margin`` and then ``tol`` m, is short of its remaining path ``rem[q]``. The corridor
     test is :func:`sim.kernels.corridor_min`'s over the directed pairs ``(pi[p], pj[p])``
     with ``d2 < reach2``, their offsets computed from the positions ``x``, ``y`` as
-    :func:`sim.kernels.pair_offsets` computes them. Unblocked robots get ``side[q] = 0``; the
+    :func:`sim.kernels.short_pairs` computes them. Unblocked robots get ``side[q] = 0``; the
     blocked ones' ``q`` are written to ``blocked_out`` in order, and their number returned.
     ``hx``, ``hy``, ``best``: scratch of at least ``n``."""
     for i in range(n):

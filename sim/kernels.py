@@ -220,45 +220,6 @@ def warm_up() -> None:
         ints,
     )
     corridor_min(ints, floats, floats, floats, 1.0, floats, floats, floats, 0.6, 0.65, floats)
-    pair_offsets(ints, ints, floats, floats, 1.0, floats, floats, floats, ints, ints, floats, floats, floats)
-
-
-@jit
-def pair_offsets(
-    pi: np.ndarray,
-    pj: np.ndarray,
-    x: np.ndarray,
-    y: np.ndarray,
-    short2: float,
-    dx: np.ndarray,
-    dy: np.ndarray,
-    d2: np.ndarray,
-    si: np.ndarray,
-    sj: np.ndarray,
-    sdx: np.ndarray,
-    sdy: np.ndarray,
-    sd2: np.ndarray,
-) -> int:  # pragma: no cover - compiled
-    """The offsets ``dx = x[pj] - x[pi]``, ``dy``, ``d2 = dx * dx + dy * dy`` of every pair,
-    and the pairs with ``d2 < short2`` in order into ``si .. sd2``; returns how many."""
-    k = 0
-    for p in range(pi.shape[0]):
-        a = pi[p]
-        b = pj[p]
-        ex = x[b] - x[a]
-        ey = y[b] - y[a]
-        e2 = ex * ex + ey * ey
-        dx[p] = ex
-        dy[p] = ey
-        d2[p] = e2
-        if e2 < short2:
-            si[k] = a
-            sj[k] = b
-            sdx[k] = ex
-            sdy[k] = ey
-            sd2[k] = e2
-            k += 1
-    return k
 
 
 @jit
@@ -316,8 +277,9 @@ def short_pairs(
     sdy: np.ndarray,
     sd2: np.ndarray,
 ) -> int:  # pragma: no cover - compiled
-    """The pairs of :func:`pair_offsets`'s short list (``d2 < short2``, in order, with their
-    offsets) without storing the offsets of every pair; returns how many."""
+    """The pairs ``(pi[p], pj[p])`` closer than ``sqrt(short2)``, in order, into ``si``,
+    ``sj`` with their offsets ``sdx = x[pj] - x[pi]``, ``sdy``, ``sd2 = sdx * sdx + sdy *
+    sdy`` (NumPy's floats for the same expressions); returns how many."""
     k = 0
     for p in range(pi.shape[0]):
         a = pi[p]

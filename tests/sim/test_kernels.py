@@ -112,23 +112,39 @@ def test_corridor_min_is_the_numpy_minimum(seed: int, n: int, span: float) -> No
 
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 80), span=st.floats(0.5, 8.0))
-def test_pair_offsets_are_numpys_offsets_and_short_list(seed: int, n: int, span: float) -> None:
+def test_short_pairs_are_numpys_offsets_and_short_list(seed: int, n: int, span: float) -> None:
     a, _, _, _ = _scene(seed, n, span)
     rng = np.random.default_rng(seed + 3)
     x, y = rng.uniform(0.0, span, n), rng.uniform(0.0, span, n)
     b = np.array([j for i in range(n) for j in range(n) if j != i], dtype=np.int64)
     m = a.size
-    dx, dy, d2, sdx, sdy, sd2 = (np.empty(m) for _ in range(6))
+    sdx, sdy, sd2 = (np.empty(m) for _ in range(3))
     si, sj = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
     short = 0.4 * span
-    k = kernels.pair_offsets(a, b, x, y, short * short, dx, dy, d2, si, sj, sdx, sdy, sd2)
+    k = kernels.short_pairs(a, b, x, y, short * short, si, sj, sdx, sdy, sd2)
     ex, ey = x[b] - x[a], y[b] - y[a]
     e2 = ex * ex + ey * ey
     near = np.flatnonzero(e2 < short * short)
-    assert (dx.tobytes(), dy.tobytes(), d2.tobytes()) == (ex.tobytes(), ey.tobytes(), e2.tobytes())
     assert k == near.size
     assert si[:k].tolist() == a[near].tolist() and sj[:k].tolist() == b[near].tolist()
     assert sd2[:k].tobytes() == e2[near].tobytes() and sdx[:k].tobytes() == ex[near].tobytes()
+    assert sdy[:k].tobytes() == ey[near].tobytes()
+
+
+def test_every_pairs_offsets_on_demand_are_those_of_the_step_start() -> None:
+    """Compiled, the neighbor list stores only the short list each step; the offsets of every
+    pair, asked for after the robots moved, are those of the positions at the step's start."""
+    from sim.spatial import NeighborPairs
+
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(0.0, 8.0, 80), rng.uniform(0.0, 8.0, 80)
+    fast, slow = NeighborPairs(2.2, 1.5, 1.0, compiled=True), NeighborPairs(2.2, 1.5, 1.0)
+    fast.update(x.copy(), y.copy(), 1, 0.05)
+    slow.update(x.copy(), y.copy(), 1, 0.05)
+    x += 0.3  # the move of the step: the pairs' offsets are those of its start
+    for name in ("si", "sj", "sdx", "sdy", "sd2", "i", "dx", "dy", "d2"):
+        assert getattr(fast, name).tobytes() == getattr(slow, name).tobytes(), name
+    assert fast.index_pairs(2.0)[0].tobytes() == slow.i.tobytes()
 
 
 def test_libm_trigonometry_matches_numpy() -> None:
