@@ -125,6 +125,8 @@ class GridPlanner:
         padded = np.zeros((ch + 2, cw + 2), dtype=bool)
         padded[1:-1, 1:-1] = coarse_free
         self._free_flat: list[bool] = padded.ravel().tolist()
+        #: the same cells as an array, copied for each plan around learned obstacles
+        self._free_padded = padded
         self._cw, self._ch = cw, ch
         self._cache: dict[tuple[tuple[int, int], tuple[int, int]], tuple[Point, ...] | None] = {}
         self._results: dict[tuple[float, ...], PlanResult] = {}
@@ -303,7 +305,7 @@ class GridPlanner:
         center blocked."""
         g = self.grid
         size = self._k * g.resolution
-        free = np.array(self._free_flat, dtype=bool).reshape(self._ch + 2, self._cw + 2)
+        free = self._free_padded.copy()
         cx = g.origin_x + (np.arange(self._cw) + 0.5) * size
         cy = g.origin_y + (np.arange(self._ch) + 0.5) * size
         for x, y, r in discs:
