@@ -161,7 +161,10 @@ class GridPlanner:
         t = np.linspace(0.0, 1.0, n)
         ix = np.floor((a[0] + t * (b[0] - a[0]) - g.origin_x) / g.resolution).astype(np.int64)
         iy = np.floor((a[1] + t * (b[1] - a[1]) - g.origin_y) / g.resolution).astype(np.int64)
-        if ix.min() < 0 or iy.min() < 0 or ix.max() >= g.width or iy.max() >= g.height:
+        # t grows from 0 to 1 and every operation above is monotone (rounding included), so
+        # the cells' extremes are the ends' cells
+        x0, x1, y0, y1 = int(ix[0]), int(ix[-1]), int(iy[0]), int(iy[-1])
+        if min(x0, x1) < 0 or min(y0, y1) < 0 or max(x0, x1) >= g.width or max(y0, y1) >= g.height:
             return False
         return not bool(occ[iy, ix].any())
 
