@@ -252,3 +252,60 @@ def test_compiled_neighbor_pairs_are_numpys_pairs_in_numpys_order(
     want = neighbor_pairs(x, y, r)
     got = neighbor_pairs(x, y, r, compiled=True)
     assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist()
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 120), sites=st.integers(0, 12))
+def test_battery_and_progress_compiled_is_the_numpy_upkeep(seed: int, n: int, sites: int) -> None:
+    """Batteries (drain, charging beside a charger, the 0 and 1 bounds) and the progress
+    checker (made progress, still trying, stuck) compiled and NumPy on random fleets: the same
+    bytes and the same stuck robots."""
+    from fleet.robots import SimParams
+    from sim.state import FleetState
+    from sim.upkeep import Upkeep
+
+    rng = np.random.default_rng(seed)
+    params = SimParams()
+    chargers = rng.uniform(0.0, 10.0, (sites, 2))
+    states = []
+    for _ in range(2):
+        s = FleetState()
+        for _ in range(n):
+            s.add(0.0, 0.0, 0.0, 0.5, 0.0)
+        states.append(s)
+    r2 = np.random.default_rng(seed + 1)
+    cols = {
+        "x": r2.uniform(0.0, 10.0, n),
+        "y": r2.uniform(0.0, 10.0, n),
+        "battery": np.where(r2.random(n) < 0.5, r2.choice([0.0, 1e-4, 0.9995, 1.0], n), r2.random(n)),
+        "px": r2.uniform(0.0, 10.0, n),
+        "py": r2.uniform(0.0, 10.0, n),
+        # around the moment a robot trying to move becomes stuck
+        "pt": 40.0 - params.stuck_time_s + r2.choice([-0.5, -1e-10, 0.0, 1e-10, 0.5], n),
+        "has_task": r2.random(n) < 0.7,
+        "drives": r2.random(n) < 0.5,
+        "fol": r2.random(n) < 0.5,
+        "f_xy": r2.random(n) < 0.3,
+        "stuck": r2.random(n) < 0.2,
+    }
+    near = r2.random(n) < 0.4  # some robots on a charger, some at their progress mark
+    if sites:
+        k = r2.integers(0, sites, n)
+        cols["x"] = np.where(near, chargers[k, 0] + 0.1, cols["x"])
+        cols["y"] = np.where(near, chargers[k, 1], cols["y"])
+    cols["px"] = np.where(r2.random(n) < 0.5, cols["x"] + 0.05, cols["px"])
+    cols["py"] = np.where(r2.random(n) < 0.5, cols["y"], cols["py"])
+    for s in states:
+        for name, v in cols.items():
+            getattr(s, name)[:n] = v
+    moved = r2.random(n) < 0.5
+    w = np.where(r2.random(n) < 0.5, 0.0, 0.3)
+    ds = np.where(moved, r2.uniform(-0.05, 0.05, n), 0.0)
+    stuck = [
+        Upkeep(s, params, chargers, compiled).update(moved, w, ds, 0.05, 40.0)
+        for s, compiled in zip(states, (True, False), strict=True)
+    ]
+    assert stuck[0].tolist() == stuck[1].tolist()
+    a, b = states
+    for name in ("battery", "charging", "px", "py", "pt", "stuck"):
+        assert getattr(a, name)[:n].tobytes() == getattr(b, name)[:n].tobytes(), name
