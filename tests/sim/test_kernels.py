@@ -4,7 +4,10 @@ machine without numba runs)."""
 
 from __future__ import annotations
 
+import functools
 import math
+import tempfile
+from typing import Any
 
 import numpy as np
 import pytest
@@ -309,3 +312,55 @@ def test_battery_and_progress_compiled_is_the_numpy_upkeep(seed: int, n: int, si
     a, b = states
     for name in ("battery", "charging", "px", "py", "pt", "stuck"):
         assert getattr(a, name)[:n].tobytes() == getattr(b, name)[:n].tobytes(), name
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 150))
+def test_compiled_detour_and_way_tests_are_the_numpy_ones(seed: int, n: int) -> None:
+    """The detour search (neighbors and static map in one compiled pass) and the follower's
+    corridor test of the way ahead, on robots crowded into a generated warehouse's aisles
+    (beside shelves, so the static samples decide headings): the same detour for every robot,
+    the same side memory and the same blocked robots as the NumPy code."""
+    from sim.avoidance import Avoidance
+    from sim.follower import PathFollower
+    from sim.footprint import FootprintGrid
+    from sim.simulator import pair_radii
+    from sim.spatial import NeighborPairs
+    from sim.state import FleetState
+
+    cfg, footprint = _warehouse()
+    rng = np.random.default_rng(seed)
+    free_iy, free_ix = np.nonzero(~footprint)
+    pick = rng.choice(free_iy.size, n)
+    g = cfg.grid
+    x = g.origin_x + (free_ix[pick] + rng.random(n)) * g.resolution
+    y = g.origin_y + (free_iy[pick] + rng.random(n)) * g.resolution
+    out = []
+    for compiled in (True, False):
+        state = FleetState()
+        for k in range(n):
+            state.add(float(x[k]), float(y[k]), 0.0, 1.0, 0.0)
+        radius, short = pair_radii(cfg.sim)
+        pairs = NeighborPairs(radius, short, cfg.sim.model.max_linear_speed, compiled)
+        pairs.update(state.x[:n], state.y[:n], 1, cfg.sim.step_s)
+        fp = FootprintGrid(cfg.grid, footprint, AVOID_CLEAR_M)
+        av = Avoidance(state, pairs, fp, cfg.sim.model.radius, compiled)
+        fol = PathFollower(state, cfg.sim, av, compiled)
+        r2 = np.random.default_rng(seed + 9)
+        fi = np.flatnonzero(r2.random(n) < 0.8)
+        desired = r2.uniform(-math.pi, math.pi, fi.size)
+        rem = r2.uniform(0.0, 4.0, fi.size)
+        side = r2.integers(-1, 2, fi.size)
+        fol._avoid(fi, desired, rem, side, np.zeros((0, 3)))
+        k = av.detour(
+            fi, r2.uniform(-math.pi, math.pi, fi.size), r2.integers(-1, 2, fi.size), np.zeros((0, 3))
+        )
+        out.append((desired.tobytes(), side.tolist(), k.tolist()))
+    assert out[0] == out[1]
+
+
+@functools.lru_cache(maxsize=1)
+def _warehouse() -> tuple[Any, np.ndarray]:
+    """A generated 200-robot warehouse's config and its robots' footprint grid."""
+    cfg = load_config(generate_warehouse(tempfile.mkdtemp(prefix="detour_"), "detour", 200), robots=200)
+    return cfg, Simulator(cfg.grid, cfg.sim, SimClock(), compiled=False).planner.footprint
