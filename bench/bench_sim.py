@@ -154,9 +154,10 @@ def run_sim_steps(
     if stages:
         parts = ", ".join(f"{k} {v / steps * 1000:.2f}" for k, v in stage_s.items())
         print(
-            "  stage ms/step (nested: follow includes corridor_free, detour (which includes pair blocks) and "
-            "footprint free; pairs.update includes neighbor_pairs; move includes footprint free; compiled runs "
-            f"limit_stop_move instead of reactive_stop and move): {parts}",
+            "  stage ms/step (nested: follow includes corridor_free or way blocked, detour (which includes pair "
+            "blocks and footprint free, or detour blocks); pairs.update includes neighbor_pairs; move includes "
+            "footprint free; compiled runs limit_stop_move instead of reactive_stop and move): "
+            f"{parts}",
             file=sys.stderr,
         )
     xmin, xmax, ymin, ymax = cfg.grid.extent
@@ -205,6 +206,10 @@ def _time_stages(sim: Any, stage_s: dict[str, float]) -> None:
     timed(avoidance, "detour", "detour")
     timed(avoidance, "_pair_blocks", "pair blocks")
     timed(avoidance.footprints, "free", "footprint free")
+    # compiled: the detour's neighbor and static tests in one pass, the follower's corridor test
+    timed(avoidance, "_compiled_blocks", "detour blocks")
+    timed(follower, "_blocked_compiled", "way blocked")
+    timed(sim._upkeep, "update", "battery + progress")
     timed(sim._safety, "reactive_stop", "reactive_stop")
     timed(sim._safety, "move", "move")
     # compiled, without dynamic obstacles: the limits, the reactive stop and the move in one

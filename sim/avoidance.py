@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from sim import kernels
+from sim import detour_kernels, kernels
 from sim.footprint import FootprintGrid
 from sim.spatial import NeighborPairs
 from sim.state import FleetState
@@ -160,6 +160,8 @@ class Avoidance:
         self.lat = contact + CORRIDOR_MARGIN_M
         self.compiled = kernels.enabled() if compiled is None else compiled and kernels.ready()
         self._pair_blocks_fn = kernels.pair_blocks if self.compiled else pair_blocks_numpy
+        #: each robot's row among the blocked robots of a detour search (-1: not blocked)
+        self._loc = np.zeros(0, dtype=np.int64)
 
     def corridor_free(
         self, idx: np.ndarray, hx: np.ndarray, hy: np.ndarray, cap: np.ndarray, obst: np.ndarray
@@ -229,12 +231,40 @@ class Avoidance:
         and the static map (:meth:`_static_blocks`); the first free offset in order comes
         from a table over (side, mask)."""
         blocked = np.zeros(fb.size, dtype=np.int64)  # bit j: the j-th smallest offset is blocked
-        self._pair_blocks(fb, db, blocked)
-        if obst.size:
-            blocked |= self._obstacle_blocks(fb, db, obst)
-        self._static_blocks(fb, db, blocked)
+        if self.compiled:
+            # neighbors and the static map in one pass; a bit set twice is set once, so the
+            # dynamic obstacles' bits may come after
+            self._compiled_blocks(fb, db, blocked)
+            if obst.size:
+                blocked |= self._obstacle_blocks(fb, db, obst)
+        else:
+            self._pair_blocks(fb, db, blocked)
+            if obst.size:
+                blocked |= self._obstacle_blocks(fb, db, obst)
+            self._static_blocks(fb, db, blocked)
         out: np.ndarray = _FIRST_FREE[side + 1, blocked]
         return out
+
+    def _compiled_blocks(self, fb: np.ndarray, db: np.ndarray, blocked: np.ndarray) -> None:
+        """:meth:`_pair_blocks` and :meth:`_static_blocks` as one compiled pass
+        (:func:`sim.detour_kernels.detour_blocks`)."""
+        s = self.state
+        n = s.n
+        contact, lat, cap = self.contact, self.lat, AVOID_CLEAR_M
+        reach = math.hypot(cap + contact, lat)
+        a_all, dx_all, dy_all, d2_all = self.pairs.candidates(reach)
+        loc = self._loc
+        if loc.size < n:
+            loc = self._loc = np.full(s.capacity, -1, dtype=np.int64)
+        loc[fb] = np.arange(fb.size)
+        fp = self.footprints
+        g = fp.grid
+        detour_kernels.detour_blocks(
+            a_all, dx_all, dy_all, d2_all, reach * reach, loc, db, s.x[fb], s.y[fb], OFFSETS, _BIT[_SORTED_POS],
+            contact, lat, cap, g.origin_x, g.origin_y, g.resolution, g.width, g.height, fp.cells,
+            fp.clear_cells(), fp.samples, blocked,
+        )  # fmt: skip
+        loc[fb] = -1
 
     def _pair_blocks(self, fb: np.ndarray, db: np.ndarray, blocked: np.ndarray) -> None:
         """Set the bits of the offsets that neighbors block: the exact corridor test of every

@@ -27,6 +27,7 @@ import numpy.typing as npt
 from fleet.errors import BackendError
 from fleet.navigation import GOAL_CODES, NO_GOAL, NavBatch
 from fleet.types import RobotState
+from sim import batch_kernels
 from sim.dispatch import GoalDispatch
 from sim.goals import TERMINAL
 from sim.localization import Localization
@@ -36,6 +37,24 @@ from sim.tasks import NavigateTask
 
 #: Goal ids remembered with their robot row and number (cleared when it holds more).
 ID_CACHE = 65536
+#: Batches of at least this many goals reuse the last call's rows (``SimBatch._goal_rows``).
+_INCREMENTAL_MIN = 64
+
+
+def _changed_positions(
+    new: list[str | None], old: list[str | None], lo: int, hi: int, out: list[int]
+) -> None:
+    """Append to ``out``, in increasing order, the positions in ``lo .. hi - 1`` where
+    ``new`` and ``old`` differ, by halving the range while its halves differ (a list
+    comparison first compares the items' identities)."""
+    if new[lo:hi] == old[lo:hi]:
+        return
+    if hi - lo <= 16:
+        out.extend(k for k in range(lo, hi) if new[k] != old[k])
+        return
+    mid = (lo + hi) // 2
+    _changed_positions(new, old, lo, mid, out)
+    _changed_positions(new, old, mid, hi, out)
 
 
 class SimBatch:
@@ -49,13 +68,19 @@ class SimBatch:
         localization: Localization,
         dispatch: GoalDispatch,
         robot_state: Callable[[str], RobotState],
+        compiled: bool = False,
     ) -> None:
         self.state = state
+        self.compiled = compiled
         self.localization = localization
         self.dispatch = dispatch
         self.robot_state = robot_state
         self._rows_of: tuple[list[str], npt.NDArray[np.intp]] = ([], np.zeros(0, dtype=np.intp))
         self._ids: dict[str | None, int] = {None: -1}
+        #: the goal ids of the last call and their rows and numbers (``_goal_rows``)
+        self._last_ids: list[str | None] = []
+        self._last_rows: npt.NDArray[np.intp] = np.zeros(0, dtype=np.intp)
+        self._last_nums: npt.NDArray[np.int64] = np.zeros(0, dtype=np.int64)
         #: Robots (by row) whose navigation is down (the ``navigation_down`` fault), kept by
         #: ``Simulator.set_fault``.
         self.navigation_down: set[int] = set()
@@ -68,7 +93,8 @@ class SimBatch:
             raise ValueError(f"query_batch: {len(namespaces)} namespaces but {len(goal_ids)} goal ids")
         idx = self._rows(namespaces)
         s = self.state
-        x, y, th = s.x[idx].astype(np.float64), s.y[idx].astype(np.float64), s.th[idx].astype(np.float64)
+        # the gathers are new arrays: no second copy (astype copy=False)
+        x, y, th = (a[idx].astype(np.float64, copy=False) for a in (s.x, s.y, s.th))
         localized = self._localized()[idx]
         for k in np.flatnonzero(~localized).tolist():  # rare: the estimate, as robot_state reports it
             pose = self.robot_state(namespaces[k]).pose
@@ -82,11 +108,11 @@ class SimBatch:
             x=x,
             y=y,
             theta=th,
-            battery=s.battery[idx].astype(np.float64),
-            distance_m=s.dist[idx].astype(np.float64),
-            collisions=s.collisions[idx].astype(np.int64),
-            charging=s.charging[idx].astype(np.bool_),
-            stuck=s.stuck[idx].astype(np.bool_),
+            battery=s.battery[idx].astype(np.float64, copy=False),
+            distance_m=s.dist[idx].astype(np.float64, copy=False),
+            collisions=s.collisions[idx].astype(np.int64, copy=False),
+            charging=s.charging[idx].astype(np.bool_, copy=False),
+            stuck=s.stuck[idx].astype(np.bool_, copy=False),
             localized=localized,
             navigation_ready=ready[idx],
             goal_status=status,
@@ -132,8 +158,34 @@ class SimBatch:
         self, goal_ids: Sequence[str | None]
     ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.int64]]:
         """The robot row and the ``n`` of each goal id ``"<namespace>#<n>"``; row -1 for
-        ``None`` and for an id that names no robot of this simulator. Ids are remembered as
-        ``row << 32 | n`` (-1: no robot)."""
+        ``None`` and for an id that names no robot of this simulator. A poller asks for nearly
+        the same ids every time (a few goals re-sent between two polls): the answer of the
+        last call is kept and only the ids that changed are looked up again (found by
+        comparing halves of the lists, which costs a pointer comparison per id)."""
+        ids = list(goal_ids) if not isinstance(goal_ids, list) else goal_ids
+        last = self._last_ids
+        if len(last) == len(ids) and len(ids) >= _INCREMENTAL_MIN:
+            if ids == last:
+                return self._last_rows, self._last_nums
+            changed: list[int] = []
+            _changed_positions(ids, last, 0, len(ids), changed)
+            if len(changed) <= len(ids) // 8:
+                if changed:
+                    code = self._codes([ids[k] for k in changed])
+                    at = np.array(changed, dtype=np.intp)
+                    self._last_rows[at] = np.where(code < 0, -1, code >> 32)
+                    self._last_nums[at] = code & 0xFFFFFFFF
+                    for k in changed:
+                        last[k] = ids[k]
+                return self._last_rows, self._last_nums
+        code = self._codes(ids)
+        rows = np.where(code < 0, -1, code >> 32).astype(np.intp)
+        nums = code & 0xFFFFFFFF
+        self._last_ids, self._last_rows, self._last_nums = list(ids), rows, nums
+        return rows, nums
+
+    def _codes(self, goal_ids: list[str | None]) -> npt.NDArray[np.int64]:
+        """Each goal id as ``row << 32 | n`` (-1: no robot), remembered by id."""
         ids = self._ids
         get = ids.get
         keys = list(map(get, goal_ids))
@@ -149,9 +201,7 @@ class SimBatch:
                 robot = robots.get(ns)
                 ok = robot is not None and num.isdigit() and 0 < int(num) < 1 << 32
                 ids[gid] = keys[k] = (robot.index << 32 | int(num)) if ok and robot is not None else -1
-        code = np.fromiter(keys, dtype=np.int64, count=len(keys))
-        rows = np.where(code < 0, -1, code >> 32).astype(np.intp)
-        return rows, code & 0xFFFFFFFF
+        return np.fromiter(keys, dtype=np.int64, count=len(keys))
 
     def _goals(
         self, goal_ids: Sequence[str | None]
@@ -163,6 +213,17 @@ class SimBatch:
         remaining = np.full(n, math.nan, dtype=np.float64)
         rows, nums = self._goal_rows(goal_ids)
         s = self.state
+        if self.compiled:
+            slow = np.empty(n, dtype=np.int64)
+            k_slow = batch_kernels.goal_rows(
+                rows, nums, s.g_num, s.g_code, s.g_nav, TERMINAL, s.x, s.y, s.f_t,
+                s.c_ax, s.c_ay, s.c_bx, s.c_by, s.c_suf, s.f_xy, s.f_len, status, remaining, slow,
+            )  # fmt: skip
+            for k in slow[:k_slow].tolist():
+                gid = goal_ids[k]
+                assert gid is not None
+                status[k], error[k], remaining[k] = self._slow_goal(gid)
+            return status, error, remaining
         safe = np.maximum(rows, 0)
         latest = (rows >= 0) & (s.g_num[safe] == nums) & (nums > 0)
         code = s.g_code[safe]

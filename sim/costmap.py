@@ -122,9 +122,10 @@ class Costmaps:
         self.radius = float(radius)
         self._blocked = grid.cells != FREE
         self.robots: list[RobotCostmaps] = []
-        self._still_x: list[float] = []
-        self._still_y: list[float] = []
-        self._still_since: list[float] = []
+        #: each robot's position when it last moved (rows x, y) and since when it stands (row 2)
+        self._still = np.zeros((3, 16))
+        #: robots holding marks in either layer (and some whose marks were cleared since)
+        self._holders: set[int] = set()
         self._next_sense = 0.0
         self._static_cost: np.ndarray | None = None
         self._names: list[str] = []
@@ -134,11 +135,14 @@ class Costmaps:
 
     def add(self, name: str, x: float, y: float, now: float) -> None:
         """A robot ``name`` (its namespace) added at ``(x, y)``; its costmaps start empty."""
+        k = len(self.robots)
         self.robots.append(RobotCostmaps())
         self._names.append(name)
-        self._still_x.append(x)
-        self._still_y.append(y)
-        self._still_since.append(now)
+        if k == self._still.shape[1]:
+            grown = np.zeros((3, 2 * k))
+            grown[:, :k] = self._still
+            self._still = grown
+        self._still[:, k] = (x, y, now)
 
     # -- sensing ------------------------------------------------------------------------
 
@@ -177,6 +181,7 @@ class Costmaps:
                     seen.setdefault(i, {})[src] = Mark(float(x[j]), float(y[j]), self.radius, now, src)
         for i, marks in seen.items():
             cm = self.robots[i]
+            self._holders.add(i)
             for src, m in marks.items():
                 if src not in cm.global_marks:
                     self.learned += 1
@@ -187,12 +192,10 @@ class Costmaps:
     def _stationary(self, now: float, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Which robots have stood still for :data:`STATIONARY_S` (bookkeeping per look)."""
         n = int(x.shape[0])
-        sx = np.array(self._still_x[:n])
-        sy = np.array(self._still_y[:n])
-        since = np.array(self._still_since[:n])
+        sx, sy, since = self._still[0, :n], self._still[1, :n], self._still[2, :n]
         moved = np.hypot(x - sx, y - sy) > STILL_M
-        for i in np.flatnonzero(moved).tolist():
-            self._still_x[i], self._still_y[i], self._still_since[i] = float(x[i]), float(y[i]), now
+        sx[moved] = x[moved]
+        sy[moved] = y[moved]
         since[moved] = now
         out: np.ndarray = (now - since) >= STATIONARY_S - 1e-9
         return out
@@ -247,7 +250,9 @@ class Costmaps:
         my_l: list[float] = []
         mr_l: list[float] = []
         owner: list[int] = []
-        for i, cm in enumerate(self.robots):
+        robots = self.robots
+        for i in sorted(self._holders):  # the others hold no marks
+            cm = robots[i]
             if not cm.global_marks and not cm.local_marks:
                 continue
             fresh = seen.get(i, {})
@@ -287,6 +292,7 @@ class Costmaps:
         for marks, _, gone, _ in layers:
             for src in set(gone):
                 marks.pop(src, None)
+        self._holders = {i for i in self._holders if robots[i].global_marks or robots[i].local_marks}
 
     def _sight_by_layer(
         self,

@@ -59,6 +59,8 @@ class PathFollower:
         self.params = params
         self.avoidance = avoidance
         self.compiled = kernels.enabled() if compiled is None else compiled and kernels.ready()
+        self._scratch = np.zeros((3, 0))
+        self._rows = np.zeros(0, dtype=np.int64)
 
     def follow(self, F: np.ndarray, now: float, obst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Command every robot in ``F`` (increasing indices) at time ``now`` (s), with the
@@ -320,12 +322,15 @@ class PathFollower:
         m = self.params.model
         tol = self.params.goal_tolerance
         av = self.avoidance
-        blk = av.corridor_free(
-            fi, np.cos(desired), np.sin(desired), np.full(fi.size, AVOID_LOOKAHEAD_M), obst
-        )
-        blocked = (blk < AVOID_LOOKAHEAD_M) & (blk + 2.0 * m.radius + tol < rem_d)
-        sd[~blocked] = 0
-        bi = np.flatnonzero(blocked)
+        if self.compiled and not obst.size:
+            bi = self._blocked_compiled(fi, desired, rem_d, sd)
+        else:
+            blk = av.corridor_free(
+                fi, np.cos(desired), np.sin(desired), np.full(fi.size, AVOID_LOOKAHEAD_M), obst
+            )
+            blocked = (blk < AVOID_LOOKAHEAD_M) & (blk + 2.0 * m.radius + tol < rem_d)
+            sd[~blocked] = 0
+            bi = np.flatnonzero(blocked)
         if bi.size:
             db = desired[bi]
             sdb = sd[bi]
@@ -334,6 +339,31 @@ class PathFollower:
             chosen = OFFSETS[k]
             desired[bi] = np.where(anyok, db + chosen, db)
             sd[bi] = np.where(anyok, np.where(chosen > 0, 1, -1), sdb)
+
+    def _blocked_compiled(
+        self, fi: np.ndarray, desired: np.ndarray, rem_d: np.ndarray, sd: np.ndarray
+    ) -> np.ndarray:
+        """The corridor test of :meth:`_avoid` as one compiled pass
+        (:func:`sim.follower_kernels.way_blocked`, no dynamic obstacles): the blocked rows of
+        ``fi``; ``sd`` is 0 for the others."""
+        s = self.state
+        av = self.avoidance
+        if self._scratch.shape[1] < s.n:
+            self._scratch = np.zeros((3, s.capacity))
+            self._rows = np.zeros(s.capacity, dtype=np.int64)
+        hx, hy, best = self._scratch
+        contact, lat = av.contact, av.lat
+        reach = math.hypot(AVOID_LOOKAHEAD_M + contact, lat)
+        pairs = av.pairs
+        pi, pj = pairs.index_pairs(reach)
+        # index_pairs() gives every pair once the reach passes the pair radius
+        reach2 = reach * reach if reach < pairs.radius else math.inf
+        margin = 2.0 * self.params.model.radius
+        k = follower_kernels.way_blocked(
+            fi, desired, rem_d, sd, s.n, pi, pj, pairs.x0, pairs.y0, reach2, contact, lat,
+            AVOID_LOOKAHEAD_M, margin, self.params.goal_tolerance, hx, hy, best, self._rows,
+        )  # fmt: skip
+        return self._rows[:k].copy()
 
     def _steer(self, desired: np.ndarray, th: np.ndarray, rem_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Turn-then-drive: rotate in place above :data:`ROTATE_IN_PLACE_RAD` of heading error,

@@ -308,8 +308,86 @@ def command(
         drives[i] = vcmd[r] != 0.0
 
 
+# long: the corridor test of the follower's way, robot by robot and pair by pair
+@jit
+def way_blocked(
+    fi: np.ndarray,
+    desired: np.ndarray,
+    rem: np.ndarray,
+    side: np.ndarray,
+    n: int,
+    pi: np.ndarray,
+    pj: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    reach2: float,
+    contact: float,
+    lat: float,
+    look: float,
+    margin: float,
+    tol: float,
+    hx: np.ndarray,
+    hy: np.ndarray,
+    best: np.ndarray,
+    blocked_out: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """What ``PathFollower._avoid`` asks of ``Avoidance.corridor_free`` and then tests, for a
+    step without dynamic obstacles: robot ``fi[q]`` heading for ``desired[q]`` (rad) is
+    blocked when the first robot in its corridor is closer than ``look`` m and that, plus
+    ``margin`` and then ``tol`` m, is short of its remaining path ``rem[q]``. The corridor
+    test is :func:`sim.kernels.corridor_min`'s over the directed pairs ``(pi[p], pj[p])``
+    with ``d2 < reach2``, their offsets computed from the positions ``x``, ``y`` as
+    :func:`sim.kernels.short_pairs` computes them. Unblocked robots get ``side[q] = 0``; the
+    blocked ones' ``q`` are written to ``blocked_out`` in order, and their number returned.
+    ``hx``, ``hy``, ``best``: scratch of at least ``n``."""
+    for i in range(n):
+        hx[i] = 0.0
+        hy[i] = 0.0
+        best[i] = 0.0
+    for q in range(fi.shape[0]):
+        i = fi[q]
+        hx[i] = math.cos(desired[q])
+        hy[i] = math.sin(desired[q])
+        best[i] = look
+    cc = contact * contact
+    lim = look + contact
+    for p in range(pi.shape[0]):
+        i = pi[p]
+        hxa = hx[i]
+        hya = hy[i]
+        if hxa == 0.0 and hya == 0.0:
+            continue  # not following: nothing is ahead of it (along = 0)
+        j = pj[p]
+        dx = x[j] - x[i]
+        dy = y[j] - y[i]
+        if not dx * dx + dy * dy < reach2:
+            continue
+        along = dx * hxa + dy * hya
+        if not along > 0.0:
+            continue
+        lateral = abs(dx * hya - dy * hxa)
+        if not (lateral < lat and along < lim):
+            continue
+        if lateral >= contact:
+            gap = along - contact
+        else:
+            gap = along - math.sqrt(max(cc - lateral * lateral, 0.0))
+        gap = max(0.0, gap)
+        if gap < best[i]:
+            best[i] = gap
+    nb = 0
+    for q in range(fi.shape[0]):
+        b = best[fi[q]]
+        if b < look and b + margin + tol < rem[q]:
+            blocked_out[nb] = q
+            nb += 1
+        else:
+            side[q] = 0
+    return nb
+
+
 def warm_up() -> None:
-    """Compile (or load from the cache) :func:`track` and :func:`command` with the argument
+    """Compile (or load from the cache) :func:`track`, :func:`command` and :func:`way_blocked` with the argument
     types the follower passes, on empty inputs."""
     ints = np.zeros(0, dtype=np.int64)
     floats = np.zeros(0)
@@ -326,6 +404,10 @@ def warm_up() -> None:
         ints, ints, floats, floats, ints, ints, floats, floats, floats, flags, flags, ints,
         1.0, 1.0, 1.0, 1.0, 0.8, 2.5, 0.1, 0.0, 20.0,
         ints, ints, ints, floats, floats, floats, flags, floats, floats, flags, flags,
+    )  # fmt: skip
+    way_blocked(
+        ints, floats, floats, ints, 0, ints, ints, floats, floats, 1.0, 0.6, 0.65, 1.5, 0.6, 0.1,
+        floats, floats, floats, ints,
     )  # fmt: skip
 
 

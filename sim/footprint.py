@@ -64,15 +64,22 @@ class FootprintGrid:
         """True where the cell of ``(x, y)`` has no blocked footprint cell (nor the map edge)
         within ``clear_m`` + a cell diagonal (center to center). Built on first use."""
         g = self.grid
+        clear = self.clear_cells()
+        ix = np.floor((x - g.origin_x) / g.resolution).astype(np.int64)
+        iy = np.floor((y - g.origin_y) / g.resolution).astype(np.int64)
+        np.minimum(np.maximum(ix, -1, out=ix), g.width, out=ix)
+        np.minimum(np.maximum(iy, -1, out=iy), g.height, out=iy)
+        out: np.ndarray = clear[(iy + 1) * (g.width + 2) + ix + 1]
+        return out
+
+    def clear_cells(self) -> np.ndarray:
+        """The padded mask :meth:`clear` reads (flat, laid out as :attr:`cells`): True where no
+        blocked footprint cell lies within ``clear_m`` + a cell diagonal. Built on first use."""
         if self._clear is None:
+            g = self.grid
             radius_cells = self._clear_m / g.resolution + math.sqrt(2.0) + 1e-3
             blocked = inflate(self._footprint, radius_cells)
             padded = np.zeros((g.height + 2, g.width + 2), dtype=bool)
             padded[1:-1, 1:-1] = ~blocked
             self._clear = padded.ravel()
-        ix = np.floor((x - g.origin_x) / g.resolution).astype(np.int64)
-        iy = np.floor((y - g.origin_y) / g.resolution).astype(np.int64)
-        np.minimum(np.maximum(ix, -1, out=ix), g.width, out=ix)
-        np.minimum(np.maximum(iy, -1, out=iy), g.height, out=iy)
-        out: np.ndarray = self._clear[(iy + 1) * (g.width + 2) + ix + 1]
-        return out
+        return self._clear

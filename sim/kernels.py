@@ -220,27 +220,66 @@ def warm_up() -> None:
         ints,
     )
     corridor_min(ints, floats, floats, floats, 1.0, floats, floats, floats, 0.6, 0.65, floats)
-    pair_offsets(ints, ints, floats, floats, 1.0, floats, floats, floats, ints, ints, floats, floats, floats)
 
 
 @jit
-def pair_offsets(
+def cell_pairs(
+    order: np.ndarray,
+    pos_hi: np.ndarray,
+    lo2: np.ndarray,
+    hi2: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    r2: float,
+    a: np.ndarray,
+    b: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """The candidate pairs of :func:`sim.spatial.neighbor_pairs` closer than ``sqrt(r2)``, in
+    its order: for every sorted position ``p`` the points ``p + 1 .. pos_hi[p] - 1`` (its
+    cell and the next), then for every ``p`` the points ``lo2[p] .. hi2[p] - 1`` (the row
+    above); ``i = order[p]``, ``j = order[q]``, kept when ``dx * dx + dy * dy < r2`` with
+    ``dx = x[j] - x[i]``. Writes the kept pairs to ``a``, ``b``; returns how many."""
+    k = 0
+    n = order.shape[0]
+    for p in range(n):
+        i = order[p]
+        for q in range(p + 1, pos_hi[p]):
+            j = order[q]
+            dx = x[j] - x[i]
+            dy = y[j] - y[i]
+            if dx * dx + dy * dy < r2:
+                a[k] = i
+                b[k] = j
+                k += 1
+    for p in range(n):
+        i = order[p]
+        for q in range(lo2[p], hi2[p]):
+            j = order[q]
+            dx = x[j] - x[i]
+            dy = y[j] - y[i]
+            if dx * dx + dy * dy < r2:
+                a[k] = i
+                b[k] = j
+                k += 1
+    return k
+
+
+@jit
+def short_pairs(
     pi: np.ndarray,
     pj: np.ndarray,
     x: np.ndarray,
     y: np.ndarray,
     short2: float,
-    dx: np.ndarray,
-    dy: np.ndarray,
-    d2: np.ndarray,
     si: np.ndarray,
     sj: np.ndarray,
     sdx: np.ndarray,
     sdy: np.ndarray,
     sd2: np.ndarray,
 ) -> int:  # pragma: no cover - compiled
-    """The offsets ``dx = x[pj] - x[pi]``, ``dy``, ``d2 = dx * dx + dy * dy`` of every pair,
-    and the pairs with ``d2 < short2`` in order into ``si .. sd2``; returns how many."""
+    """The pairs ``(pi[p], pj[p])`` closer than ``sqrt(short2)``, in order, into ``si``,
+    ``sj`` with their offsets ``sdx = x[pj] - x[pi]``, ``sdy``, ``sd2 = sdx * sdx + sdy *
+    sdy`` (NumPy's floats for the same expressions); returns how many."""
     k = 0
     for p in range(pi.shape[0]):
         a = pi[p]
@@ -248,9 +287,6 @@ def pair_offsets(
         ex = x[b] - x[a]
         ey = y[b] - y[a]
         e2 = ex * ex + ey * ey
-        dx[p] = ex
-        dy[p] = ey
-        d2[p] = e2
         if e2 < short2:
             si[k] = a
             sj[k] = b
@@ -261,4 +297,13 @@ def pair_offsets(
     return k
 
 
+def warm_up_pairs() -> None:
+    """Compile (or load from the cache) :func:`cell_pairs` and :func:`short_pairs`."""
+    ints = np.zeros(0, dtype=np.int64)
+    floats = np.zeros(0)
+    cell_pairs(ints, ints, ints, ints, floats, floats, 1.0, ints, ints)
+    short_pairs(ints, ints, floats, floats, 1.0, ints, ints, floats, floats, floats)
+
+
 register_warm_up(warm_up)
+register_warm_up(warm_up_pairs)

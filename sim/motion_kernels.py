@@ -194,3 +194,104 @@ def warm_up() -> None:
 
 
 register_warm_up(warm_up)
+
+
+# long: the battery, the charger test and the progress checker, robot by robot
+@jit
+def battery_and_progress(
+    moved: np.ndarray,
+    w: np.ndarray,
+    ds: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    battery: np.ndarray,
+    charging: np.ndarray,
+    sites_x: np.ndarray,
+    sites_y: np.ndarray,
+    charger_radius: float,
+    charge_step: float,
+    drain_per_m: float,
+    drain_step: float,
+    px: np.ndarray,
+    py: np.ndarray,
+    pt: np.ndarray,
+    stuck: np.ndarray,
+    has_task: np.ndarray,
+    drives: np.ndarray,
+    fol: np.ndarray,
+    f_xy: np.ndarray,
+    now: float,
+    progress_radius: float,
+    stuck_time: float,
+    stuck_out: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """``Simulator._battery`` and ``Simulator._check_progress`` of every robot in one pass.
+
+    Battery: a robot that neither translated (``moved``) nor turned (``w == 0``) within
+    ``charger_radius`` of a charger (``sites_x`` sorted, ``sites_y`` in the same order; the
+    test of :func:`sim.spatial.near_any`) charges by ``charge_step`` up to 1; the others drain
+    by ``drain_per_m * |ds| + drain_step`` down to 0 (``BatteryModel.integrate``'s floats).
+    Progress: a robot farther than ``progress_radius`` from ``(px, py)`` made progress (mark
+    moved there, its time ``now``, not stuck); one that is near and not trying to move has its
+    time reset; one near and trying since ``stuck_time`` is appended to ``stuck_out``.
+    Returns how many were appended (in increasing order)."""
+    m = sites_x.shape[0]
+    margin = charger_radius + 1e-9 * (1.0 + abs(charger_radius))
+    ns = 0
+    for i in range(x.shape[0]):
+        xi = x[i]
+        yi = y[i]
+        ch = False
+        if m and not moved[i] and w[i] == 0.0:
+            # first site with sites_x >= xi - margin (searchsorted 'left'), then every one up
+            # to xi + margin
+            lo = 0
+            hi = m
+            key = xi - margin
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if sites_x[mid] < key:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            top = xi + margin
+            j = lo
+            while j < m and sites_x[j] <= top:
+                if math.hypot(sites_x[j] - xi, sites_y[j] - yi) <= charger_radius:
+                    ch = True
+                    break
+                j += 1
+        level = battery[i]
+        if ch:
+            c = level + charge_step
+            battery[i] = 1.0 if 1.0 < c else c
+        else:
+            d = level - drain_per_m * abs(ds[i]) - drain_step
+            battery[i] = 0.0 if 0.0 > d else d
+        charging[i] = ch
+        if math.hypot(xi - px[i], yi - py[i]) > progress_radius:
+            px[i] = xi
+            py[i] = yi
+            pt[i] = now
+            stuck[i] = False
+        else:
+            trying = has_task[i] and (drives[i] or (fol[i] and not f_xy[i]))
+            if not trying:
+                pt[i] = now
+            elif now - pt[i] >= stuck_time - 1e-9:
+                stuck_out[ns] = i
+                ns += 1
+    return ns
+
+
+def warm_up_battery() -> None:
+    """Compile (or load from the cache) :func:`battery_and_progress`."""
+    f = np.zeros(0)
+    b = np.zeros(0, dtype=bool)
+    battery_and_progress(
+        b, f, f, f, f, f, b, f, f, 0.5, 0.01, 0.001, 0.0001, f, f, f, b, b, b, b, b, 1.0, 0.1, 10.0,
+        np.zeros(0, dtype=np.int64),
+    )  # fmt: skip
+
+
+register_warm_up(warm_up_battery)

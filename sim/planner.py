@@ -125,6 +125,8 @@ class GridPlanner:
         padded = np.zeros((ch + 2, cw + 2), dtype=bool)
         padded[1:-1, 1:-1] = coarse_free
         self._free_flat: list[bool] = padded.ravel().tolist()
+        #: the same cells as an array, copied for each plan around learned obstacles
+        self._free_padded = padded
         self._cw, self._ch = cw, ch
         self._cache: dict[tuple[tuple[int, int], tuple[int, int]], tuple[Point, ...] | None] = {}
         self._results: dict[tuple[float, ...], PlanResult] = {}
@@ -159,7 +161,10 @@ class GridPlanner:
         t = np.linspace(0.0, 1.0, n)
         ix = np.floor((a[0] + t * (b[0] - a[0]) - g.origin_x) / g.resolution).astype(np.int64)
         iy = np.floor((a[1] + t * (b[1] - a[1]) - g.origin_y) / g.resolution).astype(np.int64)
-        if ix.min() < 0 or iy.min() < 0 or ix.max() >= g.width or iy.max() >= g.height:
+        # t grows from 0 to 1 and every operation above is monotone (rounding included), so
+        # the cells' extremes are the ends' cells
+        x0, x1, y0, y1 = int(ix[0]), int(ix[-1]), int(iy[0]), int(iy[-1])
+        if min(x0, x1) < 0 or min(y0, y1) < 0 or max(x0, x1) >= g.width or max(y0, y1) >= g.height:
             return False
         return not bool(occ[iy, ix].any())
 
@@ -303,7 +308,7 @@ class GridPlanner:
         center blocked."""
         g = self.grid
         size = self._k * g.resolution
-        free = np.array(self._free_flat, dtype=bool).reshape(self._ch + 2, self._cw + 2)
+        free = self._free_padded.copy()
         cx = g.origin_x + (np.arange(self._cw) + 0.5) * size
         cy = g.origin_y + (np.arange(self._ch) + 0.5) * size
         for x, y, r in discs:

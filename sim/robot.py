@@ -26,7 +26,7 @@ class Robot:
     odometer (absolute distance driven); ``collisions`` counts contact events this robot took
     part in. ``fault`` is ``None`` or ``"stalled"`` (wheels do not respond). Reading or writing
     an attribute reads or writes the arrays, so tasks see the same state as the vectorized step
-    (a write counts as a change of the state's ``version``).
+    (a write counts as a change of the robot's row: :meth:`sim.state.FleetState.touch`).
     """
 
     __slots__ = ("name", "namespace", "index", "state", "fault")
@@ -50,7 +50,7 @@ class Robot:
     @x.setter
     def x(self, value: float) -> None:
         self.state.x[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)
 
     @property
     def y(self) -> float:
@@ -59,7 +59,7 @@ class Robot:
     @y.setter
     def y(self, value: float) -> None:
         self.state.y[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)
 
     @property
     def theta(self) -> float:
@@ -68,7 +68,7 @@ class Robot:
     @theta.setter
     def theta(self, value: float) -> None:
         self.state.th[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)
 
     @property
     def v(self) -> float:
@@ -77,7 +77,7 @@ class Robot:
     @v.setter
     def v(self, value: float) -> None:
         self.state.v[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)
 
     @property
     def w(self) -> float:
@@ -86,7 +86,7 @@ class Robot:
     @w.setter
     def w(self, value: float) -> None:
         self.state.w[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)
 
     @property
     def battery(self) -> float:
@@ -95,7 +95,7 @@ class Robot:
     @battery.setter
     def battery(self, value: float) -> None:
         self.state.battery[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)
 
     @property
     def charging(self) -> bool:
@@ -104,7 +104,7 @@ class Robot:
     @charging.setter
     def charging(self, value: bool) -> None:
         self.state.charging[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)
 
     @property
     def stuck(self) -> bool:
@@ -113,7 +113,7 @@ class Robot:
     @stuck.setter
     def stuck(self, value: bool) -> None:
         self.state.stuck[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)
 
     @property
     def distance_m(self) -> float:
@@ -122,7 +122,7 @@ class Robot:
     @distance_m.setter
     def distance_m(self, value: float) -> None:
         self.state.dist[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)
 
     @property
     def collisions(self) -> int:
@@ -131,7 +131,7 @@ class Robot:
     @collisions.setter
     def collisions(self, value: int) -> None:
         self.state.collisions[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)
 
     @property
     def progress_x(self) -> float:
@@ -140,7 +140,7 @@ class Robot:
     @progress_x.setter
     def progress_x(self, value: float) -> None:
         self.state.px[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)
 
     @property
     def progress_y(self) -> float:
@@ -149,7 +149,7 @@ class Robot:
     @progress_y.setter
     def progress_y(self, value: float) -> None:
         self.state.py[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)
 
     @property
     def progress_t(self) -> float:
@@ -158,4 +158,4 @@ class Robot:
     @progress_t.setter
     def progress_t(self, value: float) -> None:
         self.state.pt[self.index] = value
-        self.state.version += 1
+        self.state.touch(self.index)

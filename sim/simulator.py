@@ -63,11 +63,10 @@ from sim.planner import GridPlanner, PlanResult
 from sim.robot import Robot
 from sim.safety import STOP_GAP_M, Contacts, Safety
 from sim.snapshots import GoalTable, RobotTable, localized_robot_state, make_robot_state
-from sim.spatial import NeighborPairs, near_any
+from sim.spatial import NeighborPairs
 from sim.state import FleetState
+from sim.upkeep import Upkeep
 
-#: A robot that moved this far (m) from where it last made progress has made progress.
-PROGRESS_RADIUS_M = 0.1
 #: Trajectories are sampled every this many simulated seconds.
 TRAJECTORY_PERIOD_S = 0.5
 #: Fault names accepted by :meth:`Simulator.set_fault`.
@@ -142,10 +141,11 @@ class Simulator:
         self._follower = PathFollower(self.state, params, avoidance, self.compiled)
         self._safety = Safety(self.state, params, avoidance, footprints, self.planner)
         self._contacts = Contacts(self.state, params, self._pairs)
+        self._upkeep = Upkeep(self.state, params, self._chargers, self.compiled)
         self.costmaps = Costmaps(grid, params.model.radius)
         self.localization = Localization()
         self._dispatch = GoalDispatch(self.state, params, self.planner, clock, self._safety, self.costmaps)
-        self._batch = SimBatch(self.state, self.localization, self._dispatch, self.robot_state)
+        self._batch = SimBatch(self.state, self.localization, self._dispatch, self.robot_state, self.compiled)
         #: Why each robot is stopped by the safety watchdog (absent: it is not).
         self.safety_stops: dict[str, str] = {}
         #: ``(t, namespace, reason)`` of every safety stop, the last :data:`sim.history.EVENTS_KEPT`.
@@ -518,8 +518,8 @@ class Simulator:
             ds, dth, moved = self._safety.move(v, w, dt, obst)
         self._dispatch.after_move(py_robots, ds, dth)
         # 4. battery and stuck detector
-        self._battery(moved, w, np.abs(ds), dt)
-        self._check_progress(now)
+        for i in self._upkeep.update(moved, w, ds, dt, now).tolist():
+            self._dispatch.stuck(i, now)
         # 5. contacts
         order = self._dispatch.order
         self._contacts.count(now, lambda i: order[i].namespace)
@@ -546,44 +546,6 @@ class Simulator:
             v[dead] = 0.0
             w[dead] = 0.0
         return v, w
-
-    def _battery(self, moved: np.ndarray, w: np.ndarray, adist: np.ndarray, dt: float) -> None:
-        """Drain by the distance ``adist`` (m) driven and the time; charge robots that stand
-        still (no move, no turn) within ``charger_radius`` of a charger."""
-        s = self.state
-        n = moved.size
-        charging = np.zeros(n, dtype=bool)
-        if self._chargers.shape[0]:
-            idle = np.flatnonzero(~moved & (w == 0.0))
-            if idle.size:
-                x, y = s.x[:n], s.y[:n]
-                cx = self._chargers[:, 0]
-                cy = self._chargers[:, 1]
-                charging[idle] = near_any(x[idle], y[idle], cx, cy, self.params.charger_radius)
-        s.battery[:n] = self.params.battery.integrate(s.battery[:n], adist, dt, charging)
-        s.charging[:n] = charging
-
-    def _check_progress(self, now: float) -> None:
-        """The progress checker: a robot whose task wants it to translate but that stayed
-        within :data:`PROGRESS_RADIUS_M` for ``stuck_time_s`` is stuck."""
-        s = self.state
-        n = s.n
-        x, y = s.x[:n], s.y[:n]
-        px, py, pt = s.px[:n], s.py[:n], s.pt[:n]
-        far = np.hypot(x - px, y - py) > PROGRESS_RADIUS_M
-        if far.any():
-            np.copyto(px, x, where=far)
-            np.copyto(py, y, where=far)
-            pt[far] = now
-            s.stuck[:n][far] = False
-        near_p = ~far
-        # a path follower wants to move until it stands at its final position, also while it
-        # turns in place to get round something in its way
-        trying = s.has_task[:n] & (s.drives[:n] | (s.fol[:n] & ~s.f_xy[:n]))
-        pt[near_p & ~trying] = now
-        stuck = np.flatnonzero(near_p & trying & (now - pt >= self.params.stuck_time_s - 1e-9))
-        for i in stuck.tolist():
-            self._dispatch.stuck(i, now)
 
     def _sample(self, now: float) -> None:
         if now >= self._next_sample - 1e-9:

@@ -21,12 +21,15 @@ from sim import kernels
 _EMPTY = np.zeros(0, dtype=np.int64)
 
 
-def neighbor_pairs(x: np.ndarray, y: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+def neighbor_pairs(
+    x: np.ndarray, y: np.ndarray, radius: float, compiled: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Directed pairs ``(i, j)``, ``i != j``, of points closer than ``radius`` (both orders are
     returned: ``(i, j)`` and ``(j, i)``, each pair once per order). ``x``, ``y`` are 1-D float
     arrays of equal length. The result is deterministic (same input, same arrays); its order
     is not meaningful: the first half holds each unordered pair once, the second half the same
-    pairs reversed."""
+    pairs reversed. ``compiled``: expand the ranges and test the distances in one compiled
+    loop (:func:`sim.kernels.cell_pairs`): the same pairs in the same order."""
     n = int(x.shape[0])
     if n < 2:
         return _EMPTY, _EMPTY
@@ -43,6 +46,15 @@ def neighbor_pairs(x: np.ndarray, y: np.ndarray, radius: float) -> tuple[np.ndar
     hi1 = np.searchsorted(skey, skey + 1, "right")
     lo2 = np.searchsorted(skey, skey + (w - 1), "left")
     hi2 = np.searchsorted(skey, skey + (w + 1), "right")
+    if compiled:
+        tot = int((hi1 - pos - 1).sum() + (hi2 - lo2).sum())
+        if tot == 0:
+            return _EMPTY, _EMPTY
+        a = np.empty(tot, dtype=np.int64)
+        b = np.empty(tot, dtype=np.int64)
+        k = kernels.cell_pairs(order, hi1, lo2, hi2, x, y, radius * radius, a, b)
+        a, b = a[:k], b[:k]
+        return np.concatenate((a, b)), np.concatenate((b, a))
     lo = np.concatenate((pos + 1, lo2))
     cnt = np.concatenate((hi1 - pos - 1, hi2 - lo2))
     tot = int(cnt.sum())
@@ -98,10 +110,12 @@ class NeighborPairs:
 
     A Verlet list: the pairs closer than ``radius`` plus what ``PAIR_REUSE_STEPS`` steps of
     motion at ``max_speed`` (m/s) can close, rebuilt every :data:`PAIR_REUSE_STEPS` steps (or
-    when a robot was added). Each step :meth:`update` refreshes the offsets ``dx = x[j] - x[i]``,
-    ``dy``, ``d2 = dx**2 + dy**2`` of every pair ``(i, j)``, and keeps the pairs closer than
-    ``short`` (m) in a second, shorter list (``si``, ``sj``, ``sdx``, ``sdy``, ``sd2``), in one
-    compiled pass with ``compiled`` (:func:`sim.kernels.pair_offsets`), else with NumPy."""
+    when a robot was added). Each step :meth:`update` keeps the pairs closer than ``short``
+    (m) in a short list (``si``, ``sj``, ``sdx``, ``sdy``, ``sd2``: the offsets ``dx = x[j] -
+    x[i]``, ``dy``, ``d2 = dx**2 + dy**2``), in one compiled pass with ``compiled``
+    (:func:`sim.kernels.short_pairs`), else with NumPy; the offsets of every pair (``dx``,
+    ``dy``, ``d2``) are computed with NumPy on first use in the step when compiled (a compiled
+    loop over all pairs reads :meth:`index_pairs` and the positions instead)."""
 
     def __init__(self, radius: float, short: float, max_speed: float, compiled: bool = False) -> None:
         self.radius = radius
@@ -109,11 +123,35 @@ class NeighborPairs:
         self.compiled = compiled
         self._max_speed = max_speed
         self.i = self.j = _EMPTY
-        self.dx = self.dy = self.d2 = np.zeros(0)
+        self._dx = self._dy = self._d2 = np.zeros(0)
+        self._full = True
         self.si = self.sj = _EMPTY
-        self.sdx = self.sdy = self.sd2 = self.d2
+        self.sdx = self.sdy = self.sd2 = self._d2
         self._n = -1
         self._built = 0
+        #: the compiled pass's output arrays, kept while the list keeps its length
+        self._floats = np.empty((3, 0))
+        self._ints = np.empty((2, 0), dtype=np.int64)
+        #: the positions of the step's start (compiled): what every offset is computed from
+        self.x0 = self.y0 = self._d2
+
+    @property
+    def dx(self) -> np.ndarray:
+        """``x[j] - x[i]`` of every pair ``(i, j)`` (m)."""
+        self._all_offsets()
+        return self._dx
+
+    @property
+    def dy(self) -> np.ndarray:
+        """``y[j] - y[i]`` of every pair ``(i, j)`` (m)."""
+        self._all_offsets()
+        return self._dy
+
+    @property
+    def d2(self) -> np.ndarray:
+        """``dx * dx + dy * dy`` of every pair (m²)."""
+        self._all_offsets()
+        return self._d2
 
     def update(self, x: np.ndarray, y: np.ndarray, step: int, dt: float) -> None:
         """Refresh the pairs of the robots at ``(x, y)`` (one entry per robot) for step number
@@ -121,27 +159,50 @@ class NeighborPairs:
         n = int(x.shape[0])
         if n != self._n or step - self._built >= PAIR_REUSE_STEPS:
             skin = 2.0 * self._max_speed * dt * PAIR_REUSE_STEPS
-            self.i, self.j = neighbor_pairs(x, y, self.radius + skin)
+            self.i, self.j = neighbor_pairs(x, y, self.radius + skin, self.compiled)
             self._n, self._built = n, step
         pi, pj = self.i, self.j
+        if self.compiled:
+            self.x0, self.y0 = x.copy(), y.copy()
         if self.compiled and self.short < self.radius:
             m = pi.shape[0]
-            dx, dy, d2, sdx, sdy, sd2 = (np.empty(m) for _ in range(6))
-            si = np.empty(m, dtype=np.int64)
-            sj = np.empty(m, dtype=np.int64)
-            k = kernels.pair_offsets(pi, pj, x, y, self.short * self.short, dx, dy, d2, si, sj, sdx, sdy, sd2)
-            self.dx, self.dy, self.d2 = dx, dy, d2
+            if self._floats.shape[1] != m:  # a new list: new buffers, reused until the next
+                self._floats = np.empty((3, m))
+                self._ints = np.empty((2, m), dtype=np.int64)
+            sdx, sdy, sd2 = self._floats
+            si, sj = self._ints
+            k = kernels.short_pairs(pi, pj, x, y, self.short * self.short, si, sj, sdx, sdy, sd2)
             self.si, self.sj, self.sdx, self.sdy, self.sd2 = si[:k], sj[:k], sdx[:k], sdy[:k], sd2[:k]
+            self._full = False
             return
-        self.dx = x[pj] - x[pi]
-        self.dy = y[pj] - y[pi]
-        self.d2 = self.dx * self.dx + self.dy * self.dy
+        self._dx = x[pj] - x[pi]
+        self._dy = y[pj] - y[pi]
+        self._d2 = self._dx * self._dx + self._dy * self._dy
+        self._full = True
         if self.short < self.radius:
-            near = np.flatnonzero(self.d2 < self.short * self.short)
+            near = np.flatnonzero(self._d2 < self.short * self.short)
             self.si, self.sj = pi[near], pj[near]
-            self.sdx, self.sdy, self.sd2 = self.dx[near], self.dy[near], self.d2[near]
+            self.sdx, self.sdy, self.sd2 = self._dx[near], self._dy[near], self._d2[near]
         else:
-            self.si, self.sj, self.sdx, self.sdy, self.sd2 = pi, pj, self.dx, self.dy, self.d2
+            self.si, self.sj, self.sdx, self.sdy, self.sd2 = pi, pj, self._dx, self._dy, self._d2
+
+    def _all_offsets(self) -> None:
+        """The offsets of every pair from the step's start positions, once per step (the
+        floats of :func:`sim.kernels.short_pairs`: ``x[j] - x[i]``, then ``dx * dx + dy * dy``)."""
+        if not self._full:
+            pi, pj = self.i, self.j
+            self._dx = self.x0[pj] - self.x0[pi]
+            self._dy = self.y0[pj] - self.y0[pi]
+            self._d2 = self._dx * self._dx + self._dy * self._dy
+            self._full = True
+
+    def index_pairs(self, reach: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(i, j)`` of a list of directed pairs holding every pair with ``d2 < reach**2``
+        (the short list when it reaches that far, else all pairs), for a compiled loop that
+        computes the offsets from :attr:`x0`, :attr:`y0` and tests ``d2`` itself."""
+        if reach <= self.short:
+            return self.si, self.sj
+        return self.i, self.j
 
     def candidates(self, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(i, dx, dy, d2)`` of a list of directed pairs holding every pair with ``d2 <

@@ -26,9 +26,11 @@ follower, so its remaining distance is the follower's (:mod:`sim.batch` reads it
 
 Snapshots (goal feedback, robot state) read one robot at a time through :meth:`FleetState.row`.
 Between steps every robot's row is copied out of the arrays at once, on the first read after
-a change (``version`` counts the changes: the simulator's step, :meth:`FleetState.attach`,
-:meth:`FleetState.add`, the :class:`sim.robot.Robot` setters); while a step runs (``busy``)
-rows are read from the arrays directly.
+a change of the whole fleet (``version`` counts the changes: the simulator's step,
+:meth:`FleetState.add`); a change of one robot between steps (:meth:`FleetState.attach`,
+:meth:`FleetState.detach`, the :class:`sim.robot.Robot` setters: :meth:`FleetState.touch`)
+refreshes only that robot's row on its next read, so a goal sent does not cost a copy of the
+whole fleet. While a step runs (``busy``) rows are read from the arrays directly.
 """
 
 from __future__ import annotations
@@ -96,6 +98,8 @@ class FleetState:
         self.busy = False
         self._rows = np.zeros((0, len(ROW)))
         self._rows_version = -1
+        #: rows of the copy that are stale (changed by :meth:`touch` since it was made)
+        self._dirty: set[int] = set()
 
     # typed views for mypy (set dynamically above)
     x: np.ndarray
@@ -173,7 +177,7 @@ class FleetState:
         self, i: int, path: list[tuple[float, float]], vias: list[int], final_yaw: float, now: float
     ) -> None:
         """Make robot ``i`` follow ``path`` (at least 2 points) through ``vias``."""
-        self.version += 1
+        self.touch(i)
         k = len(path)
         self._reserve_points(k)
         self._reserve_vias(len(vias))
@@ -235,20 +239,33 @@ class FleetState:
         self.c_vmore[idx] = nv < vn - 1
 
     def detach(self, i: int) -> None:
-        self.version += 1
+        self.touch(i)
         self.fol[i] = False
+
+    def touch(self, i: int) -> None:
+        """Robot ``i``'s values change (only its row): counts as a change of ``version``;
+        between steps the copy of the rows stays valid for every other robot."""
+        if self._rows_version == self.version and not self.busy:
+            self._dirty.add(i)
+            self._rows_version += 1
+        self.version += 1
 
     def row(self, i: int) -> list[float]:
         """Robot ``i``'s values of the :data:`ROW` arrays, as Python floats (flags as 0.0 /
         1.0, counts as whole numbers): the same values ``.item(i)`` gives. Between steps the
-        rows of all robots are copied out once per ``version``; during a step they are read
-        from the arrays."""
+        rows of all robots are copied out once after a change of the whole fleet, and a row
+        :meth:`touch` made stale is copied again alone; during a step they are read from the
+        arrays."""
         if self._rows_version != self.version:
             if self.busy:
                 return [float(getattr(self, name).item(i)) for name in ROW]
             n = self.n
             self._rows = np.column_stack([getattr(self, name)[:n] for name in ROW]).astype(float, copy=False)
             self._rows_version = self.version
+            self._dirty.clear()
+        elif self._dirty and i in self._dirty:
+            self._dirty.discard(i)
+            self._rows[i] = [getattr(self, name).item(i) for name in ROW]
         return self._rows[i].tolist()  # type: ignore[no-any-return]
 
     def progress(self, i: int) -> tuple[float, float, float, float, int]:

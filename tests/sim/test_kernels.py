@@ -4,7 +4,10 @@ machine without numba runs)."""
 
 from __future__ import annotations
 
+import functools
 import math
+import tempfile
+from typing import Any
 
 import numpy as np
 import pytest
@@ -112,23 +115,39 @@ def test_corridor_min_is_the_numpy_minimum(seed: int, n: int, span: float) -> No
 
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 80), span=st.floats(0.5, 8.0))
-def test_pair_offsets_are_numpys_offsets_and_short_list(seed: int, n: int, span: float) -> None:
+def test_short_pairs_are_numpys_offsets_and_short_list(seed: int, n: int, span: float) -> None:
     a, _, _, _ = _scene(seed, n, span)
     rng = np.random.default_rng(seed + 3)
     x, y = rng.uniform(0.0, span, n), rng.uniform(0.0, span, n)
     b = np.array([j for i in range(n) for j in range(n) if j != i], dtype=np.int64)
     m = a.size
-    dx, dy, d2, sdx, sdy, sd2 = (np.empty(m) for _ in range(6))
+    sdx, sdy, sd2 = (np.empty(m) for _ in range(3))
     si, sj = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
     short = 0.4 * span
-    k = kernels.pair_offsets(a, b, x, y, short * short, dx, dy, d2, si, sj, sdx, sdy, sd2)
+    k = kernels.short_pairs(a, b, x, y, short * short, si, sj, sdx, sdy, sd2)
     ex, ey = x[b] - x[a], y[b] - y[a]
     e2 = ex * ex + ey * ey
     near = np.flatnonzero(e2 < short * short)
-    assert (dx.tobytes(), dy.tobytes(), d2.tobytes()) == (ex.tobytes(), ey.tobytes(), e2.tobytes())
     assert k == near.size
     assert si[:k].tolist() == a[near].tolist() and sj[:k].tolist() == b[near].tolist()
     assert sd2[:k].tobytes() == e2[near].tobytes() and sdx[:k].tobytes() == ex[near].tobytes()
+    assert sdy[:k].tobytes() == ey[near].tobytes()
+
+
+def test_every_pairs_offsets_on_demand_are_those_of_the_step_start() -> None:
+    """Compiled, the neighbor list stores only the short list each step; the offsets of every
+    pair, asked for after the robots moved, are those of the positions at the step's start."""
+    from sim.spatial import NeighborPairs
+
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(0.0, 8.0, 80), rng.uniform(0.0, 8.0, 80)
+    fast, slow = NeighborPairs(2.2, 1.5, 1.0, compiled=True), NeighborPairs(2.2, 1.5, 1.0)
+    fast.update(x.copy(), y.copy(), 1, 0.05)
+    slow.update(x.copy(), y.copy(), 1, 0.05)
+    x += 0.3  # the move of the step: the pairs' offsets are those of its start
+    for name in ("si", "sj", "sdx", "sdy", "sd2", "i", "dx", "dy", "d2"):
+        assert getattr(fast, name).tobytes() == getattr(slow, name).tobytes(), name
+    assert fast.index_pairs(2.0)[0].tobytes() == slow.i.tobytes()
 
 
 def test_libm_trigonometry_matches_numpy() -> None:
@@ -218,3 +237,130 @@ def test_kernels_that_cannot_compile_leave_the_numpy_code_running(
     for _ in range(60):
         sim.step()
     assert sim.robot_table().distance_m.sum() > 10.0
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1), n=st.integers(0, 300), span=st.floats(0.5, 40.0), r=st.floats(0.2, 3.0)
+)
+def test_compiled_neighbor_pairs_are_numpys_pairs_in_numpys_order(
+    seed: int, n: int, span: float, r: float
+) -> None:
+    from sim.spatial import neighbor_pairs
+
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(-span, span, n), rng.uniform(0.0, span, n)
+    if n > 3:
+        x[1], y[1] = x[0], y[0] + r  # a pair at exactly the radius: not a neighbor
+    want = neighbor_pairs(x, y, r)
+    got = neighbor_pairs(x, y, r, compiled=True)
+    assert got[0].tolist() == want[0].tolist() and got[1].tolist() == want[1].tolist()
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 120), sites=st.integers(0, 12))
+def test_battery_and_progress_compiled_is_the_numpy_upkeep(seed: int, n: int, sites: int) -> None:
+    """Batteries (drain, charging beside a charger, the 0 and 1 bounds) and the progress
+    checker (made progress, still trying, stuck) compiled and NumPy on random fleets: the same
+    bytes and the same stuck robots."""
+    from fleet.robots import SimParams
+    from sim.state import FleetState
+    from sim.upkeep import Upkeep
+
+    rng = np.random.default_rng(seed)
+    params = SimParams()
+    chargers = rng.uniform(0.0, 10.0, (sites, 2))
+    states = []
+    for _ in range(2):
+        s = FleetState()
+        for _ in range(n):
+            s.add(0.0, 0.0, 0.0, 0.5, 0.0)
+        states.append(s)
+    r2 = np.random.default_rng(seed + 1)
+    cols = {
+        "x": r2.uniform(0.0, 10.0, n),
+        "y": r2.uniform(0.0, 10.0, n),
+        "battery": np.where(r2.random(n) < 0.5, r2.choice([0.0, 1e-4, 0.9995, 1.0], n), r2.random(n)),
+        "px": r2.uniform(0.0, 10.0, n),
+        "py": r2.uniform(0.0, 10.0, n),
+        # around the moment a robot trying to move becomes stuck
+        "pt": 40.0 - params.stuck_time_s + r2.choice([-0.5, -1e-10, 0.0, 1e-10, 0.5], n),
+        "has_task": r2.random(n) < 0.7,
+        "drives": r2.random(n) < 0.5,
+        "fol": r2.random(n) < 0.5,
+        "f_xy": r2.random(n) < 0.3,
+        "stuck": r2.random(n) < 0.2,
+    }
+    near = r2.random(n) < 0.4  # some robots on a charger, some at their progress mark
+    if sites:
+        k = r2.integers(0, sites, n)
+        cols["x"] = np.where(near, chargers[k, 0] + 0.1, cols["x"])
+        cols["y"] = np.where(near, chargers[k, 1], cols["y"])
+    cols["px"] = np.where(r2.random(n) < 0.5, cols["x"] + 0.05, cols["px"])
+    cols["py"] = np.where(r2.random(n) < 0.5, cols["y"], cols["py"])
+    for s in states:
+        for name, v in cols.items():
+            getattr(s, name)[:n] = v
+    moved = r2.random(n) < 0.5
+    w = np.where(r2.random(n) < 0.5, 0.0, 0.3)
+    ds = np.where(moved, r2.uniform(-0.05, 0.05, n), 0.0)
+    stuck = [
+        Upkeep(s, params, chargers, compiled).update(moved, w, ds, 0.05, 40.0)
+        for s, compiled in zip(states, (True, False), strict=True)
+    ]
+    assert stuck[0].tolist() == stuck[1].tolist()
+    a, b = states
+    for name in ("battery", "charging", "px", "py", "pt", "stuck"):
+        assert getattr(a, name)[:n].tobytes() == getattr(b, name)[:n].tobytes(), name
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 150))
+def test_compiled_detour_and_way_tests_are_the_numpy_ones(seed: int, n: int) -> None:
+    """The detour search (neighbors and static map in one compiled pass) and the follower's
+    corridor test of the way ahead, on robots crowded into a generated warehouse's aisles
+    (beside shelves, so the static samples decide headings): the same detour for every robot,
+    the same side memory and the same blocked robots as the NumPy code."""
+    from sim.avoidance import Avoidance
+    from sim.follower import PathFollower
+    from sim.footprint import FootprintGrid
+    from sim.simulator import pair_radii
+    from sim.spatial import NeighborPairs
+    from sim.state import FleetState
+
+    cfg, footprint = _warehouse()
+    rng = np.random.default_rng(seed)
+    free_iy, free_ix = np.nonzero(~footprint)
+    pick = rng.choice(free_iy.size, n)
+    g = cfg.grid
+    x = g.origin_x + (free_ix[pick] + rng.random(n)) * g.resolution
+    y = g.origin_y + (free_iy[pick] + rng.random(n)) * g.resolution
+    out = []
+    for compiled in (True, False):
+        state = FleetState()
+        for k in range(n):
+            state.add(float(x[k]), float(y[k]), 0.0, 1.0, 0.0)
+        radius, short = pair_radii(cfg.sim)
+        pairs = NeighborPairs(radius, short, cfg.sim.model.max_linear_speed, compiled)
+        pairs.update(state.x[:n], state.y[:n], 1, cfg.sim.step_s)
+        fp = FootprintGrid(cfg.grid, footprint, AVOID_CLEAR_M)
+        av = Avoidance(state, pairs, fp, cfg.sim.model.radius, compiled)
+        fol = PathFollower(state, cfg.sim, av, compiled)
+        r2 = np.random.default_rng(seed + 9)
+        fi = np.flatnonzero(r2.random(n) < 0.8)
+        desired = r2.uniform(-math.pi, math.pi, fi.size)
+        rem = r2.uniform(0.0, 4.0, fi.size)
+        side = r2.integers(-1, 2, fi.size)
+        fol._avoid(fi, desired, rem, side, np.zeros((0, 3)))
+        k = av.detour(
+            fi, r2.uniform(-math.pi, math.pi, fi.size), r2.integers(-1, 2, fi.size), np.zeros((0, 3))
+        )
+        out.append((desired.tobytes(), side.tolist(), k.tolist()))
+    assert out[0] == out[1]
+
+
+@functools.lru_cache(maxsize=1)
+def _warehouse() -> tuple[Any, np.ndarray]:
+    """A generated 200-robot warehouse's config and its robots' footprint grid."""
+    cfg = load_config(generate_warehouse(tempfile.mkdtemp(prefix="detour_"), "detour", 200), robots=200)
+    return cfg, Simulator(cfg.grid, cfg.sim, SimClock(), compiled=False).planner.footprint
