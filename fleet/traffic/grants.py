@@ -81,18 +81,52 @@ def oncoming(st: TrafficState, r: TrackedRobot, far: str, last: str) -> bool:
 
 def moves_ahead(st: TrafficState) -> dict[tuple[str, str], set[str]]:
     """``(a, b)`` -> the live robots whose next :data:`ONCOMING_NODES` path nodes step from
-    ``a`` to ``b`` (built once per cycle, ``st.dir_index``)."""
+    ``a`` to ``b`` (made current once per cycle, ``st.dir_index``; no empty sets).
+
+    The index is kept from cycle to cycle and only the robots whose next nodes changed are
+    moved in it (most robots of a large fleet stand on the same node from one cycle to the
+    next): the same index as building it anew from every live robot (``tests/fleet/traffic/
+    test_moves_ahead.py`` holds the two equal)."""
     idx = st.dir_index
     if idx is None:
-        idx = {}
+        idx, segs = st.dir_moves, st.dir_segs
+        live = 0
         for o in st.robots.values():
             if not o.alive:
                 continue
-            seg = o.path[o.cur : o.cur + ONCOMING_NODES]
-            for a, b in zip(seg, seg[1:], strict=False):
-                idx.setdefault((a, b), set()).add(o.name)
+            live += 1
+            seg = tuple(o.path[o.cur : o.cur + ONCOMING_NODES])
+            old = segs.get(o.name)
+            if old == seg:
+                continue
+            if old is not None:
+                _unindex(idx, o.name, old)
+            _index(idx, o.name, seg)
+            segs[o.name] = seg
+        if len(segs) != live:  # robots that died or left since
+            robots = st.robots
+            for name in [n for n in segs if n not in robots or not robots[n].alive]:
+                _unindex(idx, name, segs.pop(name))
         st.dir_index = idx
     return idx
+
+
+def _index(idx: dict[tuple[str, str], set[str]], name: str, seg: tuple[str, ...]) -> None:
+    for a, b in zip(seg, seg[1:], strict=False):
+        who = idx.get((a, b))
+        if who is None:
+            idx[(a, b)] = {name}
+        else:
+            who.add(name)
+
+
+def _unindex(idx: dict[tuple[str, str], set[str]], name: str, seg: tuple[str, ...]) -> None:
+    for a, b in zip(seg, seg[1:], strict=False):
+        who = idx.get((a, b))
+        if who is not None:
+            who.discard(name)
+            if not who:
+                del idx[(a, b)]
 
 
 def extend(st: TrafficState, r: TrackedRobot, now: float) -> None:

@@ -186,6 +186,10 @@ class TrafficState:
         self.waiting: set[str] = set()
         self.dead_nodes: dict[str, str] = {}
         self.dir_index: dict[tuple[str, str], set[str]] | None = None
+        #: What ``dir_index`` is made current from: the index kept between cycles and the
+        #: next path nodes each live robot was indexed with (:func:`~fleet.traffic.grants.moves_ahead`).
+        self.dir_moves: dict[tuple[str, str], set[str]] = {}
+        self.dir_segs: dict[str, tuple[str, ...]] = {}
         self.next_detect = -math.inf
         self.now = 0.0
 
