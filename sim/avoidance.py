@@ -172,6 +172,8 @@ class Avoidance:
 
         Works on every neighbor pair at once: a robot outside ``idx`` gets the heading
         ``(0, 0)``, so nothing is ahead of it and its pairs find nothing."""
+        if not idx.size:
+            return np.zeros(0)
         s = self.state
         n = s.n
         contact, lat = self.contact, self.lat

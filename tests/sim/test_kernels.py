@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from fleet.clock import SimClock
@@ -315,6 +315,7 @@ def test_battery_and_progress_compiled_is_the_numpy_upkeep(seed: int, n: int, si
 
 
 @settings(max_examples=25, deadline=None)
+@example(seed=324, n=2)  # no robot of the draw has a way to test: an empty set, not an error
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 150))
 def test_compiled_detour_and_way_tests_are_the_numpy_ones(seed: int, n: int) -> None:
     """The detour search (neighbors and static map in one compiled pass) and the follower's
