@@ -217,11 +217,18 @@ def test_agent_process_follows_grants_over_the_bus_and_its_death_releases_the_ro
         wait_for(lambda: f.bus.latest()[victim].laps >= 1, 90, f"{victim}'s first lap")
         kill(f.agent, tmp_path / "agent.log")
         r = f.result(3 * duration / speed + 60)  # hang guard: 3x the nominal run, plus start-up
-    (ev,) = [e for e in r["reassignment_events"] if e["from_robot"] == victim]
-    assert ev["route"] == "aisles_1_2" and ev["reason"] == "dead" and ev["to_robot"] in ("robot1", "robot3")
+    # its death is one event; a loaded machine may take work from it before, for other reasons
+    # (an order it was slow to acknowledge is re-issued, "no_ack"), and then the route it held
+    # at its death may be the other one
+    events = [e for e in r["reassignment_events"] if e["from_robot"] == victim]
+    dead = [e for e in events if e["reason"] == "dead"]
+    assert len(dead) == 1, events
+    ev = dead[0]
+    assert ev["to_robot"] in ("robot1", "robot3"), events
+    assert ev["route"] == "aisles_1_2" or len(events) > 1, events
     assert ev["t_reassigned"] - ev["t"] < 5.0
-    first = next(a for a in r["assignments"] if a["robot"] == victim)
-    assert first["laps"] >= 1  # its laps over the bus were counted
+    # its laps over the bus were counted
+    assert max(a["laps"] for a in r["assignments"] if a["robot"] == victim) >= 1
     # the dead robot keeps only its grant (it may still be driving its last goal): the other
     # routes go on being lapped after its death
     after = [a for a in r["assignments"] if a["robot"] != victim and (a["ended"] or duration) > ev["t"]]
