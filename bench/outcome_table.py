@@ -260,6 +260,7 @@ def run_one(
         assert proc.stdout is not None
         for text in proc.stdout:
             lf.write(text)
+            lf.flush()
             relay.line(text)
         rc = proc.wait()
         if timer is not None:
