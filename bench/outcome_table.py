@@ -48,6 +48,7 @@ import argparse
 import hashlib
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -273,23 +274,26 @@ def run_one(
     return Outcome(run, data, wall, rc, world_fingerprint(Path(data["config"])))
 
 
-def first_routes(report: dict[str, Any]) -> dict[str, str]:
-    """``{robot: route}`` of the patrols the coordinator handed out in the first simulated
-    second (empty when the report's bounded assignment list no longer holds them)."""
+def first_loops(report: dict[str, Any]) -> dict[str, str]:
+    """``{robot: loop}`` of the patrols the coordinator handed out in the first simulated
+    second (a load test's route copies ``<route>_c2``, ... are the same loop as ``<route>``;
+    empty when the report's bounded assignment list no longer holds them)."""
     out: dict[str, str] = {}
     for a in report.get("assignments", []):
         if float(a["t_assigned"]) < 1.0:
-            out.setdefault(str(a["robot"]), str(a["route"]))
+            out.setdefault(str(a["robot"]), re.sub(r"_c\d+$", "", str(a["route"])))
     return out
 
 
 def same_world(outcomes: Sequence[Outcome]) -> str:
     """A line saying whether the runs of one size loaded the same world (config and map
-    fingerprint), had the same routes, and gave each robot the same first patrol."""
+    fingerprint), had the same routes, and gave each robot the same first loop (SUMO starts
+    its vehicles on the lane point nearest each start pose, so the coordinator's costs, and
+    which robot takes which loop, can differ there)."""
     worlds = {o.world for o in outcomes}
     routes = {frozenset(o.report.get("laps_by_route", {})) for o in outcomes}
     n = outcomes[0].run.robots
-    first = [first_routes(o.report) for o in outcomes]
+    first = [first_loops(o.report) for o in outcomes]
     same = sum(1 for robot, route in first[0].items() if all(f.get(robot) == route for f in first[1:]))
     text = f"# {n} robots: " + (
         f"all {len(outcomes)} runs loaded the same world (config and map sha256 {next(iter(worlds))})"
@@ -298,7 +302,7 @@ def same_world(outcomes: Sequence[Outcome]) -> str:
     )
     text += f", {'the same' if len(routes) == 1 else 'DIFFERENT'} {len(next(iter(routes)))} routes"
     if first[0]:
-        text += f"; {same} of {len(first[0])} robots got the same first patrol in every run"
+        text += f"; {same} of {len(first[0])} robots were given the same first loop in every run"
     return text
 
 

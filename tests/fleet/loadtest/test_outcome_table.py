@@ -1,7 +1,7 @@
 """``bench/outcome_table.py``, the fleet-outcome table of docs/performance.md, on a small fleet:
 its rows are the figures of the real runs' reports (simulator with and without traffic
 management, and SUMO on the same generated warehouse), and it says that the three runs loaded
-the same world and gave every robot the same first patrol.
+the same world and gave every robot the same first patrol loop.
 
 Cheap: 2 robots for 90 simulated seconds per run (three ``fleet loadtest`` subprocesses,
 seconds each). The long runs of the table itself are measured by hand (docs/performance.md)."""
@@ -83,6 +83,6 @@ def test_outcome_table_rows_are_the_run_reports(tmp_path: Path) -> None:
     # the comparison is fair: the three runs loaded one world and began with the same patrols
     same = [line for line in proc.stdout.splitlines() if line.startswith(f"# {ROBOTS} robots:")]
     assert len(same) == 1 and "all 3 runs loaded the same world" in same[0], proc.stdout
-    assert f"{ROBOTS} of {ROBOTS} robots got the same first patrol" in same[0]
+    assert f"{ROBOTS} of {ROBOTS} robots were given the same first loop in every run" in same[0]
     figures = json.loads((tmp_path / "rows.json").read_text())
     assert [f["laps"] for f in figures] == [int(r[4]) for r in rows]
