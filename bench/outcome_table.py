@@ -306,15 +306,18 @@ def same_world(outcomes: Sequence[Outcome]) -> str:
     return text
 
 
+#: The runs of each size, in order: (name, backend, traffic management).
+KINDS = {"sim-on": ("sim", True), "sim-off": ("sim", False), "sumo-off": ("sumo", False)}
+
+
 def runs_of(
-    sizes: Sequence[int], duration: float, per_size: dict[int, float], sumo: bool, seed: int
+    sizes: Sequence[int], duration: float, per_size: dict[int, float], kinds: Sequence[str], seed: int
 ) -> list[Run]:
-    """The runs of the table in order: per size traffic on, traffic off, then SUMO."""
+    """The runs of the table in order: per size the ``kinds`` (names of :data:`KINDS`)."""
     out = []
     for n in sizes:
         d = per_size.get(n, duration)
-        kinds = [("sim", True), ("sim", False)] + ([("sumo", False)] if sumo else [])
-        out += [Run(n, backend, traffic, d, seed) for backend, traffic in kinds]
+        out += [Run(n, *KINDS[k], d, seed) for k in KINDS if k in kinds]
     return out
 
 
@@ -354,6 +357,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="another duration for a size, e.g. 5000=300",
     )
     ap.add_argument("--no-sumo", action="store_true", help="leave out the SUMO runs")
+    ap.add_argument(
+        "--kinds",
+        nargs="+",
+        choices=list(KINDS),
+        default=list(KINDS),
+        help="which runs of each size (default all three: sim-on sim-off sumo-off)",
+    )
     ap.add_argument("--seed", type=int, default=1, help="seed of the generated warehouses (default 1)")
     ap.add_argument("--wall-limit", type=float, help="stop a run after this many wall seconds (SIGINT)")
     ap.add_argument("--progress-s", type=float, default=60.0, help="wall seconds between progress lines")
@@ -368,7 +378,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     done: list[Outcome] = []
     notes: list[str] = []
     try:
-        runs = runs_of(args.sizes, args.duration, per_size, not args.no_sumo, args.seed)
+        kinds = [k for k in args.kinds if not (args.no_sumo and k == "sumo-off")]
+        runs = runs_of(args.sizes, args.duration, per_size, kinds, args.seed)
         for i, run in enumerate(runs):
             print(f"# run {i + 1}/{len(runs)}: {run.label} started", file=sys.stderr, flush=True)
             o = run_one(run, work, wall_limit_s=args.wall_limit, progress_s=args.progress_s)
