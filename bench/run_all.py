@@ -41,7 +41,7 @@ SMALL_ARGS: dict[str, list[str]] = {
     "sim_vs_sumo.py": ["--robots", "200", "--steps", "200"],
     "bench_ros_scale.py": ["--robots", "20"],
     "bench_demo.py": ["--duration", "300"],
-    "bench_fleet_table.py": ["--sizes", "6", "--duration", "120", "--no-sumo"],
+    "outcome_table.py": ["--sizes", "6", "--duration", "120"],
     "bench_scale.py": ["--sizes", "30", "--duration", "20"],
     "bench_quiet.py": ["--robots", "50", "--warmup", "5", "--periods", "5"],
     "bench_oncoming.py": ["--robots", "50", "--duration", "10"],
