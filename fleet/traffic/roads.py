@@ -6,13 +6,53 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Container, Iterable, Sequence
+from collections import OrderedDict
+from collections.abc import Container, Iterable, Iterator, Mapping, Sequence
 
 import networkx as nx
 import numpy as np
 
 from fleet.errors import TrafficError
+from fleet.roadmap.dijkstra import Csr, FloatArray
 from fleet.traffic.reservations import edge_key
+
+#: :meth:`RoadIndex.costs_from` keeps its latest rows up to about this many bytes (8 per node
+#: and row): 64 MB is 160 rows of a 10,000-robot floor's 50,000 nodes.
+COST_ROWS_BYTES = 64 * 2**20
+
+
+class CostRow(Mapping[str, float]):
+    """Costs (m) from one node to every node it reaches, read like a ``dict`` (a node it
+    does not reach is missing: ``get`` gives the default, ``[]`` raises ``KeyError``); one
+    float array over the roadmap's nodes instead of a dict of them. Read-only."""
+
+    __slots__ = ("_index", "_names", "_row")
+
+    def __init__(self, index: dict[str, int], names: list[str], row: FloatArray) -> None:
+        self._index, self._names, self._row = index, names, row
+
+    def get(self, key: str, default: float | None = None) -> float | None:  # type: ignore[override]
+        i = self._index.get(key)
+        if i is None:
+            return default
+        v: float = self._row.item(i)
+        return default if v == math.inf else v
+
+    def __getitem__(self, key: str) -> float:
+        v = self.get(key)
+        if v is None:
+            raise KeyError(key)
+        return v
+
+    def __contains__(self, key: object) -> bool:
+        return isinstance(key, str) and self.get(key) is not None
+
+    def __iter__(self) -> Iterator[str]:
+        names = self._names
+        return (names[i] for i in np.flatnonzero(np.isfinite(self._row)).tolist())
+
+    def __len__(self) -> int:
+        return int(np.count_nonzero(np.isfinite(self._row)))
 
 
 class RoadIndex:
@@ -39,6 +79,9 @@ class RoadIndex:
             pa, pb = self.pos[str(a)], self.pos[str(b)]
             self.length[edge_key(str(a), str(b))] = float(d.get("length", math.dist(pa, pb)))
         self.against: dict[tuple[str, str], float] = {}
+        self._index = {n: i for i, n in enumerate(self._names)}
+        self._csr: Csr | None = None  # the directed, flow-weighted rows (built when first asked)
+        self._rows: OrderedDict[str, CostRow] = OrderedDict()
 
     def set_flow(self, moves: Iterable[tuple[str, str]], penalty: float) -> None:
         """Prefer the fleet's driving direction: ``moves`` are the directed edges robots
@@ -48,6 +91,8 @@ class RoadIndex:
         ``penalty`` 0 clears the preference."""
         fwd = {(str(a), str(b)) for a, b in moves if edge_key(str(a), str(b)) in self.length}
         self.against = {(b, a): float(penalty) for a, b in fwd if (b, a) not in fwd and penalty > 0}
+        self._csr = None
+        self._rows.clear()
 
     def nearest_node(self, x: float, y: float) -> str:
         """The node nearest ``(x, y)``; raises :class:`TrafficError` on an empty roadmap."""
@@ -56,9 +101,33 @@ class RoadIndex:
         d = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
         return self._names[int(np.argmin(d))]
 
-    def costs_from(self, a: str) -> dict[str, float]:
+    def costs_from(self, a: str) -> Mapping[str, float]:
         """Cost (m, edges against the flow weighted as in :meth:`shortest`) of the cheapest
-        path from ``a`` to every node it reaches (Dijkstra)."""
+        path from ``a`` to every node it reaches (Dijkstra), as a read-only mapping (nodes it
+        does not reach are missing). The very floats of :meth:`costs_from_reference`, from a
+        compiled Dijkstra over the directed, flow-weighted roadmap; the last
+        :data:`COST_ROWS_BYTES` of rows are kept (the roadmap and the flow do not change
+        between :meth:`set_flow` calls), so robots asking again from where they stand (a
+        queue for chargers, every cycle) cost a lookup."""
+        i = self._index.get(a)
+        if i is None:
+            raise KeyError(a)
+        rows = self._rows
+        row = rows.get(a)
+        if row is not None:
+            rows.move_to_end(a)
+            return row
+        if self._csr is None:
+            self._csr = self._directed_csr()
+        row = CostRow(self._index, self._names, self._csr.row(i))
+        rows[a] = row
+        while len(rows) * 8 * max(1, len(self._names)) > COST_ROWS_BYTES and len(rows) > 1:
+            rows.popitem(last=False)
+        return row
+
+    def costs_from_reference(self, a: str) -> dict[str, float]:
+        """:meth:`costs_from` as a plain Dijkstra in Python (the reference the compiled rows are
+        tested against; a few hundred times slower on a large floor)."""
         adj, lens, against = self.adj, self.length, self.against
         dist = {a: 0.0}
         heap = [(0.0, a)]
@@ -74,6 +143,22 @@ class RoadIndex:
                     dist[v] = nd
                     heapq.heappush(heap, (nd, v))
         return dist
+
+    def _directed_csr(self) -> Csr:
+        """The roadmap as directed rows: node ``u``'s entry for ``v`` costs the edge's length
+        times ``1 + against[(u, v)]`` (the same float :meth:`costs_from_reference` adds)."""
+        index, lens, against = self._index, self.length, self.against
+        indptr = np.zeros(len(self._names) + 1, dtype=np.int64)
+        indices: list[int] = []
+        weights: list[float] = []
+        for i, u in enumerate(self._names):
+            for v in self.adj[u]:
+                if v == u:
+                    continue  # a self-loop never shortens a path
+                indices.append(index[v])
+                weights.append(lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0)))
+            indptr[i + 1] = len(indices)
+        return Csr(indptr, np.array(indices, dtype=np.int64), np.array(weights, dtype=np.float64))
 
     def cost(self, nodes: Sequence[str], flow: bool = True) -> float:
         """Cost (m, edges against the flow weighted as in :meth:`shortest`; with

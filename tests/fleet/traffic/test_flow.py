@@ -125,3 +125,49 @@ def test_the_nearest_candidate_is_the_least_of_the_full_costs(seed: int, n: int,
         costs = roads.costs_from(start)
         want = min(cands, key=lambda c: (costs.get(c, math.inf), c)) if cands else None
         assert roads.nearest(start, cands) == want
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(min_value=0, max_value=2**31 - 1),
+    st.integers(min_value=1, max_value=30),
+    st.floats(min_value=0.0, max_value=3.0),
+)
+def test_compiled_costs_are_the_python_dijkstras_floats(seed: int, n: int, penalty: float) -> None:
+    """``RoadIndex.costs_from`` (compiled, rows kept) gives exactly the floats, and the same
+    reached nodes, as the plain Python Dijkstra it replaced, before and after the flow
+    changes (a kept row must not outlive its flow)."""
+    import random
+
+    rng = random.Random(seed)
+    g: nx.Graph[str] = nx.Graph()
+    names = [f"n{i}" for i in range(n)]
+    for name in names:
+        g.add_node(name, pos=(rng.uniform(0, 5), rng.uniform(0, 5)))
+    for _ in range(2 * n):
+        a, b = rng.choice(names), rng.choice(names)  # self-loops and parallel picks included
+        g.add_edge(a, b, length=rng.choice([1.0, 0.1, 0.7, 2.5]))
+    roads = RoadIndex(g)
+    for flow in (False, True, True):
+        if flow:
+            roads.set_flow([(a, b) for a, b in g.edges if rng.random() < 0.5], rng.choice([penalty, 0.0]))
+        for start in rng.sample(names, min(n, 4)) * 2:  # asked twice: the kept row the second time
+            want = roads.costs_from_reference(start)
+            got = roads.costs_from(start)
+            assert dict(got.items()) == want
+            assert len(got) == len(want) and set(got) == set(want)
+            assert all(got.get(x, math.inf) == want.get(x, math.inf) for x in names)
+            assert all((x in got) == (x in want) for x in names + ["nowhere"])
+
+
+def test_compiled_costs_match_on_a_shipped_floor() -> None:
+    from pathlib import Path
+
+    from fleet.config.loader import load_config
+    from fleet.traffic.policy import traffic_from_config
+
+    root = Path(__file__).resolve().parents[3]
+    policy = traffic_from_config(load_config(root / "configs" / "warehouse_patrol_30.yaml"))
+    roads = policy.manager._st.roads
+    for start in sorted(roads.pos)[::7]:
+        assert dict(roads.costs_from(start).items()) == roads.costs_from_reference(start)
