@@ -20,6 +20,13 @@ from fleet.traffic.reservations import edge_key
 #: and row): 64 MB is 160 rows of a 10,000-robot floor's 50,000 nodes.
 COST_ROWS_BYTES = 64 * 2**20
 
+#: :meth:`RoadIndex.shortest` runs compiled (:mod:`fleet.traffic.road_kernels`) when its ends
+#: are farther apart than this (m) in a straight line, or its target's heuristic is kept.
+LONG_SEARCH_M = 30.0
+
+#: Heuristic arrays (one float per node) kept for the compiled A*'s latest targets.
+HEURISTICS_KEPT = 64
+
 
 class CostRow(Mapping[str, float]):
     """Costs (m) from one node to every node it reaches, read like a ``dict`` (a node it
@@ -79,9 +86,12 @@ class RoadIndex:
             pa, pb = self.pos[str(a)], self.pos[str(b)]
             self.length[edge_key(str(a), str(b))] = float(d.get("length", math.dist(pa, pb)))
         self.against: dict[tuple[str, str], float] = {}
-        self._index = {n: i for i, n in enumerate(self._names)}
+        # compiled searches number the nodes in name order (road_kernels: heap ties)
+        self._sorted = sorted(self.pos)
+        self._index = {n: i for i, n in enumerate(self._sorted)}
         self._csr: Csr | None = None  # the directed, flow-weighted rows (built when first asked)
         self._rows: OrderedDict[str, CostRow] = OrderedDict()
+        self._heur: OrderedDict[str, FloatArray] = OrderedDict()
 
     def set_flow(self, moves: Iterable[tuple[str, str]], penalty: float) -> None:
         """Prefer the fleet's driving direction: ``moves`` are the directed edges robots
@@ -119,9 +129,9 @@ class RoadIndex:
             return row
         if self._csr is None:
             self._csr = self._directed_csr()
-        row = CostRow(self._index, self._names, self._csr.row(i))
+        row = CostRow(self._index, self._sorted, self._csr.row(i))
         rows[a] = row
-        while len(rows) * 8 * max(1, len(self._names)) > COST_ROWS_BYTES and len(rows) > 1:
+        while len(rows) * 8 * max(1, len(self._sorted)) > COST_ROWS_BYTES and len(rows) > 1:
             rows.popitem(last=False)
         return row
 
@@ -148,10 +158,10 @@ class RoadIndex:
         """The roadmap as directed rows: node ``u``'s entry for ``v`` costs the edge's length
         times ``1 + against[(u, v)]`` (the same float :meth:`costs_from_reference` adds)."""
         index, lens, against = self._index, self.length, self.against
-        indptr = np.zeros(len(self._names) + 1, dtype=np.int64)
+        indptr = np.zeros(len(self._sorted) + 1, dtype=np.int64)
         indices: list[int] = []
         weights: list[float] = []
-        for i, u in enumerate(self._names):
+        for i, u in enumerate(self._sorted):
             for v in self.adj[u]:
                 if v == u:
                     continue  # a self-loop never shortens a path
@@ -221,6 +231,26 @@ class RoadIndex:
             return [a]
         if b in avoid:
             return None
+        if flow and _empty(avoid) and _empty(avoid_moves) and self._worth_compiling(a, b):
+            return self._shortest_compiled(a, b, limit)
+        return self.shortest_reference(a, b, avoid, limit, flow=flow, avoid_moves=avoid_moves)
+
+    def shortest_reference(
+        self,
+        a: str,
+        b: str,
+        avoid: Container[str],
+        limit: float = math.inf,
+        *,
+        flow: bool = True,
+        avoid_moves: Container[tuple[str, str]] = (),
+    ) -> list[str] | None:
+        """:meth:`shortest` as the A* in Python (used for searches that avoid nodes or steps,
+        and for short ones; the compiled search is tested against it)."""
+        if a == b:
+            return [a]
+        if b in avoid:
+            return None
         pos = self.pos
         bx, by = pos[b]
         dist = {a: 0.0}
@@ -251,3 +281,41 @@ class RoadIndex:
                     vx, vy = pos[v]
                     heapq.heappush(heap, (nd + math.hypot(vx - bx, vy - by), nd, v))
         return None
+
+    def _worth_compiling(self, a: str, b: str) -> bool:
+        """Whether the compiled A* pays for its heuristic array (one ``math.hypot`` per node,
+        kept per target): when the array is kept already, or the search may be long."""
+        if b in self._heur:
+            return True
+        ax, ay = self.pos[a]
+        bx, by = self.pos[b]
+        return (ax - bx) * (ax - bx) + (ay - by) * (ay - by) > LONG_SEARCH_M * LONG_SEARCH_M
+
+    def _shortest_compiled(self, a: str, b: str, limit: float) -> list[str] | None:
+        """:meth:`shortest` with the flow and nothing to avoid, compiled (road_kernels)."""
+        from fleet.traffic.road_kernels import astar
+
+        if self._csr is None:
+            self._csr = self._directed_csr()
+        heur = self._heur.get(b)
+        bx, by = self.pos[b]
+        if heur is None:
+            pos, hyp = self.pos, math.hypot
+            heur = np.array([hyp(pos[n][0] - bx, pos[n][1] - by) for n in self._sorted], dtype=np.float64)
+            self._heur[b] = heur
+            if len(self._heur) > HEURISTICS_KEPT:
+                self._heur.popitem(last=False)
+        else:
+            self._heur.move_to_end(b)
+        csr, index = self._csr, self._index
+        f0 = math.dist(self.pos[a], (bx, by))
+        out = astar(csr.indptr, csr.indices, csr.lengths, heur, index[a], index[b], f0, limit)
+        if out.size == 0:
+            return None
+        names = self._sorted
+        return [names[i] for i in out.tolist()]
+
+
+def _empty(c: Container[object]) -> bool:
+    """Whether ``c`` is a plain collection with nothing in it (an avoid set of a search)."""
+    return isinstance(c, (set, frozenset, tuple, list, dict)) and not c
