@@ -92,6 +92,8 @@ class RoadIndex:
         self._csr: Csr | None = None  # the directed, flow-weighted rows (built when first asked)
         self._rows: OrderedDict[str, CostRow] = OrderedDict()
         self._heur: OrderedDict[str, FloatArray] = OrderedDict()
+        self._xs: list[float] | None = None
+        self._ys: list[float] = []
 
     def set_flow(self, moves: Iterable[tuple[str, str]], penalty: float) -> None:
         """Prefer the fleet's driving direction: ``moves`` are the directed edges robots
@@ -291,6 +293,13 @@ class RoadIndex:
         bx, by = self.pos[b]
         return (ax - bx) * (ax - bx) + (ay - by) * (ay - by) > LONG_SEARCH_M * LONG_SEARCH_M
 
+    def _sorted_xy(self) -> tuple[list[float], list[float]]:
+        """The nodes' x and y (m) in name order (kept)."""
+        if self._xs is None:
+            self._xs = [self.pos[n][0] for n in self._sorted]
+            self._ys = [self.pos[n][1] for n in self._sorted]
+        return self._xs, self._ys
+
     def _shortest_compiled(self, a: str, b: str, limit: float) -> list[str] | None:
         """:meth:`shortest` with the flow and nothing to avoid, compiled (road_kernels)."""
         from fleet.traffic.road_kernels import astar
@@ -300,8 +309,10 @@ class RoadIndex:
         heur = self._heur.get(b)
         bx, by = self.pos[b]
         if heur is None:
-            pos, hyp = self.pos, math.hypot
-            heur = np.array([hyp(pos[n][0] - bx, pos[n][1] - by) for n in self._sorted], dtype=np.float64)
+            xs, ys = self._sorted_xy()
+            heur = np.array(
+                list(map(math.hypot, [x - bx for x in xs], [y - by for y in ys])), dtype=np.float64
+            )
             self._heur[b] = heur
             if len(self._heur) > HEURISTICS_KEPT:
                 self._heur.popitem(last=False)
