@@ -50,7 +50,7 @@ Time is always passed in (seconds); nothing here reads a clock. Units: meters, s
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import networkx as nx
@@ -153,7 +153,7 @@ class TrafficManager:
         (``TrafficParams.flow_penalty``, :meth:`RoadIndex.set_flow`)."""
         self._st.roads.set_flow(moves, self._st.params.flow_penalty)
 
-    def costs_from(self, node: str) -> dict[str, float]:
+    def costs_from(self, node: str) -> Mapping[str, float]:
         """Cost (m, against-the-flow edges weighted) of the cheapest path from ``node`` to every
         node, as the manager plans its own paths (:meth:`RoadIndex.costs_from`)."""
         return self._st.roads.costs_from(node)

@@ -6,13 +6,60 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Container, Iterable, Sequence
+from collections import OrderedDict
+from collections.abc import Container, Iterable, Iterator, Mapping, Sequence
 
 import networkx as nx
 import numpy as np
 
 from fleet.errors import TrafficError
+from fleet.roadmap.dijkstra import Csr, FloatArray
 from fleet.traffic.reservations import edge_key
+
+#: :meth:`RoadIndex.costs_from` keeps its latest rows up to about this many bytes (8 per node
+#: and row): 64 MB is 160 rows of a 10,000-robot floor's 50,000 nodes.
+COST_ROWS_BYTES = 64 * 2**20
+
+#: :meth:`RoadIndex.shortest` runs compiled (:mod:`fleet.traffic.road_kernels`) when its ends
+#: are farther apart than this (m) in a straight line, or its target's heuristic is kept.
+LONG_SEARCH_M = 30.0
+
+#: Heuristic arrays (one float per node) kept for the compiled A*'s latest targets.
+HEURISTICS_KEPT = 64
+
+
+class CostRow(Mapping[str, float]):
+    """Costs (m) from one node to every node it reaches, read like a ``dict`` (a node it
+    does not reach is missing: ``get`` gives the default, ``[]`` raises ``KeyError``); one
+    float array over the roadmap's nodes instead of a dict of them. Read-only."""
+
+    __slots__ = ("_index", "_names", "_row")
+
+    def __init__(self, index: dict[str, int], names: list[str], row: FloatArray) -> None:
+        self._index, self._names, self._row = index, names, row
+
+    def get(self, key: str, default: float | None = None) -> float | None:  # type: ignore[override]
+        i = self._index.get(key)
+        if i is None:
+            return default
+        v: float = self._row.item(i)
+        return default if v == math.inf else v
+
+    def __getitem__(self, key: str) -> float:
+        v = self.get(key)
+        if v is None:
+            raise KeyError(key)
+        return v
+
+    def __contains__(self, key: object) -> bool:
+        return isinstance(key, str) and self.get(key) is not None
+
+    def __iter__(self) -> Iterator[str]:
+        names = self._names
+        return (names[i] for i in np.flatnonzero(np.isfinite(self._row)).tolist())
+
+    def __len__(self) -> int:
+        return int(np.count_nonzero(np.isfinite(self._row)))
 
 
 class RoadIndex:
@@ -39,6 +86,14 @@ class RoadIndex:
             pa, pb = self.pos[str(a)], self.pos[str(b)]
             self.length[edge_key(str(a), str(b))] = float(d.get("length", math.dist(pa, pb)))
         self.against: dict[tuple[str, str], float] = {}
+        # compiled searches number the nodes in name order (road_kernels: heap ties)
+        self._sorted = sorted(self.pos)
+        self._index = {n: i for i, n in enumerate(self._sorted)}
+        self._csr: Csr | None = None  # the directed, flow-weighted rows (built when first asked)
+        self._rows: OrderedDict[str, CostRow] = OrderedDict()
+        self._heur: OrderedDict[str, FloatArray] = OrderedDict()
+        self._xs: list[float] | None = None
+        self._ys: list[float] = []
 
     def set_flow(self, moves: Iterable[tuple[str, str]], penalty: float) -> None:
         """Prefer the fleet's driving direction: ``moves`` are the directed edges robots
@@ -48,6 +103,8 @@ class RoadIndex:
         ``penalty`` 0 clears the preference."""
         fwd = {(str(a), str(b)) for a, b in moves if edge_key(str(a), str(b)) in self.length}
         self.against = {(b, a): float(penalty) for a, b in fwd if (b, a) not in fwd and penalty > 0}
+        self._csr = None
+        self._rows.clear()
 
     def nearest_node(self, x: float, y: float) -> str:
         """The node nearest ``(x, y)``; raises :class:`TrafficError` on an empty roadmap."""
@@ -56,9 +113,33 @@ class RoadIndex:
         d = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
         return self._names[int(np.argmin(d))]
 
-    def costs_from(self, a: str) -> dict[str, float]:
+    def costs_from(self, a: str) -> Mapping[str, float]:
         """Cost (m, edges against the flow weighted as in :meth:`shortest`) of the cheapest
-        path from ``a`` to every node it reaches (Dijkstra)."""
+        path from ``a`` to every node it reaches (Dijkstra), as a read-only mapping (nodes it
+        does not reach are missing). The very floats of :meth:`costs_from_reference`, from a
+        compiled Dijkstra over the directed, flow-weighted roadmap; the last
+        :data:`COST_ROWS_BYTES` of rows are kept (the roadmap and the flow do not change
+        between :meth:`set_flow` calls), so robots asking again from where they stand (a
+        queue for chargers, every cycle) cost a lookup."""
+        i = self._index.get(a)
+        if i is None:
+            raise KeyError(a)
+        rows = self._rows
+        row = rows.get(a)
+        if row is not None:
+            rows.move_to_end(a)
+            return row
+        if self._csr is None:
+            self._csr = self._directed_csr()
+        row = CostRow(self._index, self._sorted, self._csr.row(i))
+        rows[a] = row
+        while len(rows) * 8 * max(1, len(self._sorted)) > COST_ROWS_BYTES and len(rows) > 1:
+            rows.popitem(last=False)
+        return row
+
+    def costs_from_reference(self, a: str) -> dict[str, float]:
+        """:meth:`costs_from` as a plain Dijkstra in Python (the reference the compiled rows are
+        tested against; a few hundred times slower on a large floor)."""
         adj, lens, against = self.adj, self.length, self.against
         dist = {a: 0.0}
         heap = [(0.0, a)]
@@ -74,6 +155,22 @@ class RoadIndex:
                     dist[v] = nd
                     heapq.heappush(heap, (nd, v))
         return dist
+
+    def _directed_csr(self) -> Csr:
+        """The roadmap as directed rows: node ``u``'s entry for ``v`` costs the edge's length
+        times ``1 + against[(u, v)]`` (the same float :meth:`costs_from_reference` adds)."""
+        index, lens, against = self._index, self.length, self.against
+        indptr = np.zeros(len(self._sorted) + 1, dtype=np.int64)
+        indices: list[int] = []
+        weights: list[float] = []
+        for i, u in enumerate(self._sorted):
+            for v in self.adj[u]:
+                if v == u:
+                    continue  # a self-loop never shortens a path
+                indices.append(index[v])
+                weights.append(lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0)))
+            indptr[i + 1] = len(indices)
+        return Csr(indptr, np.array(indices, dtype=np.int64), np.array(weights, dtype=np.float64))
 
     def cost(self, nodes: Sequence[str], flow: bool = True) -> float:
         """Cost (m, edges against the flow weighted as in :meth:`shortest`; with
@@ -136,6 +233,26 @@ class RoadIndex:
             return [a]
         if b in avoid:
             return None
+        if flow and _empty(avoid) and _empty(avoid_moves) and self._worth_compiling(a, b):
+            return self._shortest_compiled(a, b, limit)
+        return self.shortest_reference(a, b, avoid, limit, flow=flow, avoid_moves=avoid_moves)
+
+    def shortest_reference(
+        self,
+        a: str,
+        b: str,
+        avoid: Container[str],
+        limit: float = math.inf,
+        *,
+        flow: bool = True,
+        avoid_moves: Container[tuple[str, str]] = (),
+    ) -> list[str] | None:
+        """:meth:`shortest` as the A* in Python (used for searches that avoid nodes or steps,
+        and for short ones; the compiled search is tested against it)."""
+        if a == b:
+            return [a]
+        if b in avoid:
+            return None
         pos = self.pos
         bx, by = pos[b]
         dist = {a: 0.0}
@@ -166,3 +283,50 @@ class RoadIndex:
                     vx, vy = pos[v]
                     heapq.heappush(heap, (nd + math.hypot(vx - bx, vy - by), nd, v))
         return None
+
+    def _worth_compiling(self, a: str, b: str) -> bool:
+        """Whether the compiled A* pays for its heuristic array (one ``math.hypot`` per node,
+        kept per target): when the array is kept already, or the search may be long."""
+        if b in self._heur:
+            return True
+        ax, ay = self.pos[a]
+        bx, by = self.pos[b]
+        return (ax - bx) * (ax - bx) + (ay - by) * (ay - by) > LONG_SEARCH_M * LONG_SEARCH_M
+
+    def _sorted_xy(self) -> tuple[list[float], list[float]]:
+        """The nodes' x and y (m) in name order (kept)."""
+        if self._xs is None:
+            self._xs = [self.pos[n][0] for n in self._sorted]
+            self._ys = [self.pos[n][1] for n in self._sorted]
+        return self._xs, self._ys
+
+    def _shortest_compiled(self, a: str, b: str, limit: float) -> list[str] | None:
+        """:meth:`shortest` with the flow and nothing to avoid, compiled (road_kernels)."""
+        from fleet.traffic.road_kernels import astar
+
+        if self._csr is None:
+            self._csr = self._directed_csr()
+        heur = self._heur.get(b)
+        bx, by = self.pos[b]
+        if heur is None:
+            xs, ys = self._sorted_xy()
+            heur = np.array(
+                list(map(math.hypot, [x - bx for x in xs], [y - by for y in ys])), dtype=np.float64
+            )
+            self._heur[b] = heur
+            if len(self._heur) > HEURISTICS_KEPT:
+                self._heur.popitem(last=False)
+        else:
+            self._heur.move_to_end(b)
+        csr, index = self._csr, self._index
+        f0 = math.dist(self.pos[a], (bx, by))
+        out = astar(csr.indptr, csr.indices, csr.lengths, heur, index[a], index[b], f0, limit)
+        if out.size == 0:
+            return None
+        names = self._sorted
+        return [names[i] for i in out.tolist()]
+
+
+def _empty(c: Container[object]) -> bool:
+    """Whether ``c`` is a plain collection with nothing in it (an avoid set of a search)."""
+    return isinstance(c, (set, frozenset, tuple, list, dict)) and not c

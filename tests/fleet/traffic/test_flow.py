@@ -125,3 +125,100 @@ def test_the_nearest_candidate_is_the_least_of_the_full_costs(seed: int, n: int,
         costs = roads.costs_from(start)
         want = min(cands, key=lambda c: (costs.get(c, math.inf), c)) if cands else None
         assert roads.nearest(start, cands) == want
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(min_value=0, max_value=2**31 - 1),
+    st.integers(min_value=1, max_value=30),
+    st.floats(min_value=0.0, max_value=3.0),
+)
+def test_compiled_costs_are_the_python_dijkstras_floats(seed: int, n: int, penalty: float) -> None:
+    """``RoadIndex.costs_from`` (compiled, rows kept) gives exactly the floats, and the same
+    reached nodes, as the plain Python Dijkstra it replaced, before and after the flow
+    changes (a kept row must not outlive its flow)."""
+    import random
+
+    rng = random.Random(seed)
+    g: nx.Graph[str] = nx.Graph()
+    names = [f"n{i}" for i in range(n)]
+    for name in names:
+        g.add_node(name, pos=(rng.uniform(0, 5), rng.uniform(0, 5)))
+    for _ in range(2 * n):
+        a, b = rng.choice(names), rng.choice(names)  # self-loops and parallel picks included
+        g.add_edge(a, b, length=rng.choice([1.0, 0.1, 0.7, 2.5]))
+    roads = RoadIndex(g)
+    for flow in (False, True, True):
+        if flow:
+            roads.set_flow([(a, b) for a, b in g.edges if rng.random() < 0.5], rng.choice([penalty, 0.0]))
+        for start in rng.sample(names, min(n, 4)) * 2:  # asked twice: the kept row the second time
+            want = roads.costs_from_reference(start)
+            got = roads.costs_from(start)
+            assert dict(got.items()) == want
+            assert len(got) == len(want) and set(got) == set(want)
+            assert all(got.get(x, math.inf) == want.get(x, math.inf) for x in names)
+            assert all((x in got) == (x in want) for x in names + ["nowhere"])
+
+
+def test_compiled_costs_match_on_a_shipped_floor() -> None:
+    from pathlib import Path
+
+    from fleet.config.loader import load_config
+    from fleet.traffic.policy import traffic_from_config
+
+    root = Path(__file__).resolve().parents[3]
+    policy = traffic_from_config(load_config(root / "configs" / "warehouse_patrol_30.yaml"))
+    roads = policy.manager._st.roads
+    for start in sorted(roads.pos)[::7]:
+        assert dict(roads.costs_from(start).items()) == roads.costs_from_reference(start)
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.integers(min_value=0, max_value=2**31 - 1),
+    st.integers(min_value=1, max_value=40),
+    st.floats(min_value=0.0, max_value=3.0),
+)
+def test_compiled_astar_returns_the_python_astars_path(seed: int, n: int, penalty: float) -> None:
+    """The compiled A* (long searches with nothing to avoid) returns exactly the path of the
+    Python A*, ties included (integer grid positions and equal lengths make many), with and
+    without a cost limit; so the traffic manager's decisions do not change."""
+    import random
+
+    rng = random.Random(seed)
+    g: nx.Graph[str] = nx.Graph()
+    names = [f"n{rng.randint(0, 99)}_{i}" for i in range(n)]  # names not in index order
+    for name in names:
+        g.add_node(name, pos=(rng.randint(0, 4), rng.randint(0, 4)))
+    for _ in range(2 * n):
+        a, b = rng.choice(names), rng.choice(names)
+        if rng.random() < 0.5:
+            g.add_edge(a, b)  # the straight-line length
+        else:
+            g.add_edge(a, b, length=float(rng.randint(1, 6)))
+    roads = RoadIndex(g)
+    roads.set_flow([(a, b) for a, b in g.edges if rng.random() < 0.5], penalty)
+    for _ in range(8):
+        a, b = rng.choice(names), rng.choice(names)
+        limit = rng.choice([math.inf, float(rng.randint(0, 8))])
+        want = roads.shortest_reference(a, b, (), limit)
+        got = roads._shortest_compiled(a, b, limit) if a != b else [a]
+        assert got == want
+
+
+def test_compiled_astar_on_a_generated_floor(tmp_path: Any) -> None:
+    """Every long search of a generated 300-robot floor (with the loops' flow) gives the Python
+    A*'s path through :meth:`RoadIndex.shortest`."""
+    import random
+
+    from fleet.loadtest.run import prepare_config
+    from fleet.traffic.policy import traffic_from_config
+
+    policy = traffic_from_config(prepare_config(300, tmp_path))
+    roads = policy.manager._st.roads
+    rng = random.Random(3)
+    names = sorted(roads.pos)
+    for _ in range(40):
+        a, b = rng.choice(names), rng.choice(names)
+        assert roads.shortest(a, b, frozenset()) == roads.shortest_reference(a, b, frozenset())
+    assert roads._heur, "long searches ran compiled"
