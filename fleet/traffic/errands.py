@@ -5,13 +5,15 @@
   robot gets which is :func:`fleet.traffic.charger_queue.assign_chargers` (robots that
   cannot afford to wait first, then the nearest robot-charger pairs), among the chargers at
   most :data:`CHARGE_REACH_M` farther than its nearest. The dock is reserved for it from
-  then on. A robot that got none waits at a free parking dock nearest the chargers
+  then on. A robot that got none and can afford a wait is sent straight to the busy charger
+  that frees first if it frees before the robot gets there (next in line,
+  :meth:`Errands._queue_on`); otherwise it waits at a free parking dock nearest the chargers
   (:attr:`Purpose.CHARGE_WAIT`) and is sent on when a charger frees. On its way it has base
   priority ``CHARGE_PRIORITY * (2 - battery)`` and takes no detour around a dead robot
   longer than :data:`CHARGE_DETOUR_M` beyond its way.
-* A robot idle on a charger with its battery at ``resume`` (a charge done, or a top-up)
-  leaves it for the nearest free parking dock at once, so the charger is free for the next
-  robot instead of blocked for ``park_idle_s`` or until somebody queues for it.
+* A robot idle on a charger (a charge done, or a top-up) that another robot was given or
+  is next in line for leaves it for the nearest free parking dock at once, instead of
+  ``park_idle_s`` later.
 * A robot idle (no route, mode ``idle``) for ``park_idle_s`` that does not stand on a
   parking or charger dock is sent to the nearest free parking dock, so idle robots do not
   stand in aisles; one below :data:`TOP_UP_BELOW` battery goes to a free charger instead
@@ -30,7 +32,7 @@ from typing import TYPE_CHECKING, cast
 import networkx as nx
 
 from fleet.robots import BatteryModel
-from fleet.traffic.charger_queue import ChargeNeed, assign_chargers
+from fleet.traffic.charger_queue import ChargeNeed, assign_chargers, spare, urgent_below
 from fleet.traffic.manager import TrafficManager
 from fleet.traffic.purpose import CHARGE_PRIORITY, Purpose
 from fleet.traffic.views import RobotViewLike
@@ -116,6 +118,8 @@ class Errands:
         # idle robots standing on a charger this cycle (charger -> robot): a robot that needs
         # a charger may take one, and the idle robot leaves it
         self._idle_on: dict[str, str] = {}
+        # the battery of every robot as last seen
+        self._battery_of: dict[str, float] = {}
 
     def forget(self, robot: str) -> None:
         """``robot`` got a patrol: drop its dock target and its place in the charger queue."""
@@ -128,9 +132,11 @@ class Errands:
         a charger is added to ``requests`` as ``(battery, robot)``: :meth:`serve_chargers`."""
         obs = view.obs
         mode = obs.mode if obs is not None else None
+        if obs is not None:
+            self._battery_of[name] = float(obs.battery)
         purpose = self.purposes.get(name)
         target = self._target.get(name)
-        if target is not None and not self._may_enter(name, target):
+        if target is not None and not self._may_enter(name, target) and not self._queued(name, target):
             # another robot stepped onto the dock this robot heads for (e.g. to let a third
             # pass): choose another dock rather than wait for it, head-on on a dead-end spur
             self._target.pop(name, None)
@@ -173,8 +179,8 @@ class Errands:
         if here in self._charger_set:
             assert obs is not None
             self._idle_on[here] = name
-            if float(obs.battery) >= self.battery.resume:
-                # charged: leave the charger at once, it is the fleet's, not this robot's
+            if self._queued_for(here, name):
+                # another robot comes for this charger: leave it at once
                 self._go(name, self._free_dock(name, self.parking), Purpose.PARK)
                 return
         if now - since < self.park_idle_s:
@@ -219,6 +225,7 @@ class Errands:
             return
         m = self.manager
         needs: list[ChargeNeed] = []
+        reach: dict[str, dict[str, float]] = {}
         for battery, name in sorted(requests):
             # a robot short of energy goes first at intersections and is never the one to yield,
             # and does not drive far round a dead robot
@@ -230,7 +237,10 @@ class Errands:
             near = m.costs_near(path[0], self.chargers, CHARGE_REACH_M)
             may = {c: d for c, d in near.items() if self._takes(name, c, idle_on)}
             needs.append(ChargeNeed(name, battery, may))
+            reach[name] = near
         got = assign_chargers(needs, self.battery)
+        near_of = reach
+        battery_of = {n.robot: n.battery for n in needs}
         for _, name in sorted(requests):
             node = got.get(name)
             if node is not None and self._vacate(node, idle_on):
@@ -244,8 +254,41 @@ class Errands:
             far = self._free_dock(name, self.chargers)
             if far is not None and (dock is None or self._cost(name, far, dock)):
                 self._go(name, far, Purpose.CHARGE)
-            else:
+            elif not self._queue_on(name, battery_of.get(name, 0.0), near_of.get(name, {})):
                 self._go(name, dock, Purpose.CHARGE_WAIT)
+
+    def _queue_on(self, robot: str, battery: float, costs: Mapping[str, float]) -> bool:
+        """Send ``robot`` straight to the charger of ``costs`` (roadmap cost in m) that frees
+        first, if it frees before ``robot`` gets there (driving at ``cruise_mps``; the robot
+        charging on it needs ``(resume - battery) / charge_per_s``), nobody else is queued
+        for it and ``robot`` can afford a wait (:func:`urgent_below`); the charger is then
+        reserved for it as the next in line. Whether it was sent."""
+        m, model = self.manager, self.battery
+        if spare(model, battery, min(costs.values(), default=math.inf)) < urgent_below(model):
+            return False
+        best: tuple[float, str] | None = None
+        for c, cost in costs.items():
+            h = m.holder(c)
+            if h is None or self._target.get(h) != c or self.purposes.get(h) is not Purpose.CHARGE:
+                continue
+            if any(n == c and r != h for r, n in self._target.items()):
+                continue  # somebody is already next
+            frees = max(0.0, model.resume - self._battery_of.get(h, 0.0)) / model.charge_per_s
+            if frees <= cost / model.cruise_mps and (best is None or (frees, c) < best):
+                best = (frees, c)
+        if best is None:
+            return False
+        self._go(robot, best[1], Purpose.CHARGE)
+        return True
+
+    def _queued(self, robot: str, dock: str) -> bool:
+        """``robot`` is next in line for ``dock``: the robot on it charges there (its target)."""
+        holder = self.manager.holder(dock)
+        return holder is not None and holder != robot and self._target.get(holder) == dock
+
+    def _queued_for(self, dock: str, robot: str) -> bool:
+        """Another robot than ``robot`` heads for ``dock``."""
+        return any(n == dock and r != robot for r, n in self._target.items())
 
     def _takes(self, robot: str, charger: str, idle_on: Mapping[str, str]) -> bool:
         """``robot`` may be sent to ``charger`` now: nobody else heads for it, and nobody

@@ -1,7 +1,8 @@
 """The charger queue: a free charger goes to the robot for which it matters (a robot that
-cannot afford to wait first, then the nearest), a robot done charging leaves the charger at
-once, an idle robot on a charger gives it up to a robot that needs it, and the bounded
-charger search gives the answers of a search over the whole roadmap."""
+cannot afford to wait first, then the nearest), a robot queues for a charger that frees
+before it arrives and the charged robot leaves it at once, an idle robot on a charger gives
+it up to a robot that needs it, and the bounded charger search gives the answers of a search
+over the whole roadmap."""
 
 from __future__ import annotations
 
@@ -98,15 +99,28 @@ def view(rm: Roadmap, node: str, mode: str, battery: float) -> View:
     return View(mode, battery, Pose2D(x, y))
 
 
-def test_a_robot_done_charging_leaves_the_charger_at_once() -> None:
+def test_a_robot_queues_for_a_charger_that_frees_before_it_arrives_and_the_charged_one_leaves() -> None:
     rm = corridor()
-    tm, er, purposes = errands_on(rm, {"R": "cw"})
-    purposes["R"] = Purpose.CHARGE
-    er.step("R", view(rm, "cw", Mode.CHARGING, 0.5), 0.0, [])
-    assert tm.path("R")[-1] == "cw"  # charging: it stays
-    er.step("R", view(rm, "cw", Mode.IDLE, MODEL.resume), 0.1, [])  # charged, no work
-    er.serve_chargers([])
-    assert purposes["R"] is Purpose.PARK and tm.path("R")[-1] == "pw"  # not park_idle_s later
+    # Z charges on cw and is nearly full, Y on ce far from full; R at m needs a charger
+    tm, er, purposes = errands_on(rm, {"Z": "cw", "Y": "ce", "R": "m"})
+    for robot, dock in (("Z", "cw"), ("Y", "ce")):
+        purposes[robot] = Purpose.CHARGE
+        er._target[robot] = dock
+    requests: list[tuple[float, str]] = []
+    er.step("Z", view(rm, "cw", Mode.CHARGING, 0.9), 0.0, requests)  # frees in 2.5 s
+    er.step("Y", view(rm, "ce", Mode.CHARGING, 0.1), 0.0, requests)  # in 42.5 s
+    er.step("R", view(rm, "m", Mode.CHARGING, 0.3), 0.0, requests)
+    er.serve_chargers(requests)
+    # cw frees long before R (11 m away) gets there: R drives to it instead of waiting
+    assert purposes["R"] is Purpose.CHARGE and tm.path("R")[-1] == "cw"
+    er.step("R", view(rm, "m", Mode.CHARGING, 0.3), 0.5, [])
+    assert tm.path("R")[-1] == "cw"  # Z still charges there: R stays next in line
+    # Z is charged and has no work: it leaves the charger at once (not park_idle_s later)
+    er.step("Z", view(rm, "cw", Mode.IDLE, MODEL.resume), 1.0, [])
+    assert purposes["Z"] is Purpose.PARK and tm.path("Z")[-1] == "pw"
+    # a robot charged with nobody queued for its charger stays (it charges on, nobody waits)
+    er.step("Y", view(rm, "ce", Mode.IDLE, MODEL.resume), 1.0, [])
+    assert tm.path("Y")[-1] == "ce"
 
 
 def test_an_idle_robot_on_a_charger_gives_it_to_a_robot_that_needs_it() -> None:
