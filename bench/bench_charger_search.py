@@ -10,7 +10,7 @@ charger a robot standing there would be sent to, with a random half of the charg
   (``RoadIndex.costs_from``), then the nearest free charger, refused when it is more than
   ``CHARGE_REACH_M`` farther than the nearest of all chargers;
 * ``bounded``: ``RoadIndex.costs_near``, which stops ``CHARGE_REACH_M`` past the nearest
-  charger (what ``Errands.serve_chargers`` uses now).
+  charger (what the charging errand, ``Errands._free_dock``, uses now).
 
 Prints ms per request for both, the ratio, the nodes of the roadmap, and how many requests
 got a different answer (must be 0: the bounded search gives the same choice).
