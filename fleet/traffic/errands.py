@@ -256,11 +256,12 @@ class Errands:
         self.drive(name, [str(n) for n in paths[best]], purpose)
 
     def _cost(self, robot: str, node: str) -> float:
-        """Roadmap cost (m, with the flow) from where ``robot`` stands to ``node``."""
+        """Roadmap cost (m, with the flow) from where ``robot`` stands to ``node`` (a search
+        that stops there)."""
         path = self.manager.path(robot)
         if not path:
             return math.inf
-        return self.manager.costs_from(path[0]).get(node, math.inf)
+        return self.manager.costs_near(path[0], (node,)).get(node, math.inf)
 
     def _to_charger(self) -> dict[str, float]:
         """Roadmap distance (m) from every node to its nearest charger dock (cached)."""
@@ -297,7 +298,9 @@ class Errands:
         :meth:`TrafficManager.costs_from`; with ``first``, the dock of least
         ``first[dock]``, then nearest) that nobody else holds or heads for; ``None`` when
         there is none, or when the nearest free one is more than ``reach`` m farther than
-        the nearest of all ``docks`` (taken or not)."""
+        the nearest of all ``docks`` (taken or not). With a finite ``reach`` the search
+        stops ``reach`` past the nearest dock (:meth:`TrafficManager.costs_near`) instead
+        of costing the whole roadmap: the same answer."""
         m = self.manager
         taken = {n for r, n in self._target.items() if r != robot}
         free = [d for d in docks if m.holder(d) in (None, robot) and d not in taken]
@@ -310,8 +313,10 @@ class Errands:
             free = [d for d in free if round(first.get(d, math.inf), 1) == least]
         if first is not None or reach == math.inf:
             return m.nearest(here, free)  # the way the manager will drive it: with the flow
-        dist = m.costs_from(here)
-        best = min(free, key=lambda d: (dist.get(d, math.inf), d))
-        if dist.get(best, math.inf) > min(dist.get(d, math.inf) for d in docks) + reach:
+        dist = m.costs_near(here, docks, reach)
+        if not dist:  # no dock reachable at all: the least name, as a whole search gives
+            return min(free)
+        near = [d for d in free if d in dist]
+        if not near:
             return None  # a charger near it frees soon (charging takes about a minute)
-        return best
+        return min(near, key=lambda d: (dist[d], d))

@@ -171,6 +171,11 @@ class TrafficManager:
             out += leg[1:]  # a shortest leg never comes back to its start
         return out
 
+    def costs_near(self, node: str, targets: Iterable[str], reach: float = math.inf) -> dict[str, float]:
+        """:meth:`costs_from` ``node`` of the ``targets`` at most ``reach`` (m) beyond the
+        nearest of them, from a search that stops there (:meth:`RoadIndex.costs_near`)."""
+        return self._st.roads.costs_near(node, targets, reach)
+
     def nearest(self, node: str, candidates: Iterable[str]) -> str | None:
         """The candidate node of least :meth:`costs_from` ``node`` (ties: the least name);
         ``None`` for none (:meth:`RoadIndex.nearest`: stops at the nearest)."""

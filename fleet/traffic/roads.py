@@ -171,6 +171,40 @@ class RoadIndex:
                 weights.append(lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0)))
             indptr[i + 1] = len(indices)
         return Csr(indptr, np.array(indices, dtype=np.int64), np.array(weights, dtype=np.float64))
+    def costs_near(self, a: str, targets: Iterable[str], reach: float = math.inf) -> dict[str, float]:
+        """:meth:`costs_from` ``a`` of the ``targets`` within ``reach`` (m) of the nearest one:
+        ``{t: c for t, c in costs_from(a).items() if t in targets and c <= c0 + reach}``
+        where ``c0`` is the least cost of a target (every reachable target when ``reach`` is
+        infinite; ``{}`` when none is reachable). The search stops once it is past
+        ``c0 + reach`` or has found every target, instead of costing the whole roadmap."""
+        want = set(targets)
+        out: dict[str, float] = {}
+        if not want:
+            return out
+        adj, lens, against = self.adj, self.length, self.against
+        dist = {a: 0.0}
+        heap = [(0.0, a)]
+        done: set[str] = set()
+        stop = math.inf
+        while heap:
+            d, u = heapq.heappop(heap)
+            if d > stop:
+                break
+            if u in done:
+                continue
+            done.add(u)
+            if u in want:
+                if not out:
+                    stop = d + reach
+                out[u] = d
+                if len(out) == len(want):
+                    break
+            for v in adj[u]:
+                nd = d + lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0))
+                if nd < dist.get(v, math.inf):
+                    dist[v] = nd
+                    heapq.heappush(heap, (nd, v))
+        return out
 
     def cost(self, nodes: Sequence[str], flow: bool = True) -> float:
         """Cost (m, edges against the flow weighted as in :meth:`shortest`; with
