@@ -171,6 +171,7 @@ class RoadIndex:
                 weights.append(lens[edge_key(u, v)] * (1.0 + against.get((u, v), 0.0)))
             indptr[i + 1] = len(indices)
         return Csr(indptr, np.array(indices, dtype=np.int64), np.array(weights, dtype=np.float64))
+
     def costs_near(self, a: str, targets: Iterable[str], reach: float = math.inf) -> dict[str, float]:
         """:meth:`costs_from` ``a`` of the ``targets`` within ``reach`` (m) of the nearest one:
         ``{t: c for t, c in costs_from(a).items() if t in targets and c <= c0 + reach}``
