@@ -70,6 +70,7 @@ from rclpy.signals import SignalHandlerOptions  # noqa: E402
 from rclpy.task import Future  # noqa: E402
 
 from fleet.errors import BackendError  # noqa: E402
+from fleet.ros.action_graph import served_actions  # noqa: E402
 from fleet.ros.conversions import (  # noqa: E402
     ACTION_TYPES,
     CLEAR_COSTMAP_SERVICES,
@@ -103,6 +104,8 @@ SENT_KINDS = (*NAVIGATION_ACTIONS, *PLANNING_ACTIONS, "clear_costmaps")
 CLOCK_LAG_S = 2.0
 #: Wall seconds between checks that a robot's action servers are discovered (navigation_ready).
 READY_PERIOD_S = 1.0
+#: The client's own node names (they serve no action: the graph sweeps skip them).
+OWN_NODES = ("fleet_backend", "fleet_backends")
 #: Wall seconds :meth:`RosBackends.close` waits for queued requests and cancel answers.
 CLOSE_FLUSH_S = 3.0
 #: Goals kept for ``goal_state`` (the oldest beyond are forgotten: ``KeyError``).
@@ -139,10 +142,9 @@ class RosNavigationBackend:
         self._live: dict[str, RemoteGoal] = {}
         self._ids = itertools.count(1)
         self._current: RemoteGoal | None = None
-        #: Whether every action server of the robot is discovered (checked by the watchdog every
-        #: :data:`READY_PERIOD_S`, robots staggered; every 0.1 s while active and one is missing).
+        #: Whether every action server of the robot is discovered (checked for the whole fleet
+        #: every :data:`READY_PERIOD_S`; every 0.1 s while active and one is missing).
         self.servers_ready = False
-        self._ready_at = (index % 10) * READY_PERIOD_S / 10
         #: The robot's navigator lifecycle state (polled on the executor thread).
         self.lifecycle = LifecycleWatch(self.node)
         self.tracker = RobotStateTracker(
@@ -214,17 +216,6 @@ class RosNavigationBackend:
         """Whether the running goal should move the robot (lock held by the caller)."""
         cur = self._current
         return cur is not None and not cur.status.terminal and cur.kind in DRIVING_KINDS
-
-    def wait_for_servers(self, timeout_s: float, kinds: Iterable[str] = BACKEND_KINDS) -> bool:
-        """Block until the action servers ``kinds`` are discovered (True) or ``timeout_s``."""
-        deadline = time.monotonic() + timeout_s
-        kinds = tuple(kinds)
-        while True:
-            if all(self._clients[k].server_is_ready() for k in kinds):
-                return True
-            if time.monotonic() >= deadline:
-                return False
-            time.sleep(0.02)
 
     def __repr__(self) -> str:
         return f"RosNavigationBackend({self._ns!r})"
@@ -350,10 +341,6 @@ class RosNavigationBackend:
         """Send goals that waited for their server; end goals whose server vanished or never
         answered (executor thread)."""
         self.lifecycle.poll(now)
-        if now >= self._ready_at or (self.lifecycle.active and not self.servers_ready):
-            # server_is_ready() counts over the whole graph under the lock discovery needs
-            self._ready_at = now + READY_PERIOD_S
-            self.servers_ready = self.lifecycle.active and self.wait_for_servers(0.0, self._clients)
         with self._lock:
             for gid in [g for g, r in self._live.items() if r.status.terminal]:
                 del self._live[gid]
@@ -420,6 +407,7 @@ class RosBackends:
         self._odom_t = np.zeros(len(namespaces))
         self._cancels: set[Future] = set()
         self._fleet_t = 0.0
+        self._ready_at = 0.0
         self.backends: dict[str, RosNavigationBackend] = {}
         try:
             for ns in namespaces:
@@ -456,12 +444,13 @@ class RosBackends:
         """Wait until every robot's action servers are discovered (a sweep stops at the first
         robot missing: checks are costly, see ``_watchdog``); return those missing after ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
-        kinds = tuple(kinds)
+        want = frozenset(kinds)
         missing = list(self.backends)
         while missing and time.monotonic() < deadline:
-            missing = list(itertools.dropwhile(lambda ns: self[ns].wait_for_servers(0.0, kinds), missing))
+            served = served_actions(self._helper, missing, OWN_NODES)
+            missing = [ns for ns in missing if not want <= served[ns]]
             if missing:
-                time.sleep(0.05)
+                time.sleep(0.1)
         return missing
 
     def wait_until_active(self, timeout_s: float = 30.0, *, startup: bool = True) -> list[str]:
@@ -517,6 +506,15 @@ class RosBackends:
         now = time.monotonic()
         for b in self.backends.values():
             b._watchdog(now)
+        # servers discovered: the whole fleet every READY_PERIOD_S; each tick, active robots missing one
+        if now >= self._ready_at:
+            self._ready_at, ask = now + READY_PERIOD_S, list(self.backends)
+        else:
+            ask = [ns for ns, b in self.backends.items() if b.lifecycle.active and not b.servers_ready]
+        served = served_actions(self._helper, ask, OWN_NODES) if ask else {}
+        for ns in ask:
+            b = self.backends[ns]
+            b.servers_ready = b.lifecycle.active and b._clients.keys() <= served[ns]
 
     def _spin(self) -> None:
         while not self._closed and self.context.ok():

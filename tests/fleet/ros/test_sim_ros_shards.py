@@ -68,6 +68,26 @@ def test_every_robot_of_every_participant_is_discovered_and_answers(
     )
 
 
+def test_the_graph_read_node_by_node_finds_every_robots_servers(backends: RosBackends) -> None:
+    """The fleet's readiness check reads the graph node by node (``served_actions``): every
+    robot's seven navigation servers are found, whichever participant serves them, and a
+    namespace nobody serves has none; every robot then reports ``navigation_ready``."""
+    from fleet.ros.action_graph import served_actions
+    from fleet.ros.backend import BACKEND_KINDS, OWN_NODES
+
+    node = backends["/robot1"].node
+    served = served_actions(node, [*ROBOTS, "/robot99"], OWN_NODES)
+    assert {ns: set(BACKEND_KINDS) <= served[ns] for ns in ROBOTS} == dict.fromkeys(ROBOTS, True)
+    assert served["/robot99"] == frozenset()
+    assert backends.wait_for_servers(DISCOVERY_S) == []
+    assert backends.wait_for_servers(0.0, ["no_such_action"]) == ROBOTS
+    wait_until(
+        lambda: all(backends[ns].robot_state().navigation_ready for ns in ROBOTS),
+        DISCOVERY_S,
+        "navigation_ready on every robot",
+    )
+
+
 def test_robots_of_other_participants_drive_in_the_one_world(
     server: ServerProcess, backends: RosBackends, truth_file: Path
 ) -> None:
