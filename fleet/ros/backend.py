@@ -82,7 +82,7 @@ from fleet.ros.conversions import (  # noqa: E402
     result_path,
 )
 from fleet.ros.lifecycle_client import LifecycleWatch  # noqa: E402
-from fleet.ros.remote_goal import STATUS_MAP, RemoteGoal  # noqa: E402
+from fleet.ros.remote_goal import STATUS_MAP, RemoteGoal, succeed_when_answered  # noqa: E402
 from fleet.ros.robot_state import RobotStateTracker  # noqa: E402
 from fleet.types import (  # noqa: E402
     MOTION_GOAL_KINDS,
@@ -142,9 +142,11 @@ class RosNavigationBackend:
         self._live: dict[str, RemoteGoal] = {}
         self._ids = itertools.count(1)
         self._current: RemoteGoal | None = None
-        #: Whether every action server of the robot is discovered (checked for the whole fleet
-        #: every :data:`READY_PERIOD_S`; every 0.1 s while active and one is missing).
+        #: Whether every action server of the robot is discovered (read for the whole fleet
+        #: every :data:`READY_PERIOD_S`, every 0.1 s while :meth:`_sweep_wanted`).
         self.servers_ready = False
+        #: The action servers seen in the robot's namespace at the last sweep.
+        self.served: frozenset[str] = frozenset()
         #: The robot's navigator lifecycle state (polled on the executor thread).
         self.lifecycle = LifecycleWatch(self.node)
         self.tracker = RobotStateTracker(
@@ -233,7 +235,14 @@ class RosNavigationBackend:
         """Whether the server(s) of goal kind ``kind`` are discovered (executor thread)."""
         if kind == "clear_costmaps":
             return all(self._service(n).service_is_ready() for n in CLEAR_COSTMAP_SERVICES.values())
-        return bool(self._client(kind).server_is_ready())
+        return kind in self.served  # the fleet's graph sweep (RosBackends._tick)
+
+    def _sweep_wanted(self) -> bool:
+        """Whether this robot's servers should be looked up again now: its navigator is active
+        but a server is missing, or a live goal's server is not seen (executor thread)."""
+        with self._lock:
+            kinds = {r.kind for r in self._live.values()}
+        return (self.lifecycle.active and not self.servers_ready) or not kinds <= self.served
 
     def _service(self, name: str) -> Client:
         client = self._services.get(name)
@@ -246,19 +255,8 @@ class RosNavigationBackend:
         assert isinstance(rec.goal, ClearCostmaps)
         which = Costmap(rec.goal.costmap)
         names = [n for c, n in CLEAR_COSTMAP_SERVICES.items() if which in (Costmap.BOTH, c)]
-        done = Future()
-        rec.sent_at = time.monotonic()
-        rec.handle = done
-        pending = [self._service(n).call_async(ClearEntireCostmap.Request()) for n in names]
-
-        def answered(_f: Future) -> None:
-            if all(f.done() for f in pending) and not done.done():
-                done.set_result(True)
-                with self._lock:
-                    rec.finish(GoalStatus.SUCCEEDED)
-
-        for f in pending:
-            f.add_done_callback(answered)
+        calls = [self._service(n).call_async(ClearEntireCostmap.Request()) for n in names]
+        succeed_when_answered(rec, calls, self._lock)
 
     def _send_remote(self, rec: RemoteGoal) -> None:
         with self._lock:
@@ -506,15 +504,16 @@ class RosBackends:
         now = time.monotonic()
         for b in self.backends.values():
             b._watchdog(now)
-        # servers discovered: the whole fleet every READY_PERIOD_S; each tick, active robots missing one
+        # servers discovered: the whole fleet every READY_PERIOD_S, else the robots wanting it
         if now >= self._ready_at:
             self._ready_at, ask = now + READY_PERIOD_S, list(self.backends)
         else:
-            ask = [ns for ns, b in self.backends.items() if b.lifecycle.active and not b.servers_ready]
+            ask = [ns for ns, b in self.backends.items() if b._sweep_wanted()]
         served = served_actions(self._helper, ask, OWN_NODES) if ask else {}
         for ns in ask:
             b = self.backends[ns]
-            b.servers_ready = b.lifecycle.active and b._clients.keys() <= served[ns]
+            b.served = served[ns]
+            b.servers_ready = b.lifecycle.active and b._clients.keys() <= b.served
 
     def _spin(self) -> None:
         while not self._closed and self.context.ok():
