@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import json
 import os
 import signal
@@ -85,11 +86,18 @@ def discovery_server(timeout_s: float = 30.0) -> Iterator[str]:
 
 
 def one(
-    config: str, n: int, profile: str, timeout_s: float, shards: int = 1, executor: str = "single"
+    config: str,
+    n: int,
+    profile: str,
+    timeout_s: float,
+    shards: int = 1,
+    executor: str = "single",
+    client_actions: str = "all",
+    goal: str = "wait",
 ) -> dict[str, float | int | str]:
-    from fleet.ros.backend import make_ros_backends
+    from fleet.ros.backend import BACKEND_KINDS, make_ros_backends
     from fleet.ros.executors import EXECUTOR_VAR
-    from fleet.types import GoalStatus, Wait
+    from fleet.types import Goal, GoalStatus, NavigateToPose, Wait
 
     os.environ[EXECUTOR_VAR] = executor  # the server child's executor (fleet.ros.executors)
     row: dict[str, float | int | str] = {
@@ -97,7 +105,10 @@ def one(
         "profile": profile,
         "shards": shards,
         "executor": executor,
+        "client_actions": client_actions,
+        "goal": goal,
     }
+    eager = CLIENT_ACTIONS[client_actions] or BACKEND_KINDS
     with ServerProcess.for_config(
         config,
         "--robots",
@@ -119,7 +130,7 @@ def one(
         t0 = time.monotonic()
         names = [f"/robot{i + 1}" for i in range(n)]
         # the client side in as many participants (contexts) as the server side
-        groups = [make_ros_backends(names[k::shards]) for k in range(min(shards, n))]
+        groups = [make_ros_backends(names[k::shards], eager=eager) for k in range(min(shards, n))]
         rb = {ns: g[ns] for g in groups for ns in g.backends}
         row["client_create_s"] = round(time.monotonic() - t0, 3)
         deadline = time.monotonic() + timeout_s
@@ -135,7 +146,11 @@ def one(
         try:
             if not missing:
                 t1 = time.monotonic()
-                ids = {ns: b.send_goal(Wait(0.5)) for ns, b in rb.items()}
+                goals: dict[str, Goal] = {
+                    ns: Wait(0.5) if goal == "wait" else NavigateToPose(b.robot_state().pose)
+                    for ns, b in rb.items()
+                }
+                ids = {ns: rb[ns].send_goal(g) for ns, g in goals.items()}
                 while time.monotonic() - t1 < timeout_s:
                     if all(rb[ns].goal_state(g).status.terminal for ns, g in ids.items()):
                         break
@@ -156,6 +171,14 @@ def one(
             for g in groups:
                 g.close()
     return row
+
+
+#: ``--client-actions``: the action clients each robot's backend makes at start (``None``: all
+#: seven); every robot's seven servers are still required to count it discovered.
+CLIENT_ACTIONS: dict[str, tuple[str, ...] | None] = {
+    "all": None,
+    "nav": ("navigate_to_pose", "navigate_through_poses"),
+}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -179,6 +202,18 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="run FastDDS's discovery server (shipped with the ROS wheels) and point both sides at it",
     )
+    ap.add_argument(
+        "--client-actions",
+        default="all",
+        help="comma-separated: all (every backend makes its 7 action clients at start) or nav "
+        "(only the two navigators; the others on first use), one run each",
+    )
+    ap.add_argument(
+        "--goal",
+        default="wait",
+        choices=("wait", "here"),
+        help="the goal sent to every robot: Wait(0.5 s), or NavigateToPose to where it stands",
+    )
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     # SIGTERM (e.g. `timeout`) unwinds like Ctrl-C so the server child is stopped
@@ -189,11 +224,13 @@ def main(argv: list[str] | None = None) -> int:
     for profile in args.profile.split(","):
         for n in (int(x) for x in args.robots.split(",")):
             for shards in (int(x) for x in args.shards.split(",")):
-                for executor in args.executor.split(","):
+                for executor, actions in itertools.product(
+                    args.executor.split(","), args.client_actions.split(",")
+                ):
                     with contextlib.ExitStack() as stack:
                         if args.discovery_server:
                             stack.enter_context(discovery_server())
-                        row = one(args.config, n, profile, args.timeout, shards, executor)
+                        row = one(args.config, n, profile, args.timeout, shards, executor, actions, args.goal)
                     row["discovery"] = "server" if args.discovery_server else "simple"
                     rows.append(row)
                     print(json.dumps(row), flush=True)

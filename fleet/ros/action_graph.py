@@ -27,6 +27,9 @@ apply_ros_env_defaults()
 from rclpy.action.graph import get_action_server_names_and_types_by_node  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
+#: The fleet client's own node names (``fleet.ros.backend``: they serve no action).
+OWN_NODES = ("fleet_backend", "fleet_backends")
+
 
 def served_actions(
     node: Node, namespaces: Iterable[str], skip_nodes: Iterable[str] = ()

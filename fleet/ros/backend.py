@@ -19,9 +19,8 @@ Mapping onto the protocol (:mod:`fleet.navigation`):
   a cancel request is sent to that server so the robot executes one goal at a time.
   Computation goals (``compute_path_to_pose``, ``compute_path_through_poses``,
   ``smooth_path``: Nav2's planner and smoother servers; ``clear_costmaps``: the
-  ``clear_entirely_{global,local}_costmap`` services) run beside it; their action clients
-  (and ``follow_path``'s) are created on first use. A planner's or smoother's path is the
-  terminal state's ``path``.
+  ``clear_entirely_{global,local}_costmap`` services) run beside it, their clients made on
+  first use (as those not ``eager``). A planner's or smoother's path is the terminal ``path``.
 * Results: Nav2's status and ``error_code`` / ``error_msg`` (FollowWaypoints: missed waypoint
   indices) become the terminal :class:`~fleet.types.GoalState`; feedback messages become
   :class:`~fleet.types.Feedback`.
@@ -70,7 +69,7 @@ from rclpy.signals import SignalHandlerOptions  # noqa: E402
 from rclpy.task import Future  # noqa: E402
 
 from fleet.errors import BackendError  # noqa: E402
-from fleet.ros.action_graph import served_actions  # noqa: E402
+from fleet.ros.action_graph import OWN_NODES, served_actions  # noqa: E402
 from fleet.ros.conversions import (  # noqa: E402
     ACTION_TYPES,
     CLEAR_COSTMAP_SERVICES,
@@ -104,8 +103,6 @@ SENT_KINDS = (*NAVIGATION_ACTIONS, *PLANNING_ACTIONS, "clear_costmaps")
 CLOCK_LAG_S = 2.0
 #: Wall seconds between checks that a robot's action servers are discovered (navigation_ready).
 READY_PERIOD_S = 1.0
-#: The client's own node names (they serve no action: the graph sweeps skip them).
-OWN_NODES = ("fleet_backend", "fleet_backends")
 #: Wall seconds :meth:`RosBackends.close` waits for queued requests and cancel answers.
 CLOSE_FLUSH_S = 3.0
 #: Goals kept for ``goal_state`` (the oldest beyond are forgotten: ``KeyError``).
@@ -136,7 +133,7 @@ class RosNavigationBackend:
             start_parameter_services=False,
             enable_rosout=False,
         )
-        self._clients = {k: ActionClient(self.node, ACTION_TYPES[k], k) for k in BACKEND_KINDS}
+        self._clients = {k: ActionClient(self.node, ACTION_TYPES[k], k) for k in owner.eager}
         self._services: dict[str, Client] = {}
         self._goals: dict[str, RemoteGoal] = {}
         self._live: dict[str, RemoteGoal] = {}
@@ -388,7 +385,10 @@ class RosBackends:
         domain_id: int | None = None,
         context: Context | None = None,
         server_timeout_s: float = 3.0,
+        eager: Iterable[str] = BACKEND_KINDS,
     ) -> None:
+        #: The action clients each robot makes at once (the others on first use).
+        self.eager = tuple(eager)
         self.lock = threading.RLock()
         self._owns_context = context is None
         if context is None:
@@ -513,7 +513,7 @@ class RosBackends:
         for ns in ask:
             b = self.backends[ns]
             b.served = served[ns]
-            b.servers_ready = b.lifecycle.active and b._clients.keys() <= b.served
+            b.servers_ready = b.lifecycle.active and b._clients.keys() | set(BACKEND_KINDS) <= b.served
 
     def _spin(self) -> None:
         while not self._closed and self.context.ok():
@@ -563,6 +563,7 @@ def make_ros_backends(
     server_timeout_s: float = 3.0,
     wait_s: float | None = None,
     startup: bool = True,
+    eager: Iterable[str] = BACKEND_KINDS,
 ) -> RosBackends:
     """Create ROS backends for ``namespaces`` (e.g. ``["/robot1", "/robot2"]``).
 
@@ -572,9 +573,10 @@ def make_ros_backends(
     long again for every robot's navigator to be active (sending its lifecycle managers
     STARTUP when its nodes are unconfigured, unless ``startup`` is false: see
     :meth:`RosBackends.wait_until_active`), and raises :class:`~fleet.errors.BackendError`
-    naming the robots still missing.
+    naming the robots still missing. ``eager``: the action clients made at once (fewer, e.g.
+    the two navigators, cut discovery work at scale; the others are made on first use).
     """
-    rb = RosBackends(namespaces, domain_id=domain_id, context=context, server_timeout_s=server_timeout_s)
+    rb = RosBackends(namespaces, domain_id=domain_id, context=context, server_timeout_s=server_timeout_s, eager=eager)  # fmt: skip
     if wait_s is not None:
         missing = rb.wait_for_servers(wait_s)
         if missing:
