@@ -35,8 +35,8 @@ def served_actions(
     node: Node, namespaces: Iterable[str], skip_nodes: Iterable[str] = ()
 ) -> dict[str, frozenset[str]]:
     """For each namespace (``/robot1``), the relative names of the action servers
-    (``navigate_to_pose``, ...) that ``node``'s participant has discovered on nodes of exactly
-    that namespace. Nodes named in ``skip_nodes`` (the caller's own, which serve nothing) are
+    (``navigate_to_pose``, ...) and services (``bt_navigator/get_state``, ...) that ``node``'s
+    participant has discovered on nodes of exactly that namespace. Nodes named in ``skip_nodes`` (the caller's own, which serve nothing) are
     not asked. Thread-safe (the graph has its own lock); costs one pass over the node list
     plus the endpoints of the nodes in ``namespaces``."""
     wanted = {ns: set[str]() for ns in namespaces}
@@ -46,7 +46,10 @@ def served_actions(
         if found is None or name in skip:
             continue
         prefix = ns.rstrip("/") + "/"
-        for action, _types in get_action_server_names_and_types_by_node(node, name, ns):
-            if action.startswith(prefix):
-                found.add(action[len(prefix) :])
+        for served, _types in [
+            *get_action_server_names_and_types_by_node(node, name, ns),
+            *node.get_service_names_and_types_by_node(name, ns),
+        ]:
+            if served.startswith(prefix):
+                found.add(served[len(prefix) :])
     return {ns: frozenset(s) for ns, s in wanted.items()}

@@ -142,10 +142,10 @@ class RosNavigationBackend:
         #: Whether every action server of the robot is discovered (read for the whole fleet
         #: every :data:`READY_PERIOD_S`, every 0.1 s while :meth:`_sweep_wanted`).
         self.servers_ready = False
-        #: The action servers seen in the robot's namespace at the last sweep.
+        #: The action and service servers seen in the robot's namespace at the last sweep.
         self.served: frozenset[str] = frozenset()
         #: The robot's navigator lifecycle state (polled on the executor thread).
-        self.lifecycle = LifecycleWatch(self.node)
+        self.lifecycle = LifecycleWatch(self.node, lambda name: name in self.served)
         self.tracker = RobotStateTracker(
             self.node,
             self._lock,
