@@ -6,18 +6,23 @@ For each robot count N (and interface profile): start ``python -m fleet.ros.nav2
 CONFIG --robots N`` in a child process and measure
   * create_s: creating the N facades (nodes, action servers, services) in the server;
   * server_rss_mb: the server's resident memory once ready;
-  * discover_s: in this process, from creating N RosNavigationBackends (one lean node each,
+  * client_create_s: creating N RosNavigationBackends in this process (one lean node each,
     in as many rclpy contexts, i.e. DDS participants, as the server's --shards, one executor
-    thread each) until every robot's 7 action servers are discovered;
+    thread each; with --client-actions nav each makes only the two navigators' action clients
+    at start);
+  * discover_s: from the same start until every robot's 7 action servers are discovered (read
+    from the graph node by node: fleet.ros.action_graph);
   * active_s: from the same start until every robot's navigator answers ``active`` on its
     lifecycle ``get_state`` service (the server has discovered this client too);
-  * wait_all_s: sending one Wait(0.5 s) goal to every robot at once until all SUCCEEDED
-    (the goal round trip under load, at --speed 1);
+  * wait_all_s: sending one goal to every robot at once (--goal wait: Wait(0.5 s); here:
+    NavigateToPose to where the robot stands) until all SUCCEEDED (the goal round trip under
+    load, at --speed 1); wait_ok of N succeeded, wait_other how the others ended;
   * client_rss_mb: this process's resident memory growth.
 Private ROS domain, loopback, the fleet's FastDDS discovery profile.
 
 Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full] [--shards 1,8]
-       [--executor single,events] [--discovery-server]
+       [--executor single,events] [--client-actions all,nav] [--goal wait|here]
+       [--discovery-server]
        [--config configs/warehouse_patrol_30.yaml] [--json out/bench_ros_scale.json]
 """
 

@@ -26,7 +26,11 @@ apply_ros_env_defaults()
 
 from rclpy.action.graph import get_action_server_names_and_types_by_node  # noqa: E402
 from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
 
+#: Parameters of a node that should add as little to the graph as it can: no
+#: ``~/get_type_description`` service (two DDS endpoints per node that a fleet never asks).
+LEAN_NODE_PARAMETERS = [Parameter("start_type_description_service", value=False)]
 #: The fleet client's own node names (``fleet.ros.backend``: they serve no action).
 OWN_NODES = ("fleet_backend", "fleet_backends")
 

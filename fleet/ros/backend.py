@@ -69,7 +69,7 @@ from rclpy.signals import SignalHandlerOptions  # noqa: E402
 from rclpy.task import Future  # noqa: E402
 
 from fleet.errors import BackendError  # noqa: E402
-from fleet.ros.action_graph import OWN_NODES, served_actions  # noqa: E402
+from fleet.ros.action_graph import LEAN_NODE_PARAMETERS, OWN_NODES, served_actions  # noqa: E402
 from fleet.ros.conversions import (  # noqa: E402
     ACTION_TYPES,
     CLEAR_COSTMAP_SERVICES,
@@ -132,6 +132,7 @@ class RosNavigationBackend:
             context=owner.context,
             start_parameter_services=False,
             enable_rosout=False,
+            parameter_overrides=LEAN_NODE_PARAMETERS,
         )
         self._clients = {k: ActionClient(self.node, ACTION_TYPES[k], k) for k in owner.eager}
         self._services: dict[str, Client] = {}

@@ -79,6 +79,9 @@ def test_the_graph_read_node_by_node_finds_every_robots_servers(backends: RosBac
     served = served_actions(node, [*ROBOTS, "/robot99"], OWN_NODES)
     assert {ns: set(BACKEND_KINDS) <= served[ns] for ns in ROBOTS} == dict.fromkeys(ROBOTS, True)
     assert served["/robot99"] == frozenset()
+    # services too (the navigator's lifecycle state); a lean node serves no type descriptions
+    assert "bt_navigator/get_state" in served["/robot1"]
+    assert not any(n.endswith("get_type_description") for n in served["/robot1"])
     assert backends.wait_for_servers(DISCOVERY_S) == []
     assert backends.wait_for_servers(0.0, ["no_such_action"]) == ROBOTS
     wait_until(
