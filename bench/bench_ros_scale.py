@@ -18,7 +18,8 @@ CONFIG --robots N`` in a child process and measure
     NavigateToPose to where the robot stands) until all SUCCEEDED (the goal round trip under
     load, at --speed 1); wait_ok of N succeeded, wait_other how the others ended;
   * client_rss_mb: this process's resident memory growth.
-Private ROS domain, loopback, the fleet's FastDDS discovery profile.
+Private ROS domain, loopback, the fleet's FastDDS discovery profile (``FLEET_ROS_DISCOVERY=scale``
+in the environment: the 20 s-lease profile for both sides; the row's profile_file names it).
 
 Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full] [--shards 1,8]
        [--executor single,events] [--client-actions all,nav] [--goal wait|here]
@@ -237,6 +238,7 @@ def main(argv: list[str] | None = None) -> int:
                             stack.enter_context(discovery_server())
                         row = one(args.config, n, profile, args.timeout, shards, executor, actions, args.goal)
                     row["discovery"] = "server" if args.discovery_server else "simple"
+                    row["profile_file"] = Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]).name
                     rows.append(row)
                     print(json.dumps(row), flush=True)
     if args.json:

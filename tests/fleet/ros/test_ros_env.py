@@ -16,6 +16,7 @@ import pytest
 
 from fleet.ros.env import (
     DISCOVERY_PROFILE,
+    SCALE_PROFILE,
     apply_ros_env_defaults,
     ros_available,
     ros_unavailable_reason,
@@ -55,6 +56,39 @@ def test_defaults_are_set_only_where_unset() -> None:
     assert "FASTRTPS_DEFAULT_PROFILES_FILE" not in own
     with pytest.raises(ValueError, match="ROS_DOMAIN_ID"):
         apply_ros_env_defaults(300, environ={})
+
+
+def test_the_scale_profile_differs_only_by_its_longer_lease() -> None:
+    """``FLEET_ROS_DISCOVERY=scale`` picks the 20 s-lease profile; the two shipped profiles
+    agree on everything else; a wrong value is an error naming the variable."""
+    env = apply_ros_env_defaults(environ={"FLEET_ROS_DISCOVERY": "scale"})
+    assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(SCALE_PROFILE)
+    with pytest.raises(ValueError, match="FLEET_ROS_DISCOVERY"):
+        apply_ros_env_defaults(environ={"FLEET_ROS_DISCOVERY": "fast"})
+
+    def settings(path: Path) -> dict[str, str]:
+        root = ET.parse(path).getroot()
+        return {
+            "/".join(el.tag.split("}")[-1] for el in [*_ancestors(root, leaf), leaf]): (
+                leaf.text or ""
+            ).strip()
+            for leaf in root.iter()
+            if len(leaf) == 0
+        }
+
+    base, scale = settings(DISCOVERY_PROFILE), settings(SCALE_PROFILE)
+    changed = {k for k in base if base[k] != scale.get(k)}
+    assert changed == {k for k in base if "leaseDuration/sec" in k}
+    assert [scale[k] for k in changed] == ["20"]
+
+
+def _ancestors(root: ET.Element, leaf: ET.Element) -> list[ET.Element]:
+    parents = {c: p for p in root.iter() for c in p}
+    chain = []
+    while leaf in parents:
+        leaf = parents[leaf]
+        chain.append(leaf)
+    return chain[::-1]
 
 
 def test_fleet_disable_ros_makes_ros_unavailable() -> None:
