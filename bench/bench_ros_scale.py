@@ -34,6 +34,7 @@ import contextlib
 import itertools
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -100,6 +101,7 @@ def one(
     executor: str = "single",
     client_actions: str = "all",
     goal: str = "wait",
+    server_timeout_s: float = 3.0,
 ) -> dict[str, float | int | str]:
     from fleet.ros.backend import BACKEND_KINDS, make_ros_backends
     from fleet.ros.executors import EXECUTOR_VAR
@@ -113,6 +115,7 @@ def one(
         "executor": executor,
         "client_actions": client_actions,
         "goal": goal,
+        "server_timeout_s": server_timeout_s,
     }
     eager = CLIENT_ACTIONS[client_actions] or BACKEND_KINDS
     with ServerProcess.for_config(
@@ -136,7 +139,10 @@ def one(
         t0 = time.monotonic()
         names = [f"/robot{i + 1}" for i in range(n)]
         # the client side in as many participants (contexts) as the server side
-        groups = [make_ros_backends(names[k::shards], eager=eager) for k in range(min(shards, n))]
+        groups = [
+            make_ros_backends(names[k::shards], eager=eager, server_timeout_s=server_timeout_s)
+            for k in range(min(shards, n))
+        ]
         rb = {ns: g[ns] for g in groups for ns in g.backends}
         row["client_create_s"] = round(time.monotonic() - t0, 3)
         deadline = time.monotonic() + timeout_s
@@ -166,7 +172,8 @@ def one(
                 ends: dict[str, int] = {}
                 for st in states:
                     if st.status is not GoalStatus.SUCCEEDED:
-                        key = f"{st.status.name}: {st.error_msg}"[:120]
+                        msg = re.sub(r"/robot\d+", "<robot>", st.error_msg)
+                        key = f"{st.status.name}: {msg}"[:120]
                         ends[key] = ends.get(key, 0) + 1
                 if ends:
                     row["wait_other"] = json.dumps(ends)
@@ -220,6 +227,12 @@ def main(argv: list[str] | None = None) -> int:
         choices=("wait", "here"),
         help="the goal sent to every robot: Wait(0.5 s), or NavigateToPose to where it stands",
     )
+    ap.add_argument(
+        "--server-timeout",
+        type=float,
+        default=3.0,
+        help="the backends' server_timeout_s: how long a goal request may go unanswered (s)",
+    )
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     # SIGTERM (e.g. `timeout`) unwinds like Ctrl-C so the server child is stopped
@@ -236,7 +249,17 @@ def main(argv: list[str] | None = None) -> int:
                     with contextlib.ExitStack() as stack:
                         if args.discovery_server:
                             stack.enter_context(discovery_server())
-                        row = one(args.config, n, profile, args.timeout, shards, executor, actions, args.goal)
+                        row = one(
+                            args.config,
+                            n,
+                            profile,
+                            args.timeout,
+                            shards,
+                            executor,
+                            actions,
+                            args.goal,
+                            args.server_timeout,
+                        )
                     row["discovery"] = "server" if args.discovery_server else "simple"
                     row["profile_file"] = Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]).name
                     rows.append(row)
