@@ -82,6 +82,24 @@ def test_the_scale_profile_differs_only_by_its_longer_lease() -> None:
     assert [scale[k] for k in changed] == ["20"]
 
 
+@pytest.mark.ros
+def test_sim_ros_refuses_a_wrong_discovery_choice_with_one_error_line() -> None:
+    env = {**os.environ, "FLEET_ROS_DISCOVERY": "fast", "PYTHONPATH": str(ROOT)}
+    env.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
+    cfg = str(ROOT / "configs" / "warehouse_patrol.yaml")
+    out = subprocess.run(
+        [sys.executable, "-m", "fleet.cli", "sim-ros", cfg, "--duration", "1"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=CHILD_PYTEST_S,
+        cwd=ROOT,
+    )
+    assert out.returncode == 2, out.stderr
+    assert "error: FLEET_ROS_DISCOVERY must be default or scale" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
 def _ancestors(root: ET.Element, leaf: ET.Element) -> list[ET.Element]:
     parents = {c: p for p in root.iter() for c in p}
     chain = []
