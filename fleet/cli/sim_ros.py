@@ -47,14 +47,12 @@ def strip_log_level(argv: list[str]) -> tuple[list[str], str | None]:
 
 def handle(args: argparse.Namespace) -> int:
     """Run ``fleet.ros.nav2_server`` with the remaining arguments; without ROS, or with a
-    ROS environment variable it refuses (``FLEET_ROS_DISCOVERY``), a :class:`BackendError`
-    (one ``error:`` line, exit 2)."""
+    ``FLEET_ROS_DISCOVERY`` that ``fleet.ros.env`` refuses, a :class:`BackendError` (one
+    ``error:`` line, exit 2)."""
     try:
         from fleet.ros.nav2_server import main as sim_ros_main
     except ImportError as e:
         raise BackendError(
             f"fleet sim-ros needs ROS 2 Jazzy and nav2_msgs ({e}); run `make setup-ros`"
         ) from None
-    except ValueError as e:  # a ROS environment variable the defaults refuse (fleet.ros.env)
-        raise BackendError(str(e)) from None
     return int(sim_ros_main(list(args.rest)) or 0)

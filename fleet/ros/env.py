@@ -23,6 +23,8 @@ import os
 from collections.abc import MutableMapping
 from pathlib import Path
 
+from fleet.errors import BackendError
+
 #: The FastDDS profile shipped with the package.
 DISCOVERY_PROFILE = Path(__file__).with_name("discovery.xml")
 #: The profile for hundreds of robots (a 20 s participant lease).
@@ -42,7 +44,8 @@ def apply_ros_env_defaults(
     """Set the fleet's ROS defaults in ``environ`` (default ``os.environ``) where unset.
 
     ``domain_id`` (0-101 for FastDDS on Linux), when given, overrides ``ROS_DOMAIN_ID``.
-    Returns the environment that was changed. Must run before ``import rclpy`` takes effect
+    Returns the environment that was changed. A ``FLEET_ROS_DISCOVERY`` other than ``default``
+    or ``scale`` is a :class:`~fleet.errors.BackendError` naming it. Must run before ``import rclpy`` takes effect
     for the current process (the middleware reads the variables at ``rclpy.init``).
     """
     env = os.environ if environ is None else environ
@@ -51,7 +54,7 @@ def apply_ros_env_defaults(
     if "FASTRTPS_DEFAULT_PROFILES_FILE" not in env and "FASTDDS_DEFAULT_PROFILES_FILE" not in env:
         kind = env.get(DISCOVERY_VAR, "").strip().lower() or "default"
         if kind not in ("default", "scale"):
-            raise ValueError(f"{DISCOVERY_VAR} must be default or scale, got {kind!r}")
+            raise BackendError(f"{DISCOVERY_VAR} must be default or scale, got {kind!r}")
         env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(SCALE_PROFILE if kind == "scale" else DISCOVERY_PROFILE)
     if domain_id is not None:
         if not 0 <= int(domain_id) <= 232:

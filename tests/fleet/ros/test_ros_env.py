@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from fleet.errors import BackendError
 from fleet.ros.env import (
     DISCOVERY_PROFILE,
     SCALE_PROFILE,
@@ -63,7 +64,7 @@ def test_the_scale_profile_differs_only_by_its_longer_lease() -> None:
     agree on everything else; a wrong value is an error naming the variable."""
     env = apply_ros_env_defaults(environ={"FLEET_ROS_DISCOVERY": "scale"})
     assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(SCALE_PROFILE)
-    with pytest.raises(ValueError, match="FLEET_ROS_DISCOVERY"):
+    with pytest.raises(BackendError, match="FLEET_ROS_DISCOVERY"):
         apply_ros_env_defaults(environ={"FLEET_ROS_DISCOVERY": "fast"})
 
     def settings(path: Path) -> dict[str, str]:
