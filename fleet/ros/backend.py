@@ -440,17 +440,17 @@ class RosBackends:
             self._guard.trigger()
 
     def wait_for_servers(self, timeout_s: float = 30.0, kinds: Iterable[str] = BACKEND_KINDS) -> list[str]:
-        """Wait until every robot's action servers are discovered (a sweep stops at the first
-        robot missing: checks are costly, see ``_watchdog``); return those missing after ``timeout_s``."""
+        """Wait until every robot's action servers ``kinds`` are discovered (read from the graph
+        node by node: :mod:`fleet.ros.action_graph`); return those missing after ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
         want = frozenset(kinds)
         missing = list(self.backends)
-        while missing and time.monotonic() < deadline:
+        while True:  # looks at least once, also with timeout_s 0
             served = served_actions(self._helper, missing, OWN_NODES)
             missing = [ns for ns in missing if not want <= served[ns]]
-            if missing:
-                time.sleep(0.1)
-        return missing
+            if not missing or time.monotonic() >= deadline:
+                return missing
+            time.sleep(0.1)
 
     def wait_until_active(self, timeout_s: float = 30.0, *, startup: bool = True) -> list[str]:
         """Wait until every robot's navigator (``bt_navigator``) is active, as

@@ -83,6 +83,7 @@ def test_the_graph_read_node_by_node_finds_every_robots_servers(backends: RosBac
     assert "bt_navigator/get_state" in served["/robot1"]
     assert not any(n.endswith("get_type_description") for n in served["/robot1"])
     assert backends.wait_for_servers(DISCOVERY_S) == []
+    assert backends.wait_for_servers(0.0) == []  # a zero timeout still looks once
     assert backends.wait_for_servers(0.0, ["no_such_action"]) == ROBOTS
     wait_until(
         lambda: all(backends[ns].robot_state().navigation_ready for ns in ROBOTS),
