@@ -6,18 +6,24 @@ For each robot count N (and interface profile): start ``python -m fleet.ros.nav2
 CONFIG --robots N`` in a child process and measure
   * create_s: creating the N facades (nodes, action servers, services) in the server;
   * server_rss_mb: the server's resident memory once ready;
-  * discover_s: in this process, from creating N RosNavigationBackends (one lean node each,
+  * client_create_s: creating N RosNavigationBackends in this process (one lean node each,
     in as many rclpy contexts, i.e. DDS participants, as the server's --shards, one executor
-    thread each) until every robot's 7 action servers are discovered;
+    thread each; with --client-actions nav each makes only the two navigators' action clients
+    at start);
+  * discover_s: from the same start until every robot's 7 action servers are discovered (read
+    from the graph node by node: fleet.ros.action_graph);
   * active_s: from the same start until every robot's navigator answers ``active`` on its
     lifecycle ``get_state`` service (the server has discovered this client too);
-  * wait_all_s: sending one Wait(0.5 s) goal to every robot at once until all SUCCEEDED
-    (the goal round trip under load, at --speed 1);
+  * wait_all_s: sending one goal to every robot at once (--goal wait: Wait(0.5 s); here:
+    NavigateToPose to where the robot stands) until all SUCCEEDED (the goal round trip under
+    load, at --speed 1); wait_ok of N succeeded, wait_other how the others ended;
   * client_rss_mb: this process's resident memory growth.
-Private ROS domain, loopback, the fleet's FastDDS discovery profile.
+Private ROS domain, loopback, the fleet's FastDDS discovery profile (``FLEET_ROS_DISCOVERY=scale``
+in the environment: the 20 s-lease profile for both sides; the row's profile_file names it).
 
 Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full] [--shards 1,8]
-       [--executor single,events] [--discovery-server]
+       [--executor single,events] [--client-actions all,nav] [--goal wait|here]
+       [--discovery-server]
        [--config configs/warehouse_patrol_30.yaml] [--json out/bench_ros_scale.json]
 """
 
@@ -25,8 +31,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -85,11 +93,19 @@ def discovery_server(timeout_s: float = 30.0) -> Iterator[str]:
 
 
 def one(
-    config: str, n: int, profile: str, timeout_s: float, shards: int = 1, executor: str = "single"
+    config: str,
+    n: int,
+    profile: str,
+    timeout_s: float,
+    shards: int = 1,
+    executor: str = "single",
+    client_actions: str = "all",
+    goal: str = "wait",
+    server_timeout_s: float = 3.0,
 ) -> dict[str, float | int | str]:
-    from fleet.ros.backend import make_ros_backends
+    from fleet.ros.backend import BACKEND_KINDS, make_ros_backends
     from fleet.ros.executors import EXECUTOR_VAR
-    from fleet.types import GoalStatus, Wait
+    from fleet.types import Goal, GoalStatus, NavigateToPose, Wait
 
     os.environ[EXECUTOR_VAR] = executor  # the server child's executor (fleet.ros.executors)
     row: dict[str, float | int | str] = {
@@ -97,7 +113,11 @@ def one(
         "profile": profile,
         "shards": shards,
         "executor": executor,
+        "client_actions": client_actions,
+        "goal": goal,
+        "server_timeout_s": server_timeout_s,
     }
+    eager = CLIENT_ACTIONS[client_actions] or BACKEND_KINDS
     with ServerProcess.for_config(
         config,
         "--robots",
@@ -119,7 +139,10 @@ def one(
         t0 = time.monotonic()
         names = [f"/robot{i + 1}" for i in range(n)]
         # the client side in as many participants (contexts) as the server side
-        groups = [make_ros_backends(names[k::shards]) for k in range(min(shards, n))]
+        groups = [
+            make_ros_backends(names[k::shards], eager=eager, server_timeout_s=server_timeout_s)
+            for k in range(min(shards, n))
+        ]
         rb = {ns: g[ns] for g in groups for ns in g.backends}
         row["client_create_s"] = round(time.monotonic() - t0, 3)
         deadline = time.monotonic() + timeout_s
@@ -135,7 +158,11 @@ def one(
         try:
             if not missing:
                 t1 = time.monotonic()
-                ids = {ns: b.send_goal(Wait(0.5)) for ns, b in rb.items()}
+                goals: dict[str, Goal] = {
+                    ns: Wait(0.5) if goal == "wait" else NavigateToPose(b.robot_state().pose)
+                    for ns, b in rb.items()
+                }
+                ids = {ns: rb[ns].send_goal(g) for ns, g in goals.items()}
                 while time.monotonic() - t1 < timeout_s:
                     if all(rb[ns].goal_state(g).status.terminal for ns, g in ids.items()):
                         break
@@ -145,7 +172,8 @@ def one(
                 ends: dict[str, int] = {}
                 for st in states:
                     if st.status is not GoalStatus.SUCCEEDED:
-                        key = f"{st.status.name}: {st.error_msg}"[:120]
+                        msg = re.sub(r"/robot\d+", "<robot>", st.error_msg)
+                        key = f"{st.status.name}: {msg}"[:120]
                         ends[key] = ends.get(key, 0) + 1
                 if ends:
                     row["wait_other"] = json.dumps(ends)
@@ -156,6 +184,14 @@ def one(
             for g in groups:
                 g.close()
     return row
+
+
+#: ``--client-actions``: the action clients each robot's backend makes at start (``None``: all
+#: seven); every robot's seven servers are still required to count it discovered.
+CLIENT_ACTIONS: dict[str, tuple[str, ...] | None] = {
+    "all": None,
+    "nav": ("navigate_to_pose", "navigate_through_poses"),
+}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -179,6 +215,24 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="run FastDDS's discovery server (shipped with the ROS wheels) and point both sides at it",
     )
+    ap.add_argument(
+        "--client-actions",
+        default="all",
+        help="comma-separated: all (every backend makes its 7 action clients at start) or nav "
+        "(only the two navigators; the others on first use), one run each",
+    )
+    ap.add_argument(
+        "--goal",
+        default="wait",
+        choices=("wait", "here"),
+        help="the goal sent to every robot: Wait(0.5 s), or NavigateToPose to where it stands",
+    )
+    ap.add_argument(
+        "--server-timeout",
+        type=float,
+        default=3.0,
+        help="the backends' server_timeout_s: how long a goal request may go unanswered (s)",
+    )
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     # SIGTERM (e.g. `timeout`) unwinds like Ctrl-C so the server child is stopped
@@ -189,12 +243,25 @@ def main(argv: list[str] | None = None) -> int:
     for profile in args.profile.split(","):
         for n in (int(x) for x in args.robots.split(",")):
             for shards in (int(x) for x in args.shards.split(",")):
-                for executor in args.executor.split(","):
+                for executor, actions in itertools.product(
+                    args.executor.split(","), args.client_actions.split(",")
+                ):
                     with contextlib.ExitStack() as stack:
                         if args.discovery_server:
                             stack.enter_context(discovery_server())
-                        row = one(args.config, n, profile, args.timeout, shards, executor)
+                        row = one(
+                            args.config,
+                            n,
+                            profile,
+                            args.timeout,
+                            shards,
+                            executor,
+                            actions,
+                            args.goal,
+                            args.server_timeout,
+                        )
                     row["discovery"] = "server" if args.discovery_server else "simple"
+                    row["profile_file"] = Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]).name
                     rows.append(row)
                     print(json.dumps(row), flush=True)
     if args.json:

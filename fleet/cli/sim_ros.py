@@ -46,8 +46,9 @@ def strip_log_level(argv: list[str]) -> tuple[list[str], str | None]:
 
 
 def handle(args: argparse.Namespace) -> int:
-    """Run ``fleet.ros.nav2_server`` with the remaining arguments; without ROS a
-    :class:`BackendError` (one ``error:`` line, exit 2)."""
+    """Run ``fleet.ros.nav2_server`` with the remaining arguments; without ROS, or with a
+    ``FLEET_ROS_DISCOVERY`` that ``fleet.ros.env`` refuses, a :class:`BackendError` (one
+    ``error:`` line, exit 2)."""
     try:
         from fleet.ros.nav2_server import main as sim_ros_main
     except ImportError as e:

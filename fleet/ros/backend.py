@@ -19,9 +19,8 @@ Mapping onto the protocol (:mod:`fleet.navigation`):
   a cancel request is sent to that server so the robot executes one goal at a time.
   Computation goals (``compute_path_to_pose``, ``compute_path_through_poses``,
   ``smooth_path``: Nav2's planner and smoother servers; ``clear_costmaps``: the
-  ``clear_entirely_{global,local}_costmap`` services) run beside it; their action clients
-  (and ``follow_path``'s) are created on first use. A planner's or smoother's path is the
-  terminal state's ``path``.
+  ``clear_entirely_{global,local}_costmap`` services) run beside it, their clients made on
+  first use (as those not ``eager``). A planner's or smoother's path is the terminal ``path``.
 * Results: Nav2's status and ``error_code`` / ``error_msg`` (FollowWaypoints: missed waypoint
   indices) become the terminal :class:`~fleet.types.GoalState`; feedback messages become
   :class:`~fleet.types.Feedback`.
@@ -70,6 +69,7 @@ from rclpy.signals import SignalHandlerOptions  # noqa: E402
 from rclpy.task import Future  # noqa: E402
 
 from fleet.errors import BackendError  # noqa: E402
+from fleet.ros.action_graph import LEAN_NODE_PARAMETERS, OWN_NODES, served_actions  # noqa: E402
 from fleet.ros.conversions import (  # noqa: E402
     ACTION_TYPES,
     CLEAR_COSTMAP_SERVICES,
@@ -81,7 +81,7 @@ from fleet.ros.conversions import (  # noqa: E402
     result_path,
 )
 from fleet.ros.lifecycle_client import LifecycleWatch  # noqa: E402
-from fleet.ros.remote_goal import STATUS_MAP, RemoteGoal  # noqa: E402
+from fleet.ros.remote_goal import STATUS_MAP, RemoteGoal, succeed_when_answered  # noqa: E402
 from fleet.ros.robot_state import RobotStateTracker  # noqa: E402
 from fleet.types import (  # noqa: E402
     MOTION_GOAL_KINDS,
@@ -132,19 +132,21 @@ class RosNavigationBackend:
             context=owner.context,
             start_parameter_services=False,
             enable_rosout=False,
+            parameter_overrides=LEAN_NODE_PARAMETERS,
         )
-        self._clients = {k: ActionClient(self.node, ACTION_TYPES[k], k) for k in BACKEND_KINDS}
+        self._clients = {k: ActionClient(self.node, ACTION_TYPES[k], k) for k in owner.eager}
         self._services: dict[str, Client] = {}
         self._goals: dict[str, RemoteGoal] = {}
         self._live: dict[str, RemoteGoal] = {}
         self._ids = itertools.count(1)
         self._current: RemoteGoal | None = None
-        #: Whether every action server of the robot is discovered (checked by the watchdog every
-        #: :data:`READY_PERIOD_S`, robots staggered; every 0.1 s while active and one is missing).
+        #: Whether every action server of the robot is discovered (read for the whole fleet
+        #: every :data:`READY_PERIOD_S`, every 0.1 s while :meth:`_sweep_wanted`).
         self.servers_ready = False
-        self._ready_at = (index % 10) * READY_PERIOD_S / 10
+        #: The action and service servers seen in the robot's namespace at the last sweep.
+        self.served: frozenset[str] = frozenset()
         #: The robot's navigator lifecycle state (polled on the executor thread).
-        self.lifecycle = LifecycleWatch(self.node)
+        self.lifecycle = LifecycleWatch(self.node, lambda name: name in self.served)
         self.tracker = RobotStateTracker(
             self.node,
             self._lock,
@@ -215,17 +217,6 @@ class RosNavigationBackend:
         cur = self._current
         return cur is not None and not cur.status.terminal and cur.kind in DRIVING_KINDS
 
-    def wait_for_servers(self, timeout_s: float, kinds: Iterable[str] = BACKEND_KINDS) -> bool:
-        """Block until the action servers ``kinds`` are discovered (True) or ``timeout_s``."""
-        deadline = time.monotonic() + timeout_s
-        kinds = tuple(kinds)
-        while True:
-            if all(self._clients[k].server_is_ready() for k in kinds):
-                return True
-            if time.monotonic() >= deadline:
-                return False
-            time.sleep(0.02)
-
     def __repr__(self) -> str:
         return f"RosNavigationBackend({self._ns!r})"
 
@@ -242,7 +233,14 @@ class RosNavigationBackend:
         """Whether the server(s) of goal kind ``kind`` are discovered (executor thread)."""
         if kind == "clear_costmaps":
             return all(self._service(n).service_is_ready() for n in CLEAR_COSTMAP_SERVICES.values())
-        return bool(self._client(kind).server_is_ready())
+        return kind in self.served  # the fleet's graph sweep (RosBackends._tick)
+
+    def _sweep_wanted(self) -> bool:
+        """Whether this robot's servers should be looked up again now: its navigator is active
+        but a server is missing, or a live goal's server is not seen (executor thread)."""
+        with self._lock:
+            kinds = {r.kind for r in self._live.values()}
+        return (self.lifecycle.active and not self.servers_ready) or not kinds <= self.served
 
     def _service(self, name: str) -> Client:
         client = self._services.get(name)
@@ -255,19 +253,8 @@ class RosNavigationBackend:
         assert isinstance(rec.goal, ClearCostmaps)
         which = Costmap(rec.goal.costmap)
         names = [n for c, n in CLEAR_COSTMAP_SERVICES.items() if which in (Costmap.BOTH, c)]
-        done = Future()
-        rec.sent_at = time.monotonic()
-        rec.handle = done
-        pending = [self._service(n).call_async(ClearEntireCostmap.Request()) for n in names]
-
-        def answered(_f: Future) -> None:
-            if all(f.done() for f in pending) and not done.done():
-                done.set_result(True)
-                with self._lock:
-                    rec.finish(GoalStatus.SUCCEEDED)
-
-        for f in pending:
-            f.add_done_callback(answered)
+        calls = [self._service(n).call_async(ClearEntireCostmap.Request()) for n in names]
+        succeed_when_answered(rec, calls, self._lock)
 
     def _send_remote(self, rec: RemoteGoal) -> None:
         with self._lock:
@@ -350,10 +337,6 @@ class RosNavigationBackend:
         """Send goals that waited for their server; end goals whose server vanished or never
         answered (executor thread)."""
         self.lifecycle.poll(now)
-        if now >= self._ready_at or (self.lifecycle.active and not self.servers_ready):
-            # server_is_ready() counts over the whole graph under the lock discovery needs
-            self._ready_at = now + READY_PERIOD_S
-            self.servers_ready = self.lifecycle.active and self.wait_for_servers(0.0, self._clients)
         with self._lock:
             for gid in [g for g, r in self._live.items() if r.status.terminal]:
                 del self._live[gid]
@@ -403,7 +386,10 @@ class RosBackends:
         domain_id: int | None = None,
         context: Context | None = None,
         server_timeout_s: float = 3.0,
+        eager: Iterable[str] = BACKEND_KINDS,
     ) -> None:
+        #: The action clients each robot makes at once (the others on first use).
+        self.eager = tuple(eager)
         self.lock = threading.RLock()
         self._owns_context = context is None
         if context is None:
@@ -420,6 +406,7 @@ class RosBackends:
         self._odom_t = np.zeros(len(namespaces))
         self._cancels: set[Future] = set()
         self._fleet_t = 0.0
+        self._ready_at = 0.0
         self.backends: dict[str, RosNavigationBackend] = {}
         try:
             for ns in namespaces:
@@ -453,16 +440,17 @@ class RosBackends:
             self._guard.trigger()
 
     def wait_for_servers(self, timeout_s: float = 30.0, kinds: Iterable[str] = BACKEND_KINDS) -> list[str]:
-        """Wait until every robot's action servers are discovered (a sweep stops at the first
-        robot missing: checks are costly, see ``_watchdog``); return those missing after ``timeout_s``."""
+        """Wait until every robot's action servers ``kinds`` are discovered (read from the graph
+        node by node: :mod:`fleet.ros.action_graph`); return those missing after ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
-        kinds = tuple(kinds)
+        want = frozenset(kinds)
         missing = list(self.backends)
-        while missing and time.monotonic() < deadline:
-            missing = list(itertools.dropwhile(lambda ns: self[ns].wait_for_servers(0.0, kinds), missing))
-            if missing:
-                time.sleep(0.05)
-        return missing
+        while True:  # looks at least once, also with timeout_s 0
+            served = served_actions(self._helper, missing, OWN_NODES)
+            missing = [ns for ns in missing if not want <= served[ns]]
+            if not missing or time.monotonic() >= deadline:
+                return missing
+            time.sleep(0.1)
 
     def wait_until_active(self, timeout_s: float = 30.0, *, startup: bool = True) -> list[str]:
         """Wait until every robot's navigator (``bt_navigator``) is active, as
@@ -517,6 +505,16 @@ class RosBackends:
         now = time.monotonic()
         for b in self.backends.values():
             b._watchdog(now)
+        # servers discovered: the whole fleet every READY_PERIOD_S, else the robots wanting it
+        if now >= self._ready_at:
+            self._ready_at, ask = now + READY_PERIOD_S, list(self.backends)
+        else:
+            ask = [ns for ns, b in self.backends.items() if b._sweep_wanted()]
+        served = served_actions(self._helper, ask, OWN_NODES) if ask else {}
+        for ns in ask:
+            b = self.backends[ns]
+            b.served = served[ns]
+            b.servers_ready = b.lifecycle.active and b._clients.keys() | set(BACKEND_KINDS) <= b.served
 
     def _spin(self) -> None:
         while not self._closed and self.context.ok():
@@ -566,6 +564,7 @@ def make_ros_backends(
     server_timeout_s: float = 3.0,
     wait_s: float | None = None,
     startup: bool = True,
+    eager: Iterable[str] = BACKEND_KINDS,
 ) -> RosBackends:
     """Create ROS backends for ``namespaces`` (e.g. ``["/robot1", "/robot2"]``).
 
@@ -575,9 +574,10 @@ def make_ros_backends(
     long again for every robot's navigator to be active (sending its lifecycle managers
     STARTUP when its nodes are unconfigured, unless ``startup`` is false: see
     :meth:`RosBackends.wait_until_active`), and raises :class:`~fleet.errors.BackendError`
-    naming the robots still missing.
+    naming the robots still missing. ``eager``: the action clients made at once (fewer, e.g.
+    the two navigators, cut discovery work at scale; the others are made on first use).
     """
-    rb = RosBackends(namespaces, domain_id=domain_id, context=context, server_timeout_s=server_timeout_s)
+    rb = RosBackends(namespaces, domain_id=domain_id, context=context, server_timeout_s=server_timeout_s, eager=eager)  # fmt: skip
     if wait_s is not None:
         missing = rb.wait_for_servers(wait_s)
         if missing:

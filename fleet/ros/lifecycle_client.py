@@ -16,6 +16,8 @@ launched without ``autostart``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from lifecycle_msgs.srv import GetState
 from nav2_msgs.srv import ManageLifecycleNodes
 from rclpy.node import Node
@@ -35,8 +37,11 @@ class LifecycleWatch:
     """The navigator's lifecycle state of one robot (see the module docstring); every method
     runs on the executor thread but :attr:`state`, which may be read from any thread."""
 
-    def __init__(self, node: Node) -> None:
+    def __init__(self, node: Node, seen: Callable[[str], bool] | None = None) -> None:
         self._get = node.create_client(GetState, f"{NAVIGATOR}/get_state")
+        # whether the navigator's get_state is served: by default rclpy's own check (it counts
+        # over the whole graph); the fleet's backends pass their graph sweep's answer
+        self._seen = seen if seen is not None else lambda _name: bool(self._get.service_is_ready())
         self._managers = [node.create_client(ManageLifecycleNodes, f"{m}/manage_nodes") for m in MANAGERS]
         #: ``"active"``, ``"inactive"``, ``"unconfigured"``, ``"finalized"`` or ``"unknown"``.
         self.state = "unknown"
@@ -64,7 +69,7 @@ class LifecycleWatch:
             self._pending = None
             self.state = "unknown"
         if self._pending is None and now - self._asked_at >= POLL_S:
-            if self._get.service_is_ready():
+            if self._seen(f"{NAVIGATOR}/get_state"):
                 self._asked_at = now
                 self._pending = self._get.call_async(GetState.Request())
             else:

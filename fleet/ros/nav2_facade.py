@@ -47,6 +47,7 @@ from tf2_msgs.msg import TFMessage
 
 from fleet.errors import BackendError
 from fleet.navigation import Clock
+from fleet.ros.action_graph import LEAN_NODE_PARAMETERS
 from fleet.ros.conversions import (
     ACTION_TYPES,
     AMCL_POSE_QOS,
@@ -156,6 +157,7 @@ class RobotFacade:
             context=context,
             start_parameter_services=False,
             enable_rosout=False,
+            parameter_overrides=LEAN_NODE_PARAMETERS if profile is Profile.LEAN else [],
         )
         self.actions = RobotActions(self.node, sim, namespace, profile.actions, stamp, feedback_period, wall)
         self.lifecycle = RobotLifecycle(

@@ -35,6 +35,7 @@ Command line: ``python -m fleet.ros.nav2_server CONFIG [--robots N] [--speed X] 
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import signal
@@ -518,6 +519,7 @@ def serve(
         nav_through_poses_xml=nav_through_poses_xml,
         shards=shards,
     )
+    gc.freeze()  # the robots' ROS objects live as long as this process: the collector skips them
 
     def _stop(_sig: int, _frame: FrameType | None) -> None:
         server.stopped_by = "signal"

@@ -3,6 +3,8 @@ server last reported it, and the map from ``action_msgs`` statuses to :class:`Go
 
 from __future__ import annotations
 
+import threading
+import time
 from dataclasses import dataclass, field
 
 from fleet.ros.env import apply_ros_env_defaults
@@ -60,3 +62,20 @@ class RemoteGoal:
         if self.status.terminal:
             return
         self.status, self.error_code, self.error_msg = status, int(code), msg
+
+
+def succeed_when_answered(rec: RemoteGoal, calls: list[Future], lock: threading.RLock) -> None:
+    """Mark ``rec`` sent now; it SUCCEEDS (under ``lock``) once every one of ``calls`` (service
+    requests in flight) is answered."""
+    done = Future()
+    rec.sent_at = time.monotonic()
+    rec.handle = done
+
+    def answered(_f: Future) -> None:
+        if all(f.done() for f in calls) and not done.done():
+            done.set_result(True)
+            with lock:
+                rec.finish(GoalStatus.SUCCEEDED)
+
+    for f in calls:
+        f.add_done_callback(answered)

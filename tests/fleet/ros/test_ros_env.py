@@ -14,8 +14,10 @@ from pathlib import Path
 
 import pytest
 
+from fleet.errors import BackendError
 from fleet.ros.env import (
     DISCOVERY_PROFILE,
+    SCALE_PROFILE,
     apply_ros_env_defaults,
     ros_available,
     ros_unavailable_reason,
@@ -55,6 +57,57 @@ def test_defaults_are_set_only_where_unset() -> None:
     assert "FASTRTPS_DEFAULT_PROFILES_FILE" not in own
     with pytest.raises(ValueError, match="ROS_DOMAIN_ID"):
         apply_ros_env_defaults(300, environ={})
+
+
+def test_the_scale_profile_differs_only_by_its_longer_lease() -> None:
+    """``FLEET_ROS_DISCOVERY=scale`` picks the 20 s-lease profile; the two shipped profiles
+    agree on everything else; a wrong value is an error naming the variable."""
+    env = apply_ros_env_defaults(environ={"FLEET_ROS_DISCOVERY": "scale"})
+    assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(SCALE_PROFILE)
+    with pytest.raises(BackendError, match="FLEET_ROS_DISCOVERY"):
+        apply_ros_env_defaults(environ={"FLEET_ROS_DISCOVERY": "fast"})
+
+    def settings(path: Path) -> dict[str, str]:
+        root = ET.parse(path).getroot()
+        return {
+            "/".join(el.tag.split("}")[-1] for el in [*_ancestors(root, leaf), leaf]): (
+                leaf.text or ""
+            ).strip()
+            for leaf in root.iter()
+            if len(leaf) == 0
+        }
+
+    base, scale = settings(DISCOVERY_PROFILE), settings(SCALE_PROFILE)
+    changed = {k for k in base if base[k] != scale.get(k)}
+    assert changed == {k for k in base if "leaseDuration/sec" in k}
+    assert [scale[k] for k in changed] == ["20"]
+
+
+@pytest.mark.ros
+def test_sim_ros_refuses_a_wrong_discovery_choice_with_one_error_line() -> None:
+    env = {**os.environ, "FLEET_ROS_DISCOVERY": "fast", "PYTHONPATH": str(ROOT)}
+    env.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
+    cfg = str(ROOT / "configs" / "warehouse_patrol.yaml")
+    out = subprocess.run(
+        [sys.executable, "-m", "fleet.cli", "sim-ros", cfg, "--duration", "1"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=CHILD_PYTEST_S,
+        cwd=ROOT,
+    )
+    assert out.returncode == 2, out.stderr
+    assert "error: FLEET_ROS_DISCOVERY must be default or scale" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def _ancestors(root: ET.Element, leaf: ET.Element) -> list[ET.Element]:
+    parents = {c: p for p in root.iter() for c in p}
+    chain = []
+    while leaf in parents:
+        leaf = parents[leaf]
+        chain.append(leaf)
+    return chain[::-1]
 
 
 def test_fleet_disable_ros_makes_ros_unavailable() -> None:

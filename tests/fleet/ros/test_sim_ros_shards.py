@@ -68,6 +68,53 @@ def test_every_robot_of_every_participant_is_discovered_and_answers(
     )
 
 
+def test_the_graph_read_node_by_node_finds_every_robots_servers(backends: RosBackends) -> None:
+    """The fleet's readiness check reads the graph node by node (``served_actions``): every
+    robot's seven navigation servers are found, whichever participant serves them, and a
+    namespace nobody serves has none; every robot then reports ``navigation_ready``."""
+    from fleet.ros.action_graph import served_actions
+    from fleet.ros.backend import BACKEND_KINDS, OWN_NODES
+
+    node = backends["/robot1"].node
+    served = served_actions(node, [*ROBOTS, "/robot99"], OWN_NODES)
+    assert {ns: set(BACKEND_KINDS) <= served[ns] for ns in ROBOTS} == dict.fromkeys(ROBOTS, True)
+    assert served["/robot99"] == frozenset()
+    # services too (the navigator's lifecycle state); a lean node serves no type descriptions
+    assert "bt_navigator/get_state" in served["/robot1"]
+    assert not any(n.endswith("get_type_description") for n in served["/robot1"])
+    assert backends.wait_for_servers(DISCOVERY_S) == []
+    assert backends.wait_for_servers(0.0) == []  # a zero timeout still looks once
+    assert backends.wait_for_servers(0.0, ["no_such_action"]) == ROBOTS
+    wait_until(
+        lambda: all(backends[ns].robot_state().navigation_ready for ns in ROBOTS),
+        DISCOVERY_S,
+        "navigation_ready on every robot",
+    )
+
+
+def test_backends_making_only_the_navigators_at_start_answer_other_goals_too(server: ServerProcess) -> None:
+    """``eager`` names the action clients made at start (fewer endpoints to discover): a robot
+    still counts discovered only with all seven servers seen, and a goal of another kind
+    (Wait) makes its client on first use and is answered."""
+    from fleet.ros.backend import make_ros_backends
+
+    eager = ("navigate_to_pose", "navigate_through_poses")
+    with make_ros_backends(ROBOTS[:2], wait_s=DISCOVERY_S, eager=eager, server_timeout_s=GOAL_S) as rb:
+        assert all(set(rb[ns]._clients) == set(eager) for ns in ROBOTS[:2])
+        wait_until(
+            lambda: all(rb[ns].robot_state().navigation_ready for ns in ROBOTS[:2]),
+            DISCOVERY_S,
+            "navigation_ready with two eager clients",
+        )
+        ids = {ns: rb[ns].send_goal(Wait(0.5)) for ns in ROBOTS[:2]}
+        wait_until(
+            lambda: all(rb[ns].goal_state(g).status.terminal for ns, g in ids.items()),
+            GOAL_S,
+            "a Wait goal through a client made on first use",
+        )
+        assert [rb[ns].goal_state(g).status for ns, g in ids.items()] == [GoalStatus.SUCCEEDED] * 2
+
+
 def test_robots_of_other_participants_drive_in_the_one_world(
     server: ServerProcess, backends: RosBackends, truth_file: Path
 ) -> None:
