@@ -255,7 +255,9 @@ class ReportBuilder:
             config=str(self.config.path),
             backend=self.backend,
             robots=len(rows),
-            sim_time_s=float(now - self.t0),  # the run's own time, not the robots' clock
+            # the run's own time (not the robots' clock), to the microsecond: a run that ended
+            # at t0 + duration must not report 89.999999999 s for 90
+            sim_time_s=round(float(now - self.t0), 6),
             wall_time_s=float(wall_s),
             speed=self.speed,
             patrols_assigned=state.assigned(TaskKind.PATROL) if state is not None else 0,
