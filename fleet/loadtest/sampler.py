@@ -74,6 +74,17 @@ SERIES_FIELDS = (
 )
 
 
+def run_deadlocks(runner: FleetRunner) -> int:
+    """The run's deadlock count as its report gives it: with traffic management the traffic
+    manager's wait-for-cycle episodes, else the coordinator's count of robots stuck beside
+    another (the progress lines once showed the latter while the report gave the former)."""
+    policy = runner.traffic_policy
+    if policy is not None:
+        return int(policy.deadlocks)
+    st = runner.coordinator.state if runner.coordinator is not None else None
+    return int(st.deadlocks) if st is not None else 0
+
+
 @dataclass
 class FleetSampler:
     """The runner observer of a load test: samples the fleet every ``sample_s`` simulated
@@ -186,7 +197,7 @@ class FleetSampler:
         self.laps.append(int(laps))
         self.waiting.append(n_wait)
         self.collisions.append(int(coll or 0))
-        self.deadlocks.append(int(st.deadlocks) if st is not None else 0)
+        self.deadlocks.append(run_deadlocks(runner))
         for s in STATES:
             self.states[s].append(counts[s])
         self._t_last_sample = now
@@ -203,7 +214,7 @@ class FleetSampler:
             duration_s=runner.duration,
             laps=st.laps_completed() if st is not None else 0,
             collisions=coll or 0,
-            deadlocks=st.deadlocks if st is not None else 0,
+            deadlocks=run_deadlocks(runner),
             states={s: self.states[s][-1] for s in STATES if self.states[s]},
             real_time_factor=(now - self._loop_t0) / loop_wall if loop_wall > 0 else 0.0,
             label="loadtest",
