@@ -11,11 +11,9 @@ a robot whose cell is in the clear (:meth:`sim.footprint.FootprintGrid.clear`) i
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from sim.kernels import jit, register_warm_up
+from sim.kernels import detour_headings, jit, pair_blocks_along, register_warm_up
 from sim.motion_kernels import _free
 
 
@@ -54,38 +52,8 @@ def detour_blocks(
     cells of ``res`` m from ``(gx, gy)``)."""
     nb = db.shape[0]
     kk = offsets.shape[0]
-    hx = np.empty((nb, kk))
-    hy = np.empty((nb, kk))
-    for r in range(nb):
-        for k in range(kk):
-            h = db[r] + offsets[k]
-            hx[r, k] = math.cos(h)
-            hy[r, k] = math.sin(h)
-    cc = contact * contact
-    lim = cap + contact
-    for p in range(a_all.shape[0]):
-        if not d2_all[p] < reach2:
-            continue
-        r = loc[a_all[p]]
-        if r < 0:
-            continue
-        dx = dx_all[p]
-        dy = dy_all[p]
-        m = blocked[r]
-        for k in range(kk):
-            along = dx * hx[r, k] + dy * hy[r, k]
-            if not along > 0.0:
-                continue
-            lateral = abs(dx * hy[r, k] - dy * hx[r, k])
-            if not (lateral < lat and along < lim):
-                continue
-            if lateral >= contact:
-                gap = along - contact
-            else:
-                gap = along - math.sqrt(max(cc - lateral * lateral, 0.0))
-            if max(0.0, gap) < cap:
-                m |= bits[k]
-        blocked[r] = m
+    hx, hy = detour_headings(db, offsets)
+    pair_blocks_along(a_all, dx_all, dy_all, d2_all, reach2, loc, hx, hy, bits, contact, lat, cap, blocked)
     ns = samples.shape[0]
     for r in range(nb):
         x = xb[r]

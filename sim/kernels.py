@@ -122,6 +122,14 @@ def pair_blocks(
     ``db[r] + offsets[k]`` is blocked when the neighbor is ahead (``along > 0``), inside the
     corridor (``lateral < lat``), closer than ``cap + contact`` along it, and the robot's
     disc would touch it within ``cap``; then ``bits[k]`` is or-ed into ``blocked[r]``."""
+    hx, hy = detour_headings(db, offsets)
+    pair_blocks_along(a_all, dx_all, dy_all, d2_all, reach2, loc, hx, hy, bits, contact, lat, cap, blocked)
+
+
+@jit
+def detour_headings(db: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+    """The unit vectors ``(cos, sin)`` of every heading ``db[r] + offsets[k]`` (rows ``r``,
+    columns ``k``): the C library's values, which NumPy's ``cos``/``sin`` also give."""
     nb = db.shape[0]
     kk = offsets.shape[0]
     hx = np.empty((nb, kk))
@@ -131,6 +139,28 @@ def pair_blocks(
             h = db[r] + offsets[k]
             hx[r, k] = math.cos(h)
             hy[r, k] = math.sin(h)
+    return hx, hy
+
+
+@jit
+def pair_blocks_along(
+    a_all: np.ndarray,
+    dx_all: np.ndarray,
+    dy_all: np.ndarray,
+    d2_all: np.ndarray,
+    reach2: float,
+    loc: np.ndarray,
+    hx: np.ndarray,
+    hy: np.ndarray,
+    bits: np.ndarray,
+    contact: float,
+    lat: float,
+    cap: float,
+    blocked: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """:func:`pair_blocks` on headings already turned into unit vectors
+    (:func:`detour_headings`)."""
+    kk = hx.shape[1]
     cc = contact * contact
     lim = cap + contact
     for p in range(a_all.shape[0]):
