@@ -154,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     for n in args.robots:
         r = measure(n, args.events)
         print(
-            f"{n:>6} | {r['before']:>13.4f} ms {r['unwatched']:>10.4f} ms {r['watched']:>5.3f} ms "
+            f"{n:>6} | {r['before']:>13.4f} ms {r['unwatched'] * 1e3:>10.2f} us {r['watched']:>5.3f} ms "
             f"{r['before'] / r['unwatched']:>6.0f}x | {r['orders_first_use']:>10.4f} ms "
             f"{r['orders_declared']:>5.4f} ms {r['orders_first_use'] / r['orders_declared']:>5.1f}x "
             f"{r['declare_in_setup']:>14.4f} ms",

@@ -86,7 +86,9 @@ class ServiceBus:
         self._heard = False  # the listener has spoken: its word beats the first reading
         self._events_pub = session.declare_publisher(SERVICE_EVENTS)
         self._matching_listener = self._events_pub.declare_matching_listener(self._on_matching)
-        first = bool(self._events_pub.matching_status.matching)  # a subscriber already there
+        # a subscriber already there (zenoh's stub calls this a bool; it is a MatchingStatus)
+        status = self._events_pub.matching_status
+        first = bool(getattr(status, "matching", status))
         with self._lock:
             if not self._heard:
                 self._matching = first

@@ -111,6 +111,9 @@ def test_events_go_out_only_while_a_subscriber_matches() -> None:
             assert got[0]["event"]["task_id"] == t2.id and got[0]["task"]["id"] == t2.id
             assert got[0]["event"]["event"] == "queued"
         assert (face.unsent, face.sent) == (1, 1) and t1.id != t2.id
+        later = ServiceBus(router, service)  # a face declared after the subscriber sees it at once
+        assert later.matching
+        later.close()
         sub.undeclare()
         wait_for(lambda: not face.matching, "the service hears the subscriber left")
         service.submit({"kind": "go_to", "target": "a2_n"}, by="test")
