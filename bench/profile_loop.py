@@ -34,6 +34,8 @@ PARTS = {
     "agents' ticks (RobotAgent.tick)": ("runtime/agent.py", "tick"),
     "- tree ticks": ("runtime/agent.py", "_tick_tree"),
     "simulator steps": ("sim/simulator.py", "_step"),
+    "task-service events (ServiceBus._on_event)": ("service/bus_face.py", "_on_event"),
+    "bus publisher declarations (StatusBus._publisher)": ("bus/status_bus.py", "_publisher"),
 }
 
 

@@ -34,6 +34,7 @@ SMALL_ARGS: dict[str, list[str]] = {
     "bench_bt.py": ["--trees", "200", "--seconds", "2"],
     "bench_coordinator.py": ["--routes", "200", "--robots", "200", "--cycles", "20"],
     "bench_zenoh.py": ["--robots", "200", "--hz", "10", "--seconds", "3", "--publishers", "1"],
+    "bench_task_events.py": ["--robots", "200", "--events", "300"],
     "bench_secure_bus.py": ["--robots", "5", "--messages", "500", "--fleet", "100"],
     "status_bus.py": ["--robots", "1000", "--hz", "10", "--seconds", "3", "--workers", "2"],
     "sumo_steps.py": ["--robots", "200", "--steps", "300"],

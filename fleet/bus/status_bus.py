@@ -12,8 +12,6 @@ Topics (JSON, UTF-8; see ``docs/status_bus.md`` for schemas and examples):
 * ``fleet/control/state``: the fleet's :class:`~fleet.messages.FleetControl` (pause, e-stop),
   coordinator -> everyone.
 
-Sessions are opened with :func:`fleet.bus.session.open_session` and belong to the caller.
-
 Threading: Zenoh runs callbacks on its own threads (one per callback subscriber).
 :class:`StatusBus` callbacks parse and validate the payload, update the latest-record table,
 append a :class:`BusEvent` to a bounded queue (:meth:`StatusBus.drain_events`) and call the
@@ -30,7 +28,7 @@ import socket
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Literal, TypeVar
 
@@ -72,9 +70,8 @@ EventKind = Literal["status", "task", "grant", "join", "leave"]
 
 @dataclass(frozen=True)
 class BusEvent:
-    """What :meth:`StatusBus.drain_events` returns: ``kind`` is ``status`` (``payload`` a
-    :class:`StatusRecord`), ``task`` (a :class:`TaskMessage`), ``grant`` (a :class:`Grant`),
-    ``join`` or ``leave`` (``payload`` ``None``)."""
+    """What :meth:`StatusBus.drain_events` returns: ``kind`` ``status``, ``task``, ``grant``
+    (``payload`` the record, order or grant), ``join`` or ``leave`` (``payload`` ``None``)."""
 
     kind: EventKind
     robot: str
@@ -130,8 +127,7 @@ class StatusBus:
     ``malformed`` dropped payloads (``last_malformed`` says why: ``<key>: <field>: <reason>``),
     ``callback_errors`` exceptions raised by user callbacks, ``events_dropped`` events pushed
     out of the bounded event queue, ``early`` valid orders that arrived before their agent
-    subscribed (:meth:`guard_orders`).
-    """
+    subscribed (:meth:`guard_orders`)."""
 
     def __init__(
         self,
@@ -182,12 +178,11 @@ class StatusBus:
     def _publisher(self, key: str, block: bool, encoding: zenoh.Encoding | None = None) -> zenoh.Publisher:
         pub = self._publishers.get(key)
         if pub is None:
-            pub = self.session.declare_publisher(
-                key,
-                encoding=encoding or zenoh.Encoding.APPLICATION_JSON,
-                congestion_control=zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP,
+            cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+            enc = encoding or zenoh.Encoding.APPLICATION_JSON
+            pub = self._publishers[key] = self.session.declare_publisher(
+                key, encoding=enc, congestion_control=cc
             )
-            self._publishers[key] = pub
         return pub
 
     def publish_status(self, rec: StatusRecord) -> None:
@@ -241,6 +236,11 @@ class StatusBus:
         elif msg.robot != name:
             raise ValueError(f"task for {msg.robot!r} published to robot {name!r}")
         self._publisher(task_key(name), True).put(msg.to_json())
+
+    def declare_task_publishers(self, robots: Iterable[str]) -> None:
+        """Declare each robot's order publisher now (set-up), not at its first order."""
+        for name in robots:
+            self._publisher(task_key(name), True)
 
     def publish_grant(self, grant: Grant) -> None:
         """Publish a traffic :class:`Grant` on ``fleet/<grant.robot>/grant`` (congestion:

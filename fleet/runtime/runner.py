@@ -293,6 +293,7 @@ class FleetRunner:
             self.lease_watch = LeaseWatch(session)
         if self.run_coordinator:
             self.coordinator = self._make_coordinator(world, self.bus)
+            self.bus.declare_task_publishers(r.name for r in self.config.robots)  # not at first orders
             phase.done("coordinator" + (" and traffic manager" if self.traffic else ""))
         from nodes.blackboard import clear_robot_blackboards
 

@@ -12,7 +12,14 @@ as ``reply_err``):
   release>`` (payload ``{"by", "reason"}`` optional) -> the control state.
 
 Publications: every task event on ``fleet/service/events/<task id>`` (``{"event": ...,
-"task": ...}``, the shapes of ``/api/ws``). The control state itself travels on
+"task": ...}``, the shapes of ``/api/ws``) while a subscriber matches those keys. One publisher
+declared on ``fleet/service/events/*`` reports, through a matching listener, whether any
+subscriber on the bus matches; while none does, events are counted (:attr:`ServiceBus.unsent`)
+and not sent. (An undeclared put costs time in proportion to the subscriptions the session
+holds, 0.5 ms at 2000 in-process agents, and a fleet's first assignment makes thousands of
+events: ``bench/bench_task_events.py``.) A subscriber sees the events from the moment the
+service learns of it (a few ms); earlier ones are in ``fleet/service/tasks/<id>`` and the
+HTTP API's ``/api/tasks/<id>/events``. The control state itself travels on
 ``fleet/control/state`` (published by the coordinator's runner).
 
 Malformed queries are answered with an error and counted (:attr:`ServiceBus.malformed`);
@@ -30,7 +37,7 @@ from urllib.parse import parse_qsl
 
 import zenoh
 
-from fleet.bus.keys import SERVICE_PREFIX
+from fleet.bus.keys import SERVICE_EVENTS, SERVICE_PREFIX
 from fleet.bus.session import Declaration, undeclare_all
 from fleet.errors import CommandRefused, InvalidTask, ServiceError, TaskFinished, UnknownTask
 from fleet.messages import FleetControl
@@ -68,7 +75,23 @@ class ServiceBus:
         self.session = session
         self.service = service
         self.malformed = 0
+        #: Task events not sent because no subscriber matched ``fleet/service/events/*``.
+        self.unsent = 0
+        #: Task events sent.
+        self.sent = 0
         self._lock = threading.Lock()
+        # a matching listener keeps this current: asking the publisher's matching status on
+        # each event costs as much as the put it would save
+        self._matching = False
+        self._heard = False  # the listener has spoken: its word beats the first reading
+        self._events_pub = session.declare_publisher(SERVICE_EVENTS)
+        self._matching_listener = self._events_pub.declare_matching_listener(self._on_matching)
+        # a subscriber already there (zenoh's stub calls this a bool; it is a MatchingStatus)
+        status = self._events_pub.matching_status
+        first = bool(getattr(status, "matching", status))
+        with self._lock:
+            if not self._heard:
+                self._matching = first
         p = SERVICE_PREFIX
         routes: dict[str, Handler] = {
             f"{p}/tasks": self._tasks,
@@ -148,17 +171,31 @@ class ServiceBus:
             raise InvalidTask("by", "by and reason must be strings")
         return control_json(self.service.command(key.rsplit("/", 1)[-1], by, reason))
 
+    @property
+    def matching(self) -> bool:
+        """Whether a subscriber on the bus matches ``fleet/service/events/*`` (events are sent)."""
+        return self._matching
+
+    def _on_matching(self, status: zenoh.MatchingStatus) -> None:
+        with self._lock:
+            self._heard = True
+            self._matching = bool(status.matching)
+
     def _on_event(self, ev: TaskEvent | FleetControl) -> None:
         if not isinstance(ev, TaskEvent):
+            return
+        if not self._matching:
+            self.unsent += 1
             return
         rec = self.service.records.get(ev.task_id)
         msg = {"event": ev.to_dict(), "task": rec.to_dict() if rec is not None else None}
         try:
             self.session.put(f"{SERVICE_PREFIX}/events/{ev.task_id}", json.dumps(msg))
+            self.sent += 1
         except Exception as e:  # noqa: BLE001 - the session may be closing
             logger.debug("publishing a task event: %s", e)
 
     def close(self) -> None:
         self._stop()
-        undeclare_all(self._decls)
+        undeclare_all([*self._decls, self._matching_listener, self._events_pub])
         self._decls = []

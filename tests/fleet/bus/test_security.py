@@ -30,8 +30,12 @@ from fleet.bus.keys import (
 )
 from fleet.bus.session import Secure, open_session
 from fleet.bus.status_bus import StatusBus
+from fleet.clock import SimClock
+from fleet.config.loader import load_config
 from fleet.errors import BusError
 from fleet.messages import TaskMessage
+from fleet.service.bus_face import ServiceBus
+from fleet.service.service import TaskService
 
 ROBOTS = ["robot1", "robot2"]
 #: Hang guard for one delivery (wall s) on a loaded 2-core machine.
@@ -283,6 +287,35 @@ def test_service_queries_reads_for_the_observer_commands_for_nobody(
         replies = [r for r in obs.get(key, payload=b"{}", timeout=1.0) if r.ok]
         assert replies == []
     assert asked.count("fleet/service/submit") == 0 and "fleet/service/command/estop" not in asked
+
+
+def test_task_events_reach_the_observer_through_the_secured_router(
+    bus: Callable[[str], zenoh.Session],
+) -> None:
+    """The coordinator's service face sends task events only while a subscriber matches: the
+    secured router tells it of the observer's subscription, and the observer gets the event."""
+    coord, obs = bus("coordinator"), bus("observer")
+    service = TaskService(
+        load_config(Path(__file__).resolve().parents[3] / "configs" / "warehouse_patrol.yaml"), SimClock()
+    )
+    face = ServiceBus(coord, service)
+    inbox = Inbox()
+    try:
+        assert not face.matching
+        obs.declare_subscriber("fleet/service/events/*", inbox)
+        deadline = time.monotonic() + DEADLINE_S
+        while not face.matching:
+            assert time.monotonic() < deadline, "the coordinator never heard of the observer's subscription"
+            time.sleep(0.02)
+        t = service.submit({"kind": "go_to", "target": "a2_n"}, by="test")
+        deadline = time.monotonic() + DEADLINE_S
+        while not inbox.payloads(f"fleet/service/events/{t.id}"):
+            assert time.monotonic() < deadline, "the observer never got the task event"
+            time.sleep(0.02)
+        (payload,) = inbox.payloads(f"fleet/service/events/{t.id}")
+        assert json.loads(payload)["event"]["event"] == "queued"
+    finally:
+        face.close()
 
 
 def test_router_config_follows_the_directory(keys: Path, tmp_path: Path, zenoh_endpoint: str) -> None:

@@ -253,3 +253,36 @@ def test_early_orders_are_guarded_per_robot_or_by_wildcard_alike(zenoh_endpoint:
         finally:
             bus.shutdown()
         assert bus.malformed == 1
+
+
+def test_order_publishers_declared_in_set_up_deliver_and_close(zenoh_endpoint: str) -> None:
+    """Publishers declared ahead (a coordinator's set-up) carry each robot's orders, reliably,
+    to another session; :meth:`StatusBus.close` undeclares them."""
+    with open_session(zenoh_endpoint, "router") as router, open_session(zenoh_endpoint, "client") as client:
+        agents = StatusBus(client)
+        coordinator = StatusBus(router)
+        try:
+            names = [f"r{i}" for i in range(3)]
+            got: dict[str, list[TaskMessage]] = {n: [] for n in names}
+            for n in names:
+                agents.subscribe_tasks(n, got[n].append)
+            coordinator.declare_task_publishers(names)
+            coordinator.declare_task_publishers(names)  # again: nothing new
+            assert sorted(coordinator._publishers) == sorted(task_key(n) for n in names)
+            settle(
+                lambda: coordinator.publish_task("r0", TaskMessage(None, "idle", "r0")),
+                lambda: bool(got["r0"]),
+                30,
+                "the first order",
+            )
+            for n in names:
+                coordinator.publish_task(n, TaskMessage(f"t-{n}", "patrol", None, "loop", (Pose2D(1, 1, 0),)))
+            wait_until(
+                lambda: all(any(t.task_id == f"t-{n}" for t in got[n]) for n in names), 30, "every order"
+            )
+            assert all(t.robot == n for n in names for t in got[n])
+            coordinator.close()
+            assert coordinator._publishers == {}
+        finally:
+            coordinator.shutdown()
+            agents.shutdown()

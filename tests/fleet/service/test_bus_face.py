@@ -10,9 +10,14 @@ from collections.abc import Callable
 from typing import Any
 
 import zenoh
-from conftest import LiveFleet, wait_for
+from conftest import PATROL, LiveFleet, wait_for
+from ports import free_endpoint
 
 from fleet.bus.session import open_session
+from fleet.clock import SimClock
+from fleet.config.loader import load_config
+from fleet.service.bus_face import ServiceBus
+from fleet.service.service import TaskService
 
 
 def query(session: zenoh.Session, key: str, payload: Any = None) -> tuple[bool, Any]:
@@ -76,3 +81,44 @@ def test_queryables_and_events(live: Callable[..., LiveFleet]) -> None:
     finally:
         sub.undeclare()
         session.close()
+
+
+def test_events_go_out_only_while_a_subscriber_matches() -> None:
+    """No subscriber on ``fleet/service/events/*``: events are counted, not put (a put costs
+    time in proportion to the session's subscriptions). A subscriber on another session, through
+    the router, receives every event from once the service has heard of it, and none after it
+    leaves."""
+    endpoint = free_endpoint()
+    router = open_session(endpoint, "router")
+    service = TaskService(load_config(PATROL), SimClock())
+    face = ServiceBus(router, service)
+    client = open_session(endpoint, "client", connect_timeout_s=30.0)
+    got: list[dict[str, Any]] = []
+    lock = threading.Lock()
+
+    def on_event(sample: zenoh.Sample) -> None:
+        with lock:
+            got.append(json.loads(sample.payload.to_bytes()))
+
+    try:
+        t1 = service.submit({"kind": "go_to", "target": "a2_n"}, by="test")
+        assert (face.unsent, face.sent) == (1, 0)
+        sub = client.declare_subscriber("fleet/service/events/**", on_event)
+        wait_for(lambda: face.matching, "the service hears of the subscriber")
+        t2 = service.submit({"kind": "go_to", "target": "a4_n"}, by="test")
+        wait_for(lambda: len(got) == 1, "the second task's event")
+        with lock:
+            assert got[0]["event"]["task_id"] == t2.id and got[0]["task"]["id"] == t2.id
+            assert got[0]["event"]["event"] == "queued"
+        assert (face.unsent, face.sent) == (1, 1) and t1.id != t2.id
+        later = ServiceBus(router, service)  # a face declared after the subscriber sees it at once
+        assert later.matching
+        later.close()
+        sub.undeclare()
+        wait_for(lambda: not face.matching, "the service hears the subscriber left")
+        service.submit({"kind": "go_to", "target": "a2_n"}, by="test")
+        assert (face.unsent, face.sent) == (2, 1)
+    finally:
+        face.close()
+        client.close()
+        router.close()
