@@ -86,9 +86,7 @@ class ServiceBus:
         self._heard = False  # the listener has spoken: its word beats the first reading
         self._events_pub = session.declare_publisher(SERVICE_EVENTS)
         self._matching_listener = self._events_pub.declare_matching_listener(self._on_matching)
-        # a subscriber already there (zenoh's stub calls this a bool; it is a MatchingStatus)
-        status = self._events_pub.matching_status
-        first = bool(getattr(status, "matching", status))
+        first = self._matching_now()  # a subscriber already there
         with self._lock:
             if not self._heard:
                 self._matching = first
@@ -111,6 +109,11 @@ class ServiceBus:
         def on_query(query: zenoh.Query) -> None:
             key = str(query.key_expr)
             try:
+                # a client that subscribed to the events and then asks (e.g. submits) must see
+                # the events its request causes: its subscription reached this session before
+                # its query did, but the matching listener may not have spoken yet
+                if not self._matching:
+                    self._matching = self._matching_now()
                 params = dict(parse_qsl(str(query.parameters)))
                 payload = query.payload.to_bytes() if query.payload is not None else b""
                 if len(payload) > MAX_QUERY_BYTES:
@@ -175,6 +178,12 @@ class ServiceBus:
     def matching(self) -> bool:
         """Whether a subscriber on the bus matches ``fleet/service/events/*`` (events are sent)."""
         return self._matching
+
+    def _matching_now(self) -> bool:
+        """Ask the publisher (as costly as a put: not per event). Zenoh's stub calls the
+        answer a bool; it is a ``MatchingStatus``."""
+        status = self._events_pub.matching_status
+        return bool(getattr(status, "matching", status))
 
     def _on_matching(self, status: zenoh.MatchingStatus) -> None:
         with self._lock:
