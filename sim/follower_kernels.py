@@ -351,30 +351,24 @@ def way_blocked(
         best[i] = look
     cc = contact * contact
     lim = look + contact
+    inf = math.inf
+    # branch-free: which pairs count is a coin toss per pair, and a mispredicted branch costs
+    # more than computing the gap of every pair; a robot that is not following has heading
+    # (0, 0), so along = 0 and none of its pairs counts
     for p in range(pi.shape[0]):
         i = pi[p]
         hxa = hx[i]
         hya = hy[i]
-        if hxa == 0.0 and hya == 0.0:
-            continue  # not following: nothing is ahead of it (along = 0)
         j = pj[p]
         dx = x[j] - x[i]
         dy = y[j] - y[i]
-        if not dx * dx + dy * dy < reach2:
-            continue
         along = dx * hxa + dy * hya
-        if not along > 0.0:
-            continue
         lateral = abs(dx * hya - dy * hxa)
-        if not (lateral < lat and along < lim):
-            continue
-        if lateral >= contact:
-            gap = along - contact
-        else:
-            gap = along - math.sqrt(max(cc - lateral * lateral, 0.0))
-        gap = max(0.0, gap)
-        if gap < best[i]:
-            best[i] = gap
+        hit = (dx * dx + dy * dy < reach2) & (along > 0.0) & (lateral < lat) & (along < lim)
+        gap = along - contact if lateral >= contact else along - math.sqrt(max(cc - lateral * lateral, 0.0))
+        g = max(0.0, gap) if hit else inf
+        b = best[i]
+        best[i] = g if g < b else b
     nb = 0
     for q in range(fi.shape[0]):
         b = best[fi[q]]

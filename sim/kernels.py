@@ -208,25 +208,19 @@ def corridor_min(
     :func:`sim.avoidance.corridor_min_numpy`). A pair the reach leaves out cannot be in the
     corridor when ``reach2 >= max(cap + contact)**2 + lat**2``."""
     cc = contact * contact
+    inf = math.inf
+    # branch-free (see follower_kernels.way_blocked): the gap of every pair, kept where it counts
     for p in range(a.shape[0]):
-        if not d2[p] < reach2:
-            continue
         i = a[p]
         hxa = hx[i]
         hya = hy[i]
         along = dx[p] * hxa + dy[p] * hya
-        if not along > 0.0:
-            continue
         lateral = abs(dx[p] * hya - dy[p] * hxa)
-        if not (lateral < lat and along < cap[i] + contact):
-            continue
-        if lateral >= contact:
-            gap = along - contact
-        else:
-            gap = along - math.sqrt(max(cc - lateral * lateral, 0.0))
-        gap = max(0.0, gap)
-        if gap < best[i]:
-            best[i] = gap
+        hit = (d2[p] < reach2) & (along > 0.0) & (lateral < lat) & (along < cap[i] + contact)
+        gap = along - contact if lateral >= contact else along - math.sqrt(max(cc - lateral * lateral, 0.0))
+        g = max(0.0, gap) if hit else inf
+        b = best[i]
+        best[i] = g if g < b else b
 
 
 def warm_up() -> None:
@@ -317,13 +311,13 @@ def short_pairs(
         ex = x[b] - x[a]
         ey = y[b] - y[a]
         e2 = ex * ex + ey * ey
-        if e2 < short2:
-            si[k] = a
-            sj[k] = b
-            sdx[k] = ex
-            sdy[k] = ey
-            sd2[k] = e2
-            k += 1
+        # branch-free: every pair is written at k, and k moves on past the kept ones (k <= p)
+        si[k] = a
+        sj[k] = b
+        sdx[k] = ex
+        sdy[k] = ey
+        sd2[k] = e2
+        k += e2 < short2
     return k
 
 
