@@ -162,6 +162,11 @@ class Avoidance:
         self._pair_blocks_fn = kernels.pair_blocks if self.compiled else pair_blocks_numpy
         #: each robot's row among the blocked robots of a detour search (-1: not blocked)
         self._loc = np.zeros(0, dtype=np.int64)
+        #: compiled: each robot's last detour headings' unit vectors, by its wanted heading
+        #: (:func:`sim.detour_kernels.cached_headings`); reallocated (empty) as the fleet grows
+        self._h_db = np.zeros(0)
+        self._h_ok = np.zeros(0, dtype=bool)
+        self._h_x = self._h_y = np.zeros((0, OFFSETS.size))
 
     def corridor_free(
         self, idx: np.ndarray, hx: np.ndarray, hy: np.ndarray, cap: np.ndarray, obst: np.ndarray
@@ -259,12 +264,16 @@ class Avoidance:
         if loc.size < n:
             loc = self._loc = np.full(s.capacity, -1, dtype=np.int64)
         loc[fb] = np.arange(fb.size)
+        if self._h_ok.size < n:
+            self._h_db = np.zeros(s.capacity)
+            self._h_ok = np.zeros(s.capacity, dtype=bool)
+            self._h_x, self._h_y = np.zeros((2, s.capacity, OFFSETS.size))
         fp = self.footprints
         g = fp.grid
         detour_kernels.detour_blocks(
-            a_all, dx_all, dy_all, d2_all, reach * reach, loc, db, s.x[fb], s.y[fb], OFFSETS, _BIT[_SORTED_POS],
-            contact, lat, cap, g.origin_x, g.origin_y, g.resolution, g.width, g.height, fp.cells,
-            fp.clear_cells(), fp.samples, blocked,
+            fb, a_all, dx_all, dy_all, d2_all, reach * reach, loc, db, s.x[fb], s.y[fb], OFFSETS,
+            _BIT[_SORTED_POS], contact, lat, cap, g.origin_x, g.origin_y, g.resolution, g.width, g.height,
+            fp.cells, fp.clear_cells(), fp.samples, self._h_db, self._h_ok, self._h_x, self._h_y, blocked,
         )  # fmt: skip
         loc[fb] = -1
 

@@ -271,20 +271,18 @@ def cell_pairs(
             j = order[q]
             dx = x[j] - x[i]
             dy = y[j] - y[i]
-            if dx * dx + dy * dy < r2:
-                a[k] = i
-                b[k] = j
-                k += 1
+            a[k] = i  # branch-free: written at k, kept when k moves on (k < the candidates seen)
+            b[k] = j
+            k += dx * dx + dy * dy < r2
     for p in range(n):
         i = order[p]
         for q in range(lo2[p], hi2[p]):
             j = order[q]
             dx = x[j] - x[i]
             dy = y[j] - y[i]
-            if dx * dx + dy * dy < r2:
-                a[k] = i
-                b[k] = j
-                k += 1
+            a[k] = i  # branch-free: written at k, kept when k moves on (k < the candidates seen)
+            b[k] = j
+            k += dx * dx + dy * dy < r2
     return k
 
 
