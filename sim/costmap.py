@@ -115,11 +115,14 @@ class Costmaps:
 
     Args:
         grid: the static map; ``radius``: the robots' radius (m, the inscribed radius).
+        compiled: find the robots in sensor range with the compiled neighbor search
+            (:func:`sim.spatial.neighbor_pairs`: the same pairs in the same order).
     """
 
-    def __init__(self, grid: OccupancyGrid, radius: float) -> None:
+    def __init__(self, grid: OccupancyGrid, radius: float, compiled: bool = False) -> None:
         self.grid = grid
         self.radius = float(radius)
+        self.compiled = compiled
         self._blocked = grid.cells != FREE
         self.robots: list[RobotCostmaps] = []
         #: each robot's position when it last moved (rows x, y) and since when it stands (row 2)
@@ -171,7 +174,7 @@ class Costmaps:
                     float(ob[k, 0]), float(ob[k, 1]), float(ob[k, 2]), now, src
                 )
         if stationary.any() and n > 1:
-            pi, pj = neighbor_pairs(x, y, SENSOR_RANGE_M)
+            pi, pj = neighbor_pairs(x, y, SENSOR_RANGE_M, self.compiled)
             sel = np.flatnonzero(stationary[pj])
             if sel.size:
                 pi, pj = pi[sel], pj[sel]

@@ -142,7 +142,7 @@ class Simulator:
         self._safety = Safety(self.state, params, avoidance, footprints, self.planner)
         self._contacts = Contacts(self.state, params, self._pairs)
         self._upkeep = Upkeep(self.state, params, self._chargers, self.compiled)
-        self.costmaps = Costmaps(grid, params.model.radius)
+        self.costmaps = Costmaps(grid, params.model.radius, self.compiled)
         self.localization = Localization()
         self._dispatch = GoalDispatch(self.state, params, self.planner, clock, self._safety, self.costmaps)
         self._batch = SimBatch(self.state, self.localization, self._dispatch, self.robot_state, self.compiled)
