@@ -44,6 +44,7 @@ import numpy as np
 
 from fleet.maps import FREE, OccupancyGrid
 from fleet.types import ErrorCode
+from sim import planner_kernels
 
 Point = tuple[float, float]
 #: A learned round obstacle: ``(x, y, radius)`` in meters, ``map`` frame.
@@ -103,8 +104,12 @@ class GridPlanner:
     raises for an unreachable goal; see :class:`PlanResult`.
     """
 
-    def __init__(self, grid: OccupancyGrid, radius: float, margin: float = PLAN_MARGIN_M) -> None:
+    def __init__(
+        self, grid: OccupancyGrid, radius: float, margin: float = PLAN_MARGIN_M, compiled: bool = False
+    ) -> None:
         self.grid = grid
+        #: test segments with the compiled loop (:mod:`sim.planner_kernels`): the same answers
+        self.compiled = compiled
         self.radius = float(radius)
         self.margin = float(margin)
         res = grid.resolution
@@ -158,6 +163,13 @@ class GridPlanner:
         occ = self.plan_grid if grid is None else grid
         length = math.hypot(b[0] - a[0], b[1] - a[1])
         n = max(2, int(math.ceil(length / (0.5 * g.resolution))) + 1)
+        if self.compiled:
+            return bool(
+                planner_kernels.segment_cells_free(
+                    float(a[0]), float(a[1]), float(b[0]), float(b[1]), n, float(g.origin_x),
+                    float(g.origin_y), float(g.resolution), int(g.width), int(g.height), occ,
+                )  # fmt: skip
+            )
         t = np.linspace(0.0, 1.0, n)
         ix = np.floor((a[0] + t * (b[0] - a[0]) - g.origin_x) / g.resolution).astype(np.int64)
         iy = np.floor((a[1] + t * (b[1] - a[1]) - g.origin_y) / g.resolution).astype(np.int64)

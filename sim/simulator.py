@@ -120,7 +120,8 @@ class Simulator:
         self.grid = grid
         self.params = params
         self.clock = clock
-        self.planner = GridPlanner(grid, params.model.radius)
+        self.compiled = kernels.enabled() if compiled is None else compiled and kernels.ready()
+        self.planner = GridPlanner(grid, params.model.radius, compiled=self.compiled)
         self.state = FleetState()
         self.steps = 0
         self._obstacles: dict[int, tuple[float, float, float]] = {}
@@ -133,7 +134,6 @@ class Simulator:
         self._traj_start: list[tuple[float, float, float, int]] = []
         self._backends: dict[str, NamespacedBackend] = {}
         self._chargers = np.array([(c.x, c.y) for c in params.chargers], dtype=float).reshape(-1, 2)
-        self.compiled = kernels.enabled() if compiled is None else compiled and kernels.ready()
         radius, short = pair_radii(params)
         self._pairs = NeighborPairs(radius, short, params.model.max_linear_speed, self.compiled)
         footprints = FootprintGrid(grid, self.planner.footprint, AVOID_CLEAR_M)

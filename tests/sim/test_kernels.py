@@ -365,3 +365,36 @@ def _warehouse() -> tuple[Any, np.ndarray]:
     """A generated 200-robot warehouse's config and its robots' footprint grid."""
     cfg = load_config(generate_warehouse(tempfile.mkdtemp(prefix="detour_"), "detour", 200), robots=200)
     return cfg, Simulator(cfg.grid, cfg.sim, SimClock(), compiled=False).planner.footprint
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(40, 200))
+def test_compiled_segment_test_is_the_numpy_one(seed: int, n: int) -> None:
+    """The planner's segment test compiled (:mod:`sim.planner_kernels`) and NumPy on random
+    segments over a generated warehouse (shelves, the map's edge and beyond, zero-length and
+    long segments, both grids): the same answer for every segment."""
+    from sim.planner import GridPlanner
+
+    cfg, _ = _warehouse()
+    g = cfg.grid
+    fast = GridPlanner(g, cfg.sim.model.radius, compiled=True)
+    slow = GridPlanner(g, cfg.sim.model.radius)
+    rng = np.random.default_rng(seed)
+    xmin, xmax, ymin, ymax = g.extent
+    ax, bx = rng.uniform(xmin - 1.0, xmax + 1.0, (2, n))
+    ay, by = rng.uniform(ymin - 1.0, ymax + 1.0, (2, n))
+    short = rng.random(n) < 0.6  # most segments a plan tests are short
+    bx = np.where(short, ax + rng.uniform(-3.0, 3.0, n), bx)
+    by = np.where(short, ay + rng.uniform(-3.0, 3.0, n), by)
+    bx[0], by[0] = ax[0], ay[0]
+    answers = []
+    for p in (fast, slow):
+        answers.append(
+            [
+                p.segment_free((a, b), (c, d), grid)
+                for a, b, c, d in zip(ax.tolist(), ay.tolist(), bx.tolist(), by.tolist(), strict=True)
+                for grid in (None, p.footprint)
+            ]
+        )
+    assert answers[0] == answers[1]
+    assert any(answers[0]) and not all(answers[0])  # both kinds of answer were compared
