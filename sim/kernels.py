@@ -319,12 +319,40 @@ def short_pairs(
     return k
 
 
+@jit
+def touching_pairs(
+    pa: np.ndarray,
+    pb: np.ndarray,
+    pd2: np.ndarray,
+    before2: float,
+    x: np.ndarray,
+    y: np.ndarray,
+    contact: float,
+    ta: np.ndarray,
+    tb: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """The pairs ``(pa[p], pb[p])`` with ``pa < pb`` that were closer than ``sqrt(before2)``
+    at the step's start (``pd2``) and whose centers at ``x``, ``y`` are now closer than
+    ``contact`` (``hypot``, NumPy's bits), in order, into ``ta``, ``tb``; returns how many
+    (what :meth:`sim.safety.Contacts.count` computes with NumPy)."""
+    k = 0
+    for p in range(pa.shape[0]):
+        a = pa[p]
+        b = pb[p]
+        if a < b and pd2[p] < before2 and math.hypot(x[b] - x[a], y[b] - y[a]) < contact:
+            ta[k] = a
+            tb[k] = b
+            k += 1
+    return k
+
+
 def warm_up_pairs() -> None:
     """Compile (or load from the cache) :func:`cell_pairs` and :func:`short_pairs`."""
     ints = np.zeros(0, dtype=np.int64)
     floats = np.zeros(0)
     cell_pairs(ints, ints, ints, ints, floats, floats, 1.0, ints, ints)
     short_pairs(ints, ints, floats, floats, 1.0, ints, ints, floats, floats, floats)
+    touching_pairs(ints, ints, floats, 1.0, floats, floats, 0.6, ints, ints)
 
 
 register_warm_up(warm_up)

@@ -23,7 +23,7 @@ from collections.abc import Callable
 import numpy as np
 
 from fleet.robots import SimParams
-from sim import motion_kernels
+from sim import kernels, motion_kernels
 from sim.avoidance import Avoidance, corridor_gaps
 from sim.footprint import FootprintGrid
 from sim.history import EVENTS_KEPT, trim_oldest
@@ -243,10 +243,15 @@ class Contacts:
     y)`` (namespaces in order, midpoint in the ``map`` frame; the last :data:`sim.history.EVENTS_KEPT` at
     least), and each robot's count in the state's ``collisions``."""
 
-    def __init__(self, state: FleetState, params: SimParams, pairs: NeighborPairs) -> None:
+    def __init__(
+        self, state: FleetState, params: SimParams, pairs: NeighborPairs, compiled: bool = False
+    ) -> None:
         self.state = state
         self.params = params
         self.pairs = pairs
+        #: find the touching pairs in one compiled pass (:func:`sim.kernels.touching_pairs`)
+        self.compiled = compiled
+        self._found = np.empty((2, 0), dtype=np.int64)
         self.total = 0
         self.events: list[tuple[float, str, str, float, float]] = []
         self._touching: set[tuple[int, int]] = set()
@@ -264,10 +269,17 @@ class Contacts:
             pa, pb, pd2 = p.si, p.sj, p.sd2
         else:
             pa, pb, pd2 = p.i, p.j, p.d2
-        half = np.flatnonzero((pa < pb) & (pd2 < before * before))
-        a, b = pa[half], pb[half]
-        close = np.hypot(s.x[b] - s.x[a], s.y[b] - s.y[a]) < d2
-        touching = set(zip(a[close].tolist(), b[close].tolist(), strict=True)) if close.any() else set()
+        if self.compiled:
+            if self._found.shape[1] < pa.size:
+                self._found = np.empty((2, max(pa.size, 2 * self._found.shape[1])), dtype=np.int64)
+            ta, tb = self._found
+            k = kernels.touching_pairs(pa, pb, pd2, before * before, s.x, s.y, d2, ta, tb)
+            touching = set(zip(ta[:k].tolist(), tb[:k].tolist(), strict=True)) if k else set()
+        else:
+            half = np.flatnonzero((pa < pb) & (pd2 < before * before))
+            a, b = pa[half], pb[half]
+            close = np.hypot(s.x[b] - s.x[a], s.y[b] - s.y[a]) < d2
+            touching = set(zip(a[close].tolist(), b[close].tolist(), strict=True)) if close.any() else set()
         new = touching - self._touching
         if new:
             named = []

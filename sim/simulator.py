@@ -140,7 +140,7 @@ class Simulator:
         avoidance = Avoidance(self.state, self._pairs, footprints, params.model.radius, self.compiled)
         self._follower = PathFollower(self.state, params, avoidance, self.compiled)
         self._safety = Safety(self.state, params, avoidance, footprints, self.planner)
-        self._contacts = Contacts(self.state, params, self._pairs)
+        self._contacts = Contacts(self.state, params, self._pairs, self.compiled)
         self._upkeep = Upkeep(self.state, params, self._chargers, self.compiled)
         self.costmaps = Costmaps(grid, params.model.radius, self.compiled)
         self.localization = Localization()

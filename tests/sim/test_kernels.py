@@ -398,3 +398,38 @@ def test_compiled_segment_test_is_the_numpy_one(seed: int, n: int) -> None:
         )
     assert answers[0] == answers[1]
     assert any(answers[0]) and not all(answers[0])  # both kinds of answer were compared
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 150), span=st.floats(0.5, 10.0))
+def test_compiled_contacts_are_the_numpy_ones(seed: int, n: int, span: float) -> None:
+    """Robots crowded together and walking at random, pairs starting and stopping to touch:
+    :class:`sim.safety.Contacts` counts the same collision events, robot counts and event
+    records compiled (:func:`sim.kernels.touching_pairs`) and with NumPy, step after step."""
+    from fleet.robots import SimParams
+    from sim.safety import Contacts
+    from sim.simulator import pair_radii
+    from sim.spatial import NeighborPairs
+    from sim.state import FleetState
+
+    params = SimParams()
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(0.0, span, n), rng.uniform(0.0, span, n)
+    results = []
+    for compiled in (True, False):
+        state = FleetState()
+        for k in range(n):
+            state.add(float(x[k]), float(y[k]), 0.0, 1.0, 0.0)
+        radius, short = pair_radii(params)
+        pairs = NeighborPairs(radius, short, params.model.max_linear_speed, compiled)
+        contacts = Contacts(state, params, pairs, compiled)
+        walk = np.random.default_rng(seed + 1)
+        for step in range(1, 6):
+            pairs.update(state.x[:n], state.y[:n], step, params.step_s)
+            state.x[:n] += walk.uniform(-0.05, 0.05, n)  # the move after the pairs were found
+            state.y[:n] += walk.uniform(-0.05, 0.05, n)
+            contacts.count(0.05 * step, lambda i: f"/r{i}")
+        results.append((contacts.total, contacts.events, state.collisions[:n].tolist()))
+    assert results[0] == results[1]
+    if n >= 100 and span <= 2.0:
+        assert results[0][0] > 0  # a crowd this dense touches: events were compared
