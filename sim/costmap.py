@@ -72,7 +72,7 @@ class Layer(enum.StrEnum):
             ) from None
 
 
-@dataclass
+@dataclass(slots=True)
 class Mark:
     """A learned obstacle: a disc at ``(x, y)`` of ``r`` meters, last seen at ``seen`` (s);
     ``source`` names it (``"obstacle 3"``, ``"robot /robot2"``)."""
@@ -254,33 +254,31 @@ class Costmaps:
         mr_l: list[float] = []
         owner: list[int] = []
         robots = self.robots
+        hypot = math.hypot
+        none: dict[str, Mark] = {}
         for i in sorted(self._holders):  # the others hold no marks
             cm = robots[i]
             if not cm.global_marks and not cm.local_marks:
                 continue
-            fresh = seen.get(i, {})
+            fresh = seen.get(i, none)
             rx, ry = float(x[i]), float(y[i])
             for marks, local in ((cm.global_marks, False), (cm.local_marks, True)):
-                gone = [
-                    src
-                    for src, m in marks.items()
-                    if now - m.seen > DECAY_S or (local and (abs(m.x - rx) > half or abs(m.y - ry) > half))
-                ]
-                # in range and in sight, but not seen now: the obstacle has gone (or moved)
-                look = [
-                    (src, m)
-                    for src, m in marks.items()
-                    if src not in fresh and math.hypot(m.x - rx, m.y - ry) <= SENSOR_RANGE_M
-                ]
                 k = len(layers)
-                layers.append((marks, local, gone, [src for src, _ in look]))
-                for _, m in look:
-                    rx_l.append(rx)
-                    ry_l.append(ry)
-                    mx_l.append(m.x)
-                    my_l.append(m.y)
-                    mr_l.append(m.r)
-                    owner.append(k)
+                gone: list[str] = []
+                look: list[str] = []  # in range and in sight, but not seen now: gone (or moved)?
+                for src, m in marks.items():
+                    mx, my = m.x, m.y
+                    if now - m.seen > DECAY_S or (local and (abs(mx - rx) > half or abs(my - ry) > half)):
+                        gone.append(src)
+                    if src not in fresh and hypot(mx - rx, my - ry) <= SENSOR_RANGE_M:
+                        look.append(src)
+                        rx_l.append(rx)
+                        ry_l.append(ry)
+                        mx_l.append(mx)
+                        my_l.append(my)
+                        mr_l.append(m.r)
+                        owner.append(k)
+                layers.append((marks, local, gone, look))
         if owner:
             visible = self._sight_by_layer(rx_l, ry_l, mx_l, my_l, mr_l, np.array(owner), len(layers))
             o = 0
