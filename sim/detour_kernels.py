@@ -13,9 +13,9 @@ a robot whose cell is in the clear (:meth:`sim.footprint.FootprintGrid.clear`) i
 
 from __future__ import annotations
 
-import numpy as np
-
 import math
+
+import numpy as np
 
 from sim.kernels import jit, pair_blocks_along, register_warm_up
 from sim.motion_kernels import _free

@@ -164,12 +164,11 @@ class GridPlanner:
         length = math.hypot(b[0] - a[0], b[1] - a[1])
         n = max(2, int(math.ceil(length / (0.5 * g.resolution))) + 1)
         if self.compiled:
-            return bool(
-                planner_kernels.segment_cells_free(
-                    float(a[0]), float(a[1]), float(b[0]), float(b[1]), n, float(g.origin_x),
-                    float(g.origin_y), float(g.resolution), int(g.width), int(g.height), occ,
-                )  # fmt: skip
-            )
+            free = planner_kernels.segment_cells_free(
+                float(a[0]), float(a[1]), float(b[0]), float(b[1]), n, float(g.origin_x),
+                float(g.origin_y), float(g.resolution), int(g.width), int(g.height), occ,
+            )  # fmt: skip
+            return bool(free)
         t = np.linspace(0.0, 1.0, n)
         ix = np.floor((a[0] + t * (b[0] - a[0]) - g.origin_x) / g.resolution).astype(np.int64)
         iy = np.floor((a[1] + t * (b[1] - a[1]) - g.origin_y) / g.resolution).astype(np.int64)
