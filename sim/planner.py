@@ -130,6 +130,8 @@ class GridPlanner:
         padded = np.zeros((ch + 2, cw + 2), dtype=bool)
         padded[1:-1, 1:-1] = coarse_free
         self._free_flat: list[bool] = padded.ravel().tolist()
+        #: the same cells flat, for the compiled search (:func:`sim.planner_kernels.astar`)
+        self._free_arr = padded.ravel()
         #: the same cells as an array, copied for each plan around learned obstacles
         self._free_padded = padded
         self._cw, self._ch = cw, ch
@@ -314,8 +316,8 @@ class GridPlanner:
                 return blocked
         return PlanResult(tuple(path))
 
-    def _free_without(self, discs: Sequence[Disc], clearance: float) -> list[bool]:
-        """The padded coarse free-cell list with the cells within ``r + clearance`` of a disc
+    def _free_without(self, discs: Sequence[Disc], clearance: float) -> np.ndarray:
+        """The padded coarse free cells (flat) with the cells within ``r + clearance`` of a disc
         center blocked."""
         g = self.grid
         size = self._k * g.resolution
@@ -330,8 +332,7 @@ class GridPlanner:
                 d = np.hypot(cx[near_x][None, :] - x, cy[near_y][:, None] - y)
                 yy, xx = np.nonzero(d <= reach)
                 free[near_y[yy] + 1, near_x[xx] + 1] = False
-        out: list[bool] = free.ravel().tolist()
-        return out
+        return free.ravel()
 
     def _coarse_cell(self, x: float, y: float) -> tuple[int, int]:
         """The free coarse cell nearest to ``(x, y)`` (the cell itself if it is free)."""
@@ -359,14 +360,25 @@ class GridPlanner:
         return (cx, cy)
 
     def _astar(
-        self, start: tuple[int, int], goal: tuple[int, int], free: list[bool] | None = None
+        self, start: tuple[int, int], goal: tuple[int, int], cells: np.ndarray | None = None
     ) -> tuple[tuple[int, int], ...] | None:
-        """8-connected A* over the coarse grid (no corner cutting), octile heuristic; ``free``
-        replaces the padded coarse free-cell list (learned obstacles)."""
-        free = self._free_flat if free is None else free
+        """8-connected A* over the coarse grid (no corner cutting), octile heuristic; ``cells``
+        replaces the padded coarse free cells (flat; learned obstacles). Compiled
+        (:func:`sim.planner_kernels.astar`) where the planner is: the same search, the same path."""
         W = self._cw + 2
         s = (start[1] + 1) * W + start[0] + 1
         g = (goal[1] + 1) * W + goal[0] + 1
+        if self.compiled:
+            arr = self._free_arr if cells is None else cells
+            if not arr[s] or not arr[g]:
+                return None
+            found = np.empty(arr.size, dtype=np.int64)
+            m = planner_kernels.astar(arr, W, s, g, _SQRT2, found)
+            if m == 0:
+                return None
+            cy, cx = np.divmod(found[:m], W)
+            return tuple(zip((cx - 1).tolist(), (cy - 1).tolist(), strict=True))
+        free = self._free_flat if cells is None else cells.tolist()
         if not free[s] or not free[g]:
             return None
         gy, gx = divmod(g, W)

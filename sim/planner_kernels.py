@@ -11,6 +11,7 @@ same floats (``linspace``'s ``k * (1 / (n - 1))`` with the last sample exactly 1
 
 from __future__ import annotations
 
+import heapq
 import math
 
 import numpy as np
@@ -60,3 +61,76 @@ def warm_up() -> None:
 
 
 register_warm_up(warm_up)
+
+
+# long: the planner's A* as written in Python, loop for loop
+@jit
+def astar(
+    free: np.ndarray, width: int, s: int, g: int, sqrt2: float, out: np.ndarray
+) -> int:  # pragma: no cover
+    """:meth:`sim.planner.GridPlanner._astar` on the padded coarse grid ``free`` (flat, rows
+    of ``width`` cells; the border is blocked) from cell ``s`` to cell ``g``: the same search
+    (8-connected, no corner cutting, octile heuristic weighted 1.001), the same heap of
+    ``(f, cell)`` pairs (``heapq``, ties broken by the cell), so the same path. Writes the
+    path's cells from ``s`` to ``g`` into ``out`` and returns how many; 0 when there is none."""
+    gy = g // width
+    gx = g - gy * width
+    size = free.shape[0]
+    cost = np.full(size, np.inf)
+    parent = np.full(size, -1, dtype=np.int64)
+    closed = np.zeros(size, dtype=np.bool_)
+    cost[s] = 0.0
+    heap = [(0.0, s)]
+    straight = (1, -1, width, -width)
+    k = sqrt2 - 2.0
+    while len(heap):
+        cur = heapq.heappop(heap)[1]
+        if closed[cur]:
+            continue
+        if cur == g:
+            m = 0
+            while cur != -1:
+                out[m] = cur
+                m += 1
+                cur = parent[cur]
+            out[:m] = out[:m][::-1].copy()
+            return m
+        closed[cur] = True
+        base = cost[cur]
+        for off in straight:
+            n = cur + off
+            if free[n] and not closed[n]:
+                ng = base + 1.0
+                if ng < cost[n]:
+                    cost[n] = ng
+                    parent[n] = cur
+                    ny = n // width
+                    nx = n - ny * width
+                    dx = nx - gx if nx > gx else gx - nx
+                    dy = ny - gy if ny > gy else gy - ny
+                    heapq.heappush(heap, (ng + 1.001 * (dx + dy + k * (dx if dx < dy else dy)), n))
+        for d in range(4):
+            ox = 1 if d % 2 == 0 else -1
+            oy = width if d < 2 else -width
+            n = cur + oy + ox
+            if free[n] and free[cur + ox] and free[cur + oy] and not closed[n]:
+                ng = base + sqrt2
+                if ng < cost[n]:
+                    cost[n] = ng
+                    parent[n] = cur
+                    ny = n // width
+                    nx = n - ny * width
+                    dx = nx - gx if nx > gx else gx - nx
+                    dy = ny - gy if ny > gy else gy - ny
+                    heapq.heappush(heap, (ng + 1.001 * (dx + dy + k * (dx if dx < dy else dy)), n))
+    return 0
+
+
+def warm_up_astar() -> None:
+    """Compile (or load from the cache) :func:`astar` with the planner's argument types."""
+    free = np.zeros(9, dtype=bool)
+    free[4] = True
+    astar(free, 3, 4, 4, 2.0**0.5, np.zeros(9, dtype=np.int64))
+
+
+register_warm_up(warm_up_astar)

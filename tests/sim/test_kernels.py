@@ -433,3 +433,36 @@ def test_compiled_contacts_are_the_numpy_ones(seed: int, n: int, span: float) ->
     assert results[0] == results[1]
     if n >= 100 and span <= 2.0:
         assert results[0][0] > 0  # a crowd this dense touches: events were compared
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), discs=st.integers(0, 12))
+def test_compiled_search_plans_the_python_paths(seed: int, discs: int) -> None:
+    """The planner's A* compiled (:func:`sim.planner_kernels.astar`) and in Python, from
+    random free starts to random goals on a generated warehouse, around random learned
+    obstacles (which close aisles) and without: the same result, path and error code."""
+    from sim.planner import GridPlanner
+
+    cfg, footprint = _warehouse()
+    g = cfg.grid
+    fast = GridPlanner(g, cfg.sim.model.radius, compiled=True)
+    slow = GridPlanner(g, cfg.sim.model.radius)
+    rng = np.random.default_rng(seed)
+    free_iy, free_ix = np.nonzero(~footprint)
+    pick = rng.choice(free_iy.size, 16)
+    pts = list(
+        zip(
+            (g.origin_x + (free_ix[pick] + 0.5) * g.resolution).tolist(),
+            (g.origin_y + (free_iy[pick] + 0.5) * g.resolution).tolist(),
+            strict=True,
+        )
+    )
+    obstacles = [(x, y, 0.3) for x, y in pts[:discs]]
+    found = 0
+    for a, b in zip(pts[::2], pts[1::2], strict=True):
+        for ds in ([], obstacles):
+            want = slow.plan_avoiding(a, b, ds)
+            got = fast.plan_avoiding(a, b, ds)
+            assert (got.path, got.error_code) == (want.path, want.error_code)
+            found += len(want.path) > 2
+    assert found  # some plans went round shelves: the searches were compared
