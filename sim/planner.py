@@ -376,8 +376,8 @@ class GridPlanner:
             m = planner_kernels.astar(arr, W, s, g, _SQRT2, found)
             if m == 0:
                 return None
-            cy, cx = np.divmod(found[:m], W)
-            return tuple(zip((cx - 1).tolist(), (cy - 1).tolist(), strict=True))
+            rows, cols = np.divmod(found[:m], W)
+            return tuple(zip((cols - 1).tolist(), (rows - 1).tolist(), strict=True))
         free = self._free_flat if cells is None else cells.tolist()
         if not free[s] or not free[g]:
             return None
