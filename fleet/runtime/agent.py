@@ -74,7 +74,15 @@ from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
 from fleet.runtime.agent_bus import AgentBus, ControlBus, Declared
 from fleet.runtime.charger_index import nearest_charger
 from fleet.runtime.order_gate import OrderGate
-from fleet.runtime.status_record import Held, TreeView, observation_of, status_changed, status_record
+from fleet.runtime.status_record import (
+    Held,
+    TreeView,
+    observation_of,
+    status_changed,
+    status_record,
+    tree_view,
+    view_names,
+)
 from fleet.runtime.watched import WatchedBackend, wake_aware
 from fleet.types import Mode, Pose2D, RobotState, TaskKind, TreeKind
 from fleet.wake import Wake
@@ -250,6 +258,7 @@ class RobotAgent:
         #: The status record's view of the tree, kept while neither the tree nor the blackboard
         #: changed (a period without a tree tick, orders or a stop reads nothing new).
         self._view: TreeView | None = None
+        self._view_names = view_names(self.namespace)
         self._has_charger = False
 
     # -- orders ------------------------------------------------------------------------
@@ -535,22 +544,7 @@ class RobotAgent:
 
     def _tree_view(self) -> TreeView:
         """What the status record reports of the tree and its blackboard (read now)."""
-        bb = self.bb
-        task_id = bb.task_id
-        return TreeView(
-            bt=self.root.status.name,
-            leaf=str(bb.active_leaf or ""),
-            mode=str(bb.mode),
-            task_id=task_id,
-            laps=int(bb.laps) if bb.lap_task_id is not None and bb.lap_task_id == task_id else 0,
-            progress=float(bb.route_progress or 0.0),
-            picks_done=int(bb.picks_done or 0),
-            result_id=bb.result_id,
-            result=str(bb.result or ""),
-            steps_done=int(bb.step_index)
-            if bb.steps_task_id is not None and bb.steps_task_id == task_id
-            else 0,
-        )
+        return tree_view(self.root.status.name, self._view_names)
 
     def status(self, state: RobotState | None = None, view: TreeView | None = None) -> StatusRecord:
         """The current status record of this robot (each call takes the next ``seq``), from

@@ -8,10 +8,13 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from py_trees.blackboard import Blackboard
+
 from fleet.coordination.views import Observation, make_observation
 from fleet.diagnostics import Diagnostic, HealthParams, Level, problems, robot_diagnostics, worst
 from fleet.messages import StatusRecord
 from fleet.types import Pose2D, RobotState
+from nodes.blackboard import key_path
 
 
 class TreeView(NamedTuple):
@@ -27,6 +30,35 @@ class TreeView(NamedTuple):
     result_id: str | None
     result: str
     steps_done: int
+
+
+#: The blackboard keys :func:`tree_view` reads, in its order.
+VIEW_KEYS = (
+    "task_id", "active_leaf", "mode", "laps", "lap_task_id", "route_progress", "picks_done", "result_id",
+    "result", "step_index", "steps_task_id",
+)  # fmt: skip
+
+
+def view_names(namespace: str) -> tuple[str, ...]:
+    """The absolute blackboard names of :data:`VIEW_KEYS` of robot ``namespace``."""
+    return tuple(key_path(namespace, k) for k in VIEW_KEYS)
+
+
+def tree_view(bt: str, names: tuple[str, ...]) -> TreeView:
+    """What a status record reports of a tree whose root's status is named ``bt`` and of its
+    robot's blackboard (``names``: :func:`view_names`), read now: the values a blackboard
+    client of the robot reads (the agent's has every key and no remapping), taken from the
+    store directly (a client's read checks its access and resolves the name each time).
+    Raises ``KeyError`` for a key never written, as the client does."""
+    store = Blackboard.storage
+    task_id, leaf, mode, laps, lap_task, progress, picks, result_id, result, step, steps_task = [
+        store[n] for n in names
+    ]
+    return TreeView(
+        bt, str(leaf or ""), str(mode), task_id, int(laps) if lap_task is not None and lap_task == task_id else 0,
+        float(progress or 0.0), int(picks or 0), result_id, str(result or ""),
+        int(step) if steps_task is not None and steps_task == task_id else 0,
+    )  # fmt: skip
 
 
 #: Moves smaller than these do not count as a change of the status (m, rad, fraction, m).

@@ -203,3 +203,40 @@ def test_a_period_that_publishes_nothing_builds_no_record_and_holds_the_one_tick
     assert bus_b.statuses == bus_a.statuses and len(bus_a.statuses) == 20
     eager.close()
     lazy.close()
+
+
+def _client_view(agent: RobotAgent) -> TreeView:
+    """The tree view read through the agent's blackboard client (the reference)."""
+    bb = agent.bb
+    task_id = bb.task_id
+    return TreeView(
+        bt=agent.root.status.name, leaf=str(bb.active_leaf or ""), mode=str(bb.mode), task_id=task_id,
+        laps=int(bb.laps) if bb.lap_task_id is not None and bb.lap_task_id == task_id else 0,
+        progress=float(bb.route_progress or 0.0), picks_done=int(bb.picks_done or 0), result_id=bb.result_id,
+        result=str(bb.result or ""),
+        steps_done=int(bb.step_index) if bb.steps_task_id is not None and bb.steps_task_id == task_id else 0,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("config", "tree"), [("warehouse_patrol.yaml", "patrol"), ("warehouse_picking.yaml", "tasks")]
+)
+def test_the_tree_view_read_from_the_store_is_the_clients_every_period(config: str, tree: str) -> None:
+    """Over runs with laps, picks and steps, the view read from the blackboard store equals,
+    after every period of every robot, the view read through the agent's blackboard client."""
+    runner = FleetRunner(
+        load_config(ROOT / "configs" / config), duration=150.0, speed=0, endpoint=free_endpoint(), live=False,
+        display=NullDisplay(), out=io.StringIO(), tree_kind=tree,
+    )  # fmt: skip
+    seen: set[tuple[str, int, int]] = set()
+
+    def compare(now: float, r: FleetRunner) -> None:
+        for a in r.agents:
+            view = a._tree_view()
+            assert view == _client_view(a), (a.name, now)
+            seen.add((view.mode, view.laps, view.steps_done))
+
+    runner.observers.append(compare)
+    report = runner.run()
+    assert report.laps_completed + report.picks_completed > 0
+    assert any(laps or steps for _, laps, steps in seen) and len({m for m, _, _ in seen}) > 1
