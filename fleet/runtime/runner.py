@@ -301,9 +301,8 @@ class FleetRunner:
             self.agents.append(self._make_agent(spec.namespace, world, self.bus))
             phase.every(f"agents: {len(self.agents)} of {len(specs)}")
         phase.done(f"agents: {len(specs)}")
-        self.scheduler = TickScheduler(
-            self.agents, [world.backend(s.namespace) for s in specs], mode=self.ticking
-        )
+        backends, beat = [world.backend(s.namespace) for s in specs], self.config.heartbeat_s
+        self.scheduler = TickScheduler(self.agents, backends, mode=self.ticking, heartbeat_s=beat)
         guard.undeclare()
         if self.coordinator is not None:
             self.coordinator.local_deliver = {a.name: a.deliver for a in self.agents}

@@ -43,8 +43,10 @@ if TYPE_CHECKING:
 #: Tick modes.
 MODES = ("event", "clock")
 
-#: Default seconds between two ticks of a tree that nothing woke.
-HEARTBEAT_S = 2.0
+#: Default seconds between two ticks of a tree that nothing woke (the config's
+#: ``agent.heartbeat_s``): a safety net only, since a tree keeping the ``fleet.wake`` contract
+#: is woken by everything that changes its decisions.
+HEARTBEAT_S = 10.0
 
 #: Status code of a goal sent and not polled yet: differs from every code.
 _SENT_CODE = -2
