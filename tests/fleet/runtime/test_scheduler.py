@@ -173,3 +173,44 @@ def test_a_heartbeat_out_of_bounds_is_a_config_error(tmp_path: Path) -> None:
     path.write_text(text.replace("\nagent:\n", "\nagent:\n  heartbeat_s: 0\n"))
     with pytest.raises(ConfigError, match="heartbeat_s"):
         load_config(path)
+
+
+def test_a_period_the_scheduler_skips_still_ticks_the_tree_for_orders_grants_and_a_resume() -> None:
+    """The scheduler makes no pass over the agents for waiting orders: an agent's period ticks
+    its tree itself when it applies orders or a grant, or when the fleet resumes."""
+    from fleet.clock import SimClock
+    from fleet.messages import FleetControl, Grant, TaskMessage
+    from fleet.runtime.agent import RobotAgent
+    from sim.simulator import Simulator
+
+    cfg = load_config(CONFIGS / "warehouse_patrol.yaml", robots=1)
+    clock = SimClock()
+    sim = Simulator(cfg.grid, cfg.sim, clock)
+    spec = cfg.robots[0]
+    sim.add_robot(spec)
+    agent = RobotAgent(spec.namespace, sim.backend(spec.namespace), clock, None, traffic=True)
+
+    def quiet_periods() -> list[bool]:
+        ticked = []
+        for _ in range(5):
+            agent.period(False)
+            ticked.append(agent.tree_ticked)
+            sim.step()
+        return ticked
+
+    agent.period(True)  # the first state: the tree starts
+    assert quiet_periods() == [False] * 5
+    route = cfg.route(cfg.routes[0].name)
+    agent.deliver(TaskMessage(robot=spec.name, task_id="t1", kind="patrol", route=route.name,
+                              poses=cfg.route_poses(route), charger=cfg.chargers[0].pose))  # fmt: skip
+    assert quiet_periods()[0] is True
+    grant = Grant(
+        robot=spec.name, path_id=1, horizon=0, current=None, nodes=(), poses=(), task_id="t1", seq=1
+    )
+    agent.deliver_grant(grant)
+    assert quiet_periods()[0] is True and agent.grants_applied == 1
+    agent.set_control(FleetControl(estop=False, paused=True, seq=1))
+    assert quiet_periods() == [False] * 5 and agent.halted == "paused"
+    agent.set_control(FleetControl(estop=False, paused=False, seq=2))
+    assert quiet_periods()[0] is True and agent.halted is None
+    agent.close()
