@@ -442,7 +442,7 @@ class RobotAgent:
                 self.bb.mode = Mode.IDLE
                 tree = True
             if tree:
-                self._tick_tree()
+                self._tick_tree(st)
                 self._view = None
         view = self._view
         if view is None:  # the tree or the blackboard may have changed: read them again
@@ -507,14 +507,19 @@ class RobotAgent:
             logger.info("robot %s: waiting for its first state from the navigation backend", self.name)
         return self.waiting_for_state
 
-    def _tick_tree(self) -> None:
-        """Tick the tree once; note whether it has settled (``settling``: the tick changed a
-        node's status or the goals it watches, so the next period ticks it again, e.g. a
-        ``Repeat`` restarts its child only at the next tick)."""
+    def _tick_tree(self, st: RobotState) -> None:
+        """Tick the tree once (its state reads answered by ``st``, the period's, until it sends or
+        cancels a goal: :class:`WatchedBackend`); note whether it has settled (``settling``: the
+        tick changed a node's status or the goals it watches, so the next period ticks it again,
+        e.g. a ``Repeat`` restarts its child only at the next tick)."""
         wake = self.watched.wake
         before = dict(wake.goals)
         wake.reset()
-        self.root.tick_once()
+        self.watched.held = st
+        try:
+            self.root.tick_once()
+        finally:
+            self.watched.held = None
         self.tree_ticked = True
         self.tree_ticks += 1
         if self.wake is not None:

@@ -26,6 +26,7 @@ from fleet.runtime.goal_log import GoalLog
 from fleet.runtime.latch import Latch, LatchedBackend
 from fleet.runtime.runner import FleetRunner
 from fleet.runtime.status_record import TreeView, observation, observation_of
+from fleet.runtime.watched import WatchedBackend
 from fleet.types import GoalStatus, NavigateToPose, Pose2D, RobotState, frozen_factory, make_pose
 from fleet.viz.display import NullDisplay
 from sim.simulator import Simulator
@@ -240,3 +241,34 @@ def test_the_tree_view_read_from_the_store_is_the_clients_every_period(config: s
     report = runner.run()
     assert report.laps_completed + report.picks_completed > 0
     assert any(laps or steps for _, laps, steps in seen) and len({m for m, _, _ in seen}) > 1
+
+
+@pytest.mark.parametrize(
+    ("config", "tree"), [("warehouse_patrol.yaml", "patrol"), ("warehouse_picking.yaml", "tasks")]
+)
+def test_a_tree_reads_the_state_its_agent_read_in_the_period_and_afresh_after_a_command(
+    config: str, tree: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """During a tree tick the robot state the agent read is the state a read would give, until
+    the tree sends or cancels a goal: every read answered from it is checked against a fresh
+    read, over runs with laps, picks, grants and charging."""
+    answered, fresh = [0], [0]
+    real = WatchedBackend.robot_state
+
+    def checked(self: WatchedBackend) -> RobotState:
+        got = real(self)
+        if self.held is not None:
+            assert got is self.held and got == self.inner.robot_state()
+            answered[0] += 1
+        else:
+            fresh[0] += 1
+        return got
+
+    monkeypatch.setattr(WatchedBackend, "robot_state", checked)
+    runner = FleetRunner(
+        load_config(ROOT / "configs" / config), duration=150.0, speed=0, endpoint=free_endpoint(), live=False,
+        display=NullDisplay(), out=io.StringIO(), tree_kind=tree,
+    )  # fmt: skip
+    report = runner.run()
+    assert report.laps_completed + report.picks_completed > 0
+    assert answered[0] > 100 and fresh[0] > 0  # both paths ran: reads after a command are fresh
