@@ -5,8 +5,9 @@ the in-process coordinator taking the status in), measured on a running load-tes
 A load test of ``--robots`` robots (the floor of ``fleet loadtest``, agents at 10 Hz, status at
 1 Hz, traffic management on) runs ``--warmup`` simulated seconds so that robots drive, charge
 and wait; then, between two periods of the loop, every agent is ticked ``--periods`` more times
-without its tree (``tick(False)``, the event-driven scheduler's quiet period) and the
-coordinator takes the statuses in (its cycle minus its decisions, ``state.step``); before each
+without its tree (``period(False)``, the event-driven scheduler's quiet period, as the runner
+calls it) and the coordinator takes the statuses in (its cycle minus its decisions,
+``state.step``); before each
 round the scheduler decides once which trees would tick (``TickScheduler.due``). Each figure is
 the thread CPU time of one such round divided by the robots, the least of the rounds (the figure
 least disturbed by other work on a loaded machine).
@@ -74,10 +75,10 @@ def measure(robots: int, warmup: float, periods: int, out: Path) -> dict[str, fl
                 due_us.append((time.thread_time() - t) / len(r.agents) * 1e6)
             t0 = time.thread_time()
             for a in r.agents:
-                a.tick(False)
+                getattr(a, "period", a.tick)(False)  # the runner's call (tick() before it existed)
             t1 = time.thread_time()
             spent[0] = 0.0
-            coord.cycle()
+            getattr(r, "_cycle", coord.cycle)()  # the runner's: the period's observations, then the cycle
             t2 = time.thread_time()
             agent_us.append((t1 - t0) / len(r.agents) * 1e6)
             intake_us.append((t2 - t1 - spent[0]) / len(r.agents) * 1e6)

@@ -119,6 +119,7 @@ def _build(p: Path, file: str, spec: ConfigFile, n_robots: int | None) -> FleetC
         robots=fleet,
         sim=spec.sim_params(tuple(c.pose for c in chargers)),
         tick_hz=spec.agent.tick_hz,
+        heartbeat_s=spec.agent.heartbeat_s,
         coordinator=spec.coordinator.to_params(),
         endpoint=spec.bus.endpoint,
         status_hz=spec.bus.status_hz,

@@ -107,6 +107,8 @@ class FleetConfig:
     robots: list[RobotSpec]
     sim: SimParams
     tick_hz: float = 10.0
+    #: With trees ticked on change: a tree nothing woke is still ticked this often (simulated s).
+    heartbeat_s: float = 10.0
     coordinator: CoordinatorParams = field(default_factory=CoordinatorParams)
     endpoint: str = DEFAULT_ENDPOINT
     status_hz: float | None = None

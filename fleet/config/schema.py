@@ -204,6 +204,10 @@ class AgentSection(Section):
     tick_hz: Annotated[float, Bounds(gt=0, le=1000)] = Field(
         default=10.0, description="behavior-tree ticks per simulated second (Hz)"
     )
+    heartbeat_s: Annotated[float, Bounds(gt=0, le=3600)] = Field(
+        default=10.0,
+        description="with trees ticked on change, a tree nothing woke is still ticked this often (s)",
+    )
 
 
 class CoordinatorSection(Section):

@@ -285,6 +285,12 @@ class Coordinator:
         with self._lock:
             self._inbox.append(("observation", (robot, obs)))
 
+    def feed_observations(self, items: list[tuple[str, Observation]]) -> None:
+        """:meth:`feed_observation` of each ``(robot, observation)`` in order, in one call (a
+        whole period of in-process agents)."""
+        with self._lock:
+            self._inbox.extend([("observation", item) for item in items])
+
     def cycle(self) -> list[TaskOrder]:
         """Apply everything received since the last cycle, decide, publish. Returns the orders."""
         now = self.clock.now()

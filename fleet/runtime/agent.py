@@ -67,19 +67,22 @@ from py_trees.common import Status
 
 from fleet.coordination.views import Observation
 from fleet.diagnostics import (
-    Diagnostic,
     HealthParams,
-    Level,
     SafetyWatchdog,
-    problems,
-    robot_diagnostics,
-    worst,
 )
 from fleet.messages import FleetControl, Grant, StatusRecord, TaskMessage
 from fleet.runtime.agent_bus import AgentBus, ControlBus, Declared
 from fleet.runtime.charger_index import nearest_charger
 from fleet.runtime.order_gate import OrderGate
-from fleet.runtime.status_record import TreeView, observation, status_changed
+from fleet.runtime.status_record import (
+    Held,
+    TreeView,
+    observation_of,
+    status_changed,
+    status_record,
+    tree_view,
+    view_names,
+)
 from fleet.runtime.watched import WatchedBackend, wake_aware
 from fleet.types import Mode, Pose2D, RobotState, TaskKind, TreeKind
 from fleet.wake import Wake
@@ -165,6 +168,9 @@ class RobotAgent:
         self.on_status = on_status
         #: Like ``on_status``, given the record as an in-process coordinator reads it.
         self.on_observation: Callable[[str, Observation], None] | None = None
+        #: Instead of ``on_observation``: each period's ``(name, observation)`` is appended here
+        #: (the runner hands a whole period's to the coordinator in one call).
+        self.observations: list[tuple[str, Observation]] | None = None
         _check_rate("status_hz", status_hz, "Hz")
         _check_rate("status_max_period_s", status_max_period_s, "s")
         #: Least simulated time between two records published on the bus (None: every tick).
@@ -200,7 +206,8 @@ class RobotAgent:
         self.min_battery = 1.0
         #: Ticks spent in each tree mode (``Mode`` values) since the agent started.
         self.mode_ticks: dict[str, int] = {}
-        self.last_status: StatusRecord | None = None
+        self._held: Held | None = None
+        self._built: tuple[Held, StatusRecord] | None = None
         self._seen: dict[str, None] = {}
         self._inbox: list[TaskMessage] = []
         self._grant: Grant | None = None
@@ -251,6 +258,7 @@ class RobotAgent:
         #: The status record's view of the tree, kept while neither the tree nor the blackboard
         #: changed (a period without a tree tick, orders or a stop reads nothing new).
         self._view: TreeView | None = None
+        self._view_names = view_names(self.namespace)
         self._has_charger = False
 
     # -- orders ------------------------------------------------------------------------
@@ -379,6 +387,16 @@ class RobotAgent:
         ``tree=False`` (the event-driven scheduler, :mod:`fleet.runtime.scheduler`, found nothing
         the tree waits for) does all of that but the tree's tick, unless orders were applied or
         the robot leaves a safety stop or a pause; ``tree_ticked`` says whether it ticked."""
+        self.period(tree)
+        rec = self.last_status
+        assert rec is not None  # a period always holds a record
+        return rec
+
+    def period(self, tree: bool = True) -> None:
+        """:meth:`tick` without returning the record: the record of a period that publishes
+        nothing (and has no ``on_status``) is built only when :attr:`last_status` is read, from
+        the values held at the period (the same record; the runner's path, where most periods
+        publish nothing)."""
         self.tree_ticked = False
         if self.touched and self._apply_orders():
             tree = True
@@ -424,7 +442,7 @@ class RobotAgent:
                 self.bb.mode = Mode.IDLE
                 tree = True
             if tree:
-                self._tick_tree()
+                self._tick_tree(st)
                 self._view = None
         view = self._view
         if view is None:  # the tree or the blackboard may have changed: read them again
@@ -435,15 +453,51 @@ class RobotAgent:
             self.charges += 1
         self._last_mode = mode
         self.mode_ticks[mode] = self.mode_ticks.get(mode, 0) + 1
-        rec = self.status(st, view)
-        self.min_battery = min(self.min_battery, float(rec.battery))
-        self.last_status = rec
-        self._publish(rec)
-        if self.on_status is not None:
-            self.on_status(rec)
-        if self.on_observation is not None:
-            self.on_observation(self.name, observation(rec, st.pose, view))
+        self._report(st, view)
+
+    def _report(self, st: RobotState, view: TreeView) -> None:
+        """The period's status: held for :attr:`last_status`, published when due, observed."""
+        self.seq += 1
+        t = float(self.clock.now())
+        battery = float(st.battery)
+        self.min_battery = min(self.min_battery, battery)
+        ack = self.ack
+        self._held = (
+            st, view, t, self.seq, ack, self._grant_seq if self._grant_epoch == ack[0] else 0,
+            int(getattr(self.bus, "malformed", 0)), self.gate.rejected_total if self.gate is not None else 0,
+            self.watchdog.reason, self.waiting_for_state,
+        )  # fmt: skip
+        if self.on_status is not None or self._publish_due(t):
+            rec = self.last_status
+            assert rec is not None
+            self._publish(rec)
+            if self.on_status is not None:
+                self.on_status(rec)
+        obs = observation_of(t, st.pose, battery, bool(st.stuck), bool(st.charging), view)
+        if self.observations is not None:
+            self.observations.append((self.name, obs))
+        elif self.on_observation is not None:
+            self.on_observation(self.name, obs)
+
+    @property
+    def last_status(self) -> StatusRecord | None:
+        """The status record of the last period (``None`` before the first), built on first
+        read from the values held at that period."""
+        held, built = self._held, self._built
+        if held is None:
+            return None
+        if built is not None and built[0] is held:
+            return built[1]
+        rec = status_record(self.name, self.namespace, held, self.health)
+        self._built = (held, rec)
         return rec
+
+    def _publish_due(self, t: float) -> bool:
+        """Whether a record of time ``t`` may be published (the ``status_hz`` period passed)."""
+        if self.bus is None:
+            return False
+        last, period = self._last_published, self.status_period_s
+        return period is None or last is None or t >= last + period - 1e-9
 
     def _waiting_for_state(self, st: RobotState) -> bool:
         """Whether the robot still waits for its first state (no pose yet from the backend)."""
@@ -453,14 +507,19 @@ class RobotAgent:
             logger.info("robot %s: waiting for its first state from the navigation backend", self.name)
         return self.waiting_for_state
 
-    def _tick_tree(self) -> None:
-        """Tick the tree once; note whether it has settled (``settling``: the tick changed a
-        node's status or the goals it watches, so the next period ticks it again, e.g. a
-        ``Repeat`` restarts its child only at the next tick)."""
+    def _tick_tree(self, st: RobotState) -> None:
+        """Tick the tree once (its state reads answered by ``st``, the period's, until it sends or
+        cancels a goal: :class:`WatchedBackend`); note whether it has settled (``settling``: the
+        tick changed a node's status or the goals it watches, so the next period ticks it again,
+        e.g. a ``Repeat`` restarts its child only at the next tick)."""
         wake = self.watched.wake
         before = dict(wake.goals)
         wake.reset()
-        self.root.tick_once()
+        self.watched.held = st
+        try:
+            self.root.tick_once()
+        finally:
+            self.watched.held = None
         self.tree_ticked = True
         self.tree_ticks += 1
         if self.wake is not None:
@@ -490,86 +549,26 @@ class RobotAgent:
 
     def _tree_view(self) -> TreeView:
         """What the status record reports of the tree and its blackboard (read now)."""
-        bb = self.bb
-        task_id = bb.task_id
-        return TreeView(
-            bt=self.root.status.name,
-            leaf=str(bb.active_leaf or ""),
-            mode=str(bb.mode),
-            task_id=task_id,
-            laps=int(bb.laps) if bb.lap_task_id is not None and bb.lap_task_id == task_id else 0,
-            progress=float(bb.route_progress or 0.0),
-            picks_done=int(bb.picks_done or 0),
-            result_id=bb.result_id,
-            result=str(bb.result or ""),
-            steps_done=int(bb.step_index)
-            if bb.steps_task_id is not None and bb.steps_task_id == task_id
-            else 0,
-        )
+        return tree_view(self.root.status.name, self._view_names)
 
     def status(self, state: RobotState | None = None, view: TreeView | None = None) -> StatusRecord:
         """The current status record of this robot (each call takes the next ``seq``), from
         ``state`` (default: the backend's now) and ``view`` (default: the tree now)."""
         self.seq += 1
         st = state if state is not None else self.backend.robot_state()
-        health, diag = self._diagnostics(st)
         v = view if view is not None else self._tree_view()
-        pose = st.pose.as_tuple() if st.pose is not None else None
-        return StatusRecord(
-            robot=self.name,
-            ns=self.namespace,
-            t=float(self.clock.now()),
-            pose=pose,
-            battery=float(st.battery),
-            charging=bool(st.charging),
-            stuck=bool(st.stuck),
-            bt=v.bt,
-            leaf=v.leaf,
-            mode=v.mode,
-            task_id=v.task_id,
-            laps=v.laps,
-            progress=v.progress,
-            distance_m=float(st.distance_m),
-            collisions=int(st.collisions),
-            seq=self.seq,
-            picks_done=v.picks_done,
-            health=health,
-            diag=diag,
-            result_id=v.result_id,
-            result=v.result,
-            steps_done=v.steps_done,
-            epoch=self.ack[0],
-            order_seq=self.ack[1],
-            grant_seq=self._grant_seq if self._grant_epoch == self.ack[0] else 0,
-            malformed=int(getattr(self.bus, "malformed", 0)),
-            rejected=self.gate.rejected_total if self.gate is not None else 0,
-        )
-
-    def _diagnostics(self, st: RobotState) -> tuple[int, tuple[tuple[str, int, str], ...]]:
-        """``(worst level, the checks that are not OK)`` of ``st``; a healthy robot (the common
-        case) costs no check objects."""
-        h = self.health
-        if self.waiting_for_state:
-            return int(Level.WARN), (
-                ("localization", int(Level.WARN), "waiting for the robot's first state"),
-            )
-        if (
-            st.localized
-            and st.navigation_ready
-            and st.battery_known
-            and not st.stuck
-            and not st.safety_stop
-            and st.pose is not None
-            and st.battery >= h.battery_low
-            and st.pose_age_s <= 0.5 * h.localization_timeout_s
-        ):
-            return 0, ()
-        items = robot_diagnostics(st, h)
-        why = self.watchdog.reason
-        if why and not st.safety_stop:
-            motion = Diagnostic("motion", Level.ERROR, f"safety stop: {why}")
-            items = (*(d for d in items if d.name != "motion"), motion)
-        return int(worst(items)), problems(items)
+        ack = self.ack
+        return status_record(
+            self.name,
+            self.namespace,
+            (
+                st, v, float(self.clock.now()), self.seq, ack,
+                self._grant_seq if self._grant_epoch == ack[0] else 0, int(getattr(self.bus, "malformed", 0)),
+                self.gate.rejected_total if self.gate is not None else 0, self.watchdog.reason,
+                self.waiting_for_state,
+            ),
+            self.health,
+        )  # fmt: skip
 
     def _stop_tree(self) -> None:
         """Interrupt the tree: the running leaf cancels its goal (the robot stops)."""

@@ -19,16 +19,14 @@ coordinator ignores the bus copies of its local robots' statuses, and local agen
 orders from the bus), so an in-process run with ``speed=0`` does not depend on network timing
 and is reproducible.
 
-Leases (``docs/protocol.md``): before its agents declare their liveliness tokens the runner
-refuses (:class:`~fleet.errors.LeaseError`) to drive a robot that already has a live agent, and
-a runner with the coordinator takes the coordinator lease (refused if another coordinator is
-live) with a new epoch, kept in the durable task book. Agents without a local coordinator
-follow the live lease and take orders from the bus through their order gate.
+Leases (``docs/protocol.md``): the runner refuses (:class:`~fleet.errors.LeaseError`) to drive
+a robot that already has a live agent; with the coordinator it takes the coordinator lease
+(refused if another coordinator is live) with a new epoch, kept in the durable task book.
+Agents without a local coordinator follow the live lease, taking orders through their gate.
 
-Backends are pluggable by name in :data:`fleet.runtime.backends.BACKENDS` (``name ->
-factory``); a factory builds a :class:`~fleet.runtime.worlds.World` lazily, so importing the
-core never imports rclpy or libsumo. Diagnostics go to :mod:`logging` (logger
-``fleet.runtime.runner``)."""
+Backends: by name in :data:`fleet.runtime.backends.BACKENDS`; a factory builds a
+:class:`~fleet.runtime.worlds.World` lazily (importing the core never imports rclpy or libsumo).
+Diagnostics go to :mod:`logging` (logger ``fleet.runtime.runner``)."""
 
 from __future__ import annotations
 
@@ -64,6 +62,7 @@ if TYPE_CHECKING:
     from fleet.bus.session import Secure
     from fleet.bus.status_bus import StatusBus
     from fleet.coordination.coordinator import Coordinator
+    from fleet.coordination.views import Observation
     from fleet.runtime.agent import RobotAgent
     from fleet.runtime.goal_log import GoalLog
     from fleet.runtime.service_host import ServiceHost
@@ -99,14 +98,12 @@ class FleetRunner:
         state_dir: the coordinator's durable task book (``docs/service.md``); a directory that
             holds one is resumed. ``None``: an in-memory book (the CLI defaults to a new directory
             under ``out/state/``). An in-process simulator keeps its snapshot there too and
-            resumes from it (robots' poses, batteries, docking states, the clock:
-            :mod:`fleet.runtime.snapshot`), so a killed ``fleet run`` resumes its robots as well
-            as its tasks.
+            resumes from it (poses, batteries, docking states, the clock:
+            :mod:`fleet.runtime.snapshot`): a killed ``fleet run`` resumes robots and tasks.
         api: ``HOST:PORT`` to serve the task service's HTTP API on (with the coordinator).
         secure: open the session on a secured bus (``docs/security.md``): as the router (with
             its credentials and access control) when this process listens, else as
-            ``secure.identity``; the API then takes the key directory's token for mutating
-            calls. ``None``: an open bus, as before.
+            ``secure.identity``; the API then takes the key directory's token for mutating calls.
         ticking: ``"event"`` (default): each period a tree is ticked only when something it
             reads changed (:mod:`fleet.runtime.scheduler`; same decisions, far fewer ticks);
             ``"clock"``: every tree every period.
@@ -114,8 +111,7 @@ class FleetRunner:
     ``tree_kind`` chooses the config's initial tasks (``patrol``: its routes, ``picking``:
     its picks, ``tasks``: both); every robot runs the tree that takes any task kind.
     Raises :class:`~fleet.errors.ConfigError` for an unknown backend or robot, a negative
-    speed, a non-positive duration, or a bad ``api`` address.
-    """
+    speed, a non-positive duration, or a bad ``api`` address."""
 
     #: The bus-loss watchdog of a connecting runner (``None`` for one that listens): it stops
     #: the local robots while the link is lost (``bus.link_timeout_s``, ``docs/faults.md``) and
@@ -196,6 +192,7 @@ class FleetRunner:
         self._wall0 = 0.0
         self.world: World | None = None
         self.agents: list[RobotAgent] = []
+        self._observed: list[tuple[str, Observation]] = []  # the agents' since the last cycle
         #: Goal metrics of each local robot (by name), see :mod:`fleet.runtime.goal_log`.
         self.goal_logs: dict[str, GoalLog] = {}
         self.coordinator: Coordinator | None = None
@@ -304,9 +301,8 @@ class FleetRunner:
             self.agents.append(self._make_agent(spec.namespace, world, self.bus))
             phase.every(f"agents: {len(self.agents)} of {len(specs)}")
         phase.done(f"agents: {len(specs)}")
-        self.scheduler = TickScheduler(
-            self.agents, [world.backend(s.namespace) for s in specs], mode=self.ticking
-        )
+        backends, beat = [world.backend(s.namespace) for s in specs], self.config.heartbeat_s
+        self.scheduler = TickScheduler(self.agents, backends, mode=self.ticking, heartbeat_s=beat)
         guard.undeclare()
         if self.coordinator is not None:
             self.coordinator.local_deliver = {a.name: a.deliver for a in self.agents}
@@ -404,8 +400,8 @@ class FleetRunner:
             leases=self.lease_watch.current if self.lease_watch is not None else None,
             clear_blackboard=False,  # _setup cleared every local namespace in one pass
         )
-        if self.coordinator is not None:  # every tick's status, as the coordinator reads it
-            agent.on_observation = self.coordinator.feed_observation
+        if self.coordinator is not None:  # every period's status, as the coordinator reads it
+            agent.observations = self._observed  # handed over in one call before each cycle
         return agent
 
     def _loop(self, world: World) -> None:
@@ -466,12 +462,11 @@ class FleetRunner:
         """A command arrived: one coordinator cycle now, and a tick of every agent it (or the
         control state) gave something to do, so the order takes effect at the next step."""
         self._wakeup.clear()
-        if self.coordinator is not None:
-            self.coordinator.cycle()
+        self._cycle()
         now = self.world.clock.now() if self.world is not None else 0.0
         for a in self.agents:
             if a.pending():
-                a.tick()
+                a.period()
                 if self.scheduler is not None:
                     self.scheduler.ticked(a, now)
         if self.bus is not None:
@@ -483,17 +478,23 @@ class FleetRunner:
         sched = self.scheduler
         due = sched.due(now).tolist() if sched is not None else [True] * len(self.agents)
         for a, tree in zip(self.agents, due, strict=True):
-            a.tick(tree)
+            a.period(tree)
             if a.tree_ticked and sched is not None:
                 sched.ticked(a, now)
         if self.bus is not None:
             self.bus.flush_statuses()  # the statuses of this round, in batches when batching
         self._after_agents(now)
 
+    def _cycle(self) -> None:
+        """One coordinator cycle, on the local agents' observations since the last."""
+        if self.coordinator is not None:
+            self.coordinator.feed_observations(self._observed)
+            self.coordinator.cycle()
+        self._observed.clear()
+
     def _after_agents(self, now: float) -> None:
         """What follows the agents' tick: the coordinator cycle, the task service, the observers."""
-        if self.coordinator is not None:
-            self.coordinator.cycle()
+        self._cycle()
         if self.host is not None:
             self.host.tick(now)
         for observe in self.observers:
@@ -524,8 +525,7 @@ class FleetRunner:
             duration_s=self.duration,
             laps=st.laps_completed() if st is not None else None,
             charging=sum(1 for r in recs if r.mode == Mode.CHARGING),
-            # a remote simulator's clock is the fleet's, which ran before this process; so is a
-            # simulator resumed from --state (its clock starts where the killed run left it)
+            # a remote simulator's clock, or one resumed from --state, ran before this process
             clock_s=world.clock.now() if world is not None and (world.remote or self._t0 > 0) else None,
         )
 

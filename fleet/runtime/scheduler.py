@@ -43,8 +43,10 @@ if TYPE_CHECKING:
 #: Tick modes.
 MODES = ("event", "clock")
 
-#: Default seconds between two ticks of a tree that nothing woke.
-HEARTBEAT_S = 2.0
+#: Default seconds between two ticks of a tree that nothing woke (the config's
+#: ``agent.heartbeat_s``): a safety net only, since a tree keeping the ``fleet.wake`` contract
+#: is woken by everything that changes its decisions.
+HEARTBEAT_S = 10.0
 
 #: Status code of a goal sent and not polled yet: differs from every code.
 _SENT_CODE = -2
@@ -96,6 +98,9 @@ class TickScheduler:
         self._line = np.full((n, 6), math.nan)
         self._near = np.full((n, 3), math.nan)
         self._rem_goal: list[str | None] = [None] * n
+        #: Rows whose ``remaining`` goal is not their first watched goal: row -> that goal.
+        self._rem_rows: dict[int, str] = {}
+        self._has_goal = np.zeros(n, dtype=np.bool_)
         self._rem = np.full(n, math.nan)
         self._due = np.full(n, math.inf)
         self._flags: np.ndarray = np.zeros((n, 4), dtype=np.bool_)
@@ -108,10 +113,9 @@ class TickScheduler:
         n = len(self.agents)
         if n == 0 or not self._static.any():
             return np.ones(n, dtype=np.bool_)
-        ids = list(self._goal)
-        rem_rows = [i for i in range(n) if self._rem_goal[i] is not None and self._rem_goal[i] != ids[i]]
+        rem_rows = list(self._rem_rows)
         b = self._query(
-            self.backends + [self.backends[i] for i in rem_rows], ids + [self._rem_goal[i] for i in rem_rows]
+            self.backends + [self.backends[i] for i in rem_rows], self._goal + list(self._rem_rows.values())
         )
         status = b.goal_status[:n].astype(np.int16)
         battery = b.battery[:n]
@@ -119,7 +123,7 @@ class TickScheduler:
         flags = np.column_stack([b.stuck[:n], b.charging[:n], b.localized[:n], b.navigation_ready[:n]])
         self._flags_now = flags
         due = ~self._static | self._always | (now - self._last >= self.heartbeat_s - _EPS)
-        due |= (status != self._seen) & np.array([g is not None for g in ids], dtype=np.bool_)
+        due |= (status != self._seen) & self._has_goal
         due |= self._flags_known & (flags != self._flags).any(axis=1)
         due |= ~self._flags_known
         due |= battery < self._below + _EPS
@@ -138,9 +142,8 @@ class TickScheduler:
         for i, extra in self._extra.items():  # trees that polled more than one goal (rare)
             if not due[i] and any(_code(self.backends[i], g) != c for g, c in extra.items()):
                 due[i] = True
-        for i, agent in enumerate(self.agents):
-            if agent.touched and not due[i] and agent.pending():
-                due[i] = True
+        # orders, a grant or a control change waiting: the agent's period ticks the tree itself
+        # when it applies them (RobotAgent.period), so no pass over the agents here
         return due
 
     def _query(self, backends: list[NavigationBackend], goal_ids: list[str | None]) -> NavBatch:
@@ -169,6 +172,7 @@ class TickScheduler:
         self._always[i] = wake.always or agent.settling
         goals = list(wake.goals.items())
         self._goal[i] = goals[0][0] if goals else None
+        self._has_goal[i] = bool(goals)
         self._seen[i] = _status_code(goals[0][1]) if goals else NO_GOAL
         if len(goals) > 1:
             self._extra[i] = {g: _status_code(s) for g, s in goals[1:]}
@@ -182,6 +186,11 @@ class TickScheduler:
             self._rem_goal[i], self._rem[i] = wake.remaining
         else:
             self._rem_goal[i], self._rem[i] = None, math.nan
+        rem = self._rem_goal[i]
+        if rem is not None and rem != self._goal[i]:
+            self._rem_rows[i] = rem
+        else:
+            self._rem_rows.pop(i, None)
         self._due[i] = wake.due
 
 

@@ -46,17 +46,23 @@ def wake_aware(root: Behaviour) -> bool:
 
 class WatchedBackend:
     """The tree's view of its robot's backend: every call goes to ``inner``; the status of every
-    goal the tree polls, and every goal it sends, are recorded in ``wake``."""
+    goal the tree polls, and every goal it sends, are recorded in ``wake``.
+
+    ``held``: the robot state the agent read this period (set by the agent around a tree tick,
+    when the world does not move): :meth:`robot_state` returns it instead of reading the same
+    state again, until a goal is sent or canceled (which may change it); ``None``: read."""
 
     def __init__(self, inner: NavigationBackend) -> None:
         self.inner = inner
         self.wake = Wake()
+        self.held: RobotState | None = None
 
     @property
     def namespace(self) -> str:
         return self.inner.namespace
 
     def send_goal(self, goal: Goal) -> str:
+        self.held = None
         gid = self.inner.send_goal(goal)
         self.wake.saw_goal(gid, SENT)
         return gid
@@ -67,10 +73,12 @@ class WatchedBackend:
         return state
 
     def cancel_goal(self, goal_id: str) -> None:
+        self.held = None
         self.inner.cancel_goal(goal_id)
 
     def robot_state(self) -> RobotState:
-        return self.inner.robot_state()
+        held = self.held
+        return held if held is not None else self.inner.robot_state()
 
     def __getattr__(self, name: str) -> object:
         return getattr(self.inner, name)

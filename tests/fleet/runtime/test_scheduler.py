@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import math
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -135,3 +136,81 @@ def test_wake_of_a_plain_backend_is_none_and_conditions_accumulate() -> None:
 def test_unknown_tick_mode_is_a_config_error() -> None:
     with pytest.raises(ConfigError, match="ticking"):
         FleetRunner(load_config(CONFIGS / "warehouse_patrol.yaml"), ticking="sometimes")
+
+
+def test_the_configs_heartbeat_reaches_the_scheduler_and_changes_no_decision(tmp_path: Path) -> None:
+    """``agent.heartbeat_s`` is a safety net: a fleet whose trees tick on change makes the same
+    decisions with a heartbeat of 0.5 s as with one of an hour, ticking more trees with it."""
+    runs = []
+    for beat in (0.5, 3600.0):
+        text = (CONFIGS / "warehouse_patrol.yaml").read_text()
+        assert "\nagent:\n  tick_hz:" in text
+        path = tmp_path / f"beat_{beat}.yaml"
+        path.write_text(text.replace("\nagent:\n", f"\nagent:\n  heartbeat_s: {beat}\n"))
+        if not (tmp_path / "maps").exists():
+            shutil.copytree(CONFIGS / "maps", tmp_path / "maps")
+        cfg = load_config(path)
+        assert cfg.heartbeat_s == beat
+        runner = FleetRunner(
+            cfg, duration=60.0, speed=0, endpoint=free_endpoint(), live=False, display=NullDisplay(),
+            out=io.StringIO(),
+        )  # fmt: skip
+        report = runner.run().to_dict()
+        assert runner.scheduler is not None and runner.scheduler.heartbeat_s == beat
+        decided = {k: v for k, v in report.items() if k not in WALL_KEYS | {"config"}}  # config: the path
+        runs.append((decided, runner.scheduler.tree_ticks))
+    (often, often_ticks), (rarely, rarely_ticks) = runs
+    assert often["laps_completed"] > 0 or sum(r["distance_m"] for r in often["per_robot"]) > 0
+    differing = sorted(k for k in often if often[k] != rarely.get(k))
+    assert not differing, {k: (often[k], rarely.get(k)) for k in differing[:3]}
+    assert often_ticks > rarely_ticks + 6 * 60  # at least one more tick per robot and heartbeat-second
+
+
+def test_a_heartbeat_out_of_bounds_is_a_config_error(tmp_path: Path) -> None:
+    text = (CONFIGS / "warehouse_patrol.yaml").read_text()
+    path = tmp_path / "bad.yaml"
+    shutil.copytree(CONFIGS / "maps", tmp_path / "maps")
+    path.write_text(text.replace("\nagent:\n", "\nagent:\n  heartbeat_s: 0\n"))
+    with pytest.raises(ConfigError, match="heartbeat_s"):
+        load_config(path)
+
+
+def test_a_period_the_scheduler_skips_still_ticks_the_tree_for_orders_grants_and_a_resume() -> None:
+    """The scheduler makes no pass over the agents for waiting orders: an agent's period ticks
+    its tree itself when it applies orders or a grant, or when the fleet resumes."""
+    from fleet.clock import SimClock
+    from fleet.messages import FleetControl, Grant, TaskMessage
+    from fleet.runtime.agent import RobotAgent
+    from sim.simulator import Simulator
+
+    cfg = load_config(CONFIGS / "warehouse_patrol.yaml", robots=1)
+    clock = SimClock()
+    sim = Simulator(cfg.grid, cfg.sim, clock)
+    spec = cfg.robots[0]
+    sim.add_robot(spec)
+    agent = RobotAgent(spec.namespace, sim.backend(spec.namespace), clock, None, traffic=True)
+
+    def quiet_periods() -> list[bool]:
+        ticked = []
+        for _ in range(5):
+            agent.period(False)
+            ticked.append(agent.tree_ticked)
+            sim.step()
+        return ticked
+
+    agent.period(True)  # the first state: the tree starts
+    assert quiet_periods() == [False] * 5
+    route = cfg.route(cfg.routes[0].name)
+    agent.deliver(TaskMessage(robot=spec.name, task_id="t1", kind="patrol", route=route.name,
+                              poses=cfg.route_poses(route), charger=cfg.chargers[0].pose))  # fmt: skip
+    assert quiet_periods()[0] is True
+    grant = Grant(
+        robot=spec.name, path_id=1, horizon=0, current=None, nodes=(), poses=(), task_id="t1", seq=1
+    )
+    agent.deliver_grant(grant)
+    assert quiet_periods()[0] is True and agent.grants_applied == 1
+    agent.set_control(FleetControl(estop=False, paused=True, seq=1))
+    assert quiet_periods() == [False] * 5 and agent.halted == "paused"
+    agent.set_control(FleetControl(estop=False, paused=False, seq=2))
+    assert quiet_periods()[0] is True and agent.halted is None
+    agent.close()
