@@ -12,12 +12,7 @@
   a charger dock is moved to parking when another robot waits for a charger, or when it
   has charged above :data:`VACATE_ABOVE` and an idle robot below :data:`TOP_UP_BELOW` found
   no free charger (so chargers do not fill up with full robots while others drain).
-* A robot whose target dock another robot stepped onto picks another dock.
-* Next in line (``TrafficParams.next_in_line``): a robot that finds no free charger near it
-  is sent straight to a busy one whose robot will be charged before it gets there
-  (:func:`fleet.traffic.charger_line.next_charger`) instead of to a parking dock; it keeps
-  that target while the robot it queued behind stands on the dock, and that robot leaves
-  the dock as soon as it is done charging."""
+* A robot whose target dock another robot stepped onto picks another dock."""
 
 from __future__ import annotations
 
@@ -27,8 +22,6 @@ from typing import TYPE_CHECKING, cast
 
 import networkx as nx
 
-from fleet.robots import BatteryModel
-from fleet.traffic.charger_line import next_charger
 from fleet.traffic.manager import TrafficManager
 from fleet.traffic.purpose import CHARGE_PRIORITY, Purpose
 from fleet.traffic.views import RobotViewLike
@@ -76,9 +69,7 @@ class Errands:
     ``manager``: the policy's traffic manager; ``roadmap``: its roadmap (with docks, edge
     attribute ``length`` in m); ``purposes``: the policy's purpose per robot (shared:
     errands set and drop ``CHARGE``, ``CHARGE_WAIT`` and ``PARK``); ``drive``: the policy's
-    way to give a robot a path; ``chargers`` / ``parking``: dock node names; ``battery``: the
-    fleet's battery model (how long a robot on a charger still charges, how fast robots drive
-    to one: next in line).
+    way to give a robot a path; ``chargers`` / ``parking``: dock node names.
     """
 
     def __init__(
@@ -90,7 +81,6 @@ class Errands:
         chargers: Sequence[str],
         parking: Sequence[str],
         park_idle_s: float,
-        battery: BatteryModel | None = None,
     ) -> None:
         self.manager = manager
         self.roadmap = roadmap
@@ -111,41 +101,31 @@ class Errands:
         # robots on dock errands waiting on the same robots: name -> (blockers, since)
         self._stuck: dict[str, tuple[frozenset[str], float]] = {}
         self._waiting: tuple[float, set[str]] = (-math.inf, set())
-        self.battery = battery if battery is not None else BatteryModel()
-        # next in line: robot -> the robot charging on its target dock when it was sent
-        self._behind: dict[str, str] = {}
-        self._battery_of: dict[str, float] = {}
 
     def forget(self, robot: str) -> None:
         """``robot`` got a patrol: drop its dock target and its place in the charger queue."""
         self._target.pop(robot, None)
         self._charge_wait.discard(robot)
         self._stuck.pop(robot, None)
-        self._behind.pop(robot, None)
 
     def step(self, name: str, view: RobotViewLike, now: float, requests: list[tuple[float, str]]) -> None:
         """Charging and parking trips of the live robot ``name`` at ``now``. A robot that needs
         a charger is added to ``requests`` as ``(battery, robot)``: :meth:`serve_chargers`."""
         obs = view.obs
         mode = obs.mode if obs is not None else None
-        if obs is not None:
-            self._battery_of[name] = float(obs.battery)
         purpose = self.purposes.get(name)
         target = self._target.get(name)
-        if target is not None and self.manager.holder(target) not in (None, name, self._behind.get(name)):
+        if target is not None and self.manager.holder(target) not in (None, name):
             # another robot stepped onto the dock this robot heads for (e.g. to let a third
             # pass): choose another dock rather than wait for it, head-on on a dead-end spur
             self._target.pop(name, None)
             if purpose in (Purpose.CHARGE, Purpose.CHARGE_WAIT):
                 self.purposes.pop(name, None)
                 self._charge_wait.discard(name)
-                self._behind.pop(name, None)
                 purpose = None
             elif purpose is Purpose.PARK:
                 self._go(name, self._free_dock(name, self.parking), Purpose.PARK)
                 return
-        if target is not None and self._behind.get(name) is not None and self.manager.holder(target) == name:
-            del self._behind[name]  # it got the charger it queued for
         if target is not None and purpose in (Purpose.CHARGE, Purpose.CHARGE_WAIT, Purpose.PARK):
             path = self.manager.path(name)
             if path and path[-1] != target:
@@ -169,17 +149,12 @@ class Errands:
             self.purposes.pop(name, None)  # charged: now simply idle where it stands
             self._target.pop(name, None)
             self._charge_wait.discard(name)
-            self._behind.pop(name, None)
             purpose = None
         since = self._idle_since.setdefault(name, now)
-        path = self.manager.path(name)
-        here = path[0] if path else None
-        if here in self._charger_set and purpose in (None, Purpose.PARK) and self._queued_for(here, name):
-            # a robot is next in line for this charger: leave it at once
-            self._go(name, self._free_dock(name, self.parking), Purpose.PARK)
-            return
         if now - since < self.park_idle_s:
             return
+        path = self.manager.path(name)
+        here = path[0] if path else None
         if purpose is Purpose.PARK and here != self._target.get(name):
             return  # on its way to park
         if here in self._charger_set:
@@ -226,8 +201,6 @@ class Errands:
             node = self._free_dock(name, self.chargers, reach=CHARGE_REACH_M)
             if node is not None:
                 self._go(name, node, Purpose.CHARGE)
-            elif self._queue_on(name):
-                pass
             elif self.purposes.get(name) is not Purpose.CHARGE_WAIT:
                 # wait off the aisles for a charger near it; unless the waiting place is
                 # farther than a free charger (then it drives to that charger instead)
@@ -237,47 +210,6 @@ class Errands:
                     self._go(name, far, Purpose.CHARGE)
                 else:
                     self._go(name, dock, Purpose.CHARGE_WAIT)
-
-    def _queue_on(self, name: str) -> bool:
-        """Next in line: send ``name`` to a busy charger within :data:`CHARGE_REACH_M` of its
-        nearest whose robot stands on it, nobody queued behind it, and is charged before
-        ``name`` gets there (:func:`next_charger`), or leaves it: it has work, or it is idle
-        there with at least :data:`VACATE_ABOVE` battery (a robot still topping up keeps
-        its charger). Whether it was sent."""
-        m = self.manager
-        path = m.path(name)
-        if not self.manager.params.next_in_line or not path or not self.chargers:
-            return False
-        queued = {t for r, t in self._target.items() if r != name and r in self._behind}
-        charging: dict[str, float] = {}
-        for c in self.chargers:
-            h = m.holder(c)
-            if h is None or h == name or c in queued or not m.path(h) or m.path(h)[0] != c:
-                continue
-            battery = self._battery_of.get(h, 0.0)
-            purpose = self.purposes.get(h)
-            if purpose is Purpose.CHARGE and self._target.get(h) == c:
-                charging[c] = battery  # charges until ``resume``
-            elif purpose in (Purpose.PATROL, Purpose.TASK):
-                charging[c] = 1.0  # has work: leaves now
-            elif purpose in (None, Purpose.PARK) and self._target.get(h) in (None, c):
-                if battery >= VACATE_ABOVE and self._free_dock(h, self.parking) is not None:
-                    charging[c] = 1.0  # idle and charged: leaves for a parking dock at once
-        if not charging:
-            return False
-        costs = m.costs_near(path[0], self.chargers, CHARGE_REACH_M)
-        node = next_charger(costs, charging, self.battery)
-        if node is None:
-            return False
-        holder = m.holder(node)
-        assert holder is not None
-        self._go(name, node, Purpose.CHARGE)
-        self._behind[name] = holder
-        return True
-
-    def _queued_for(self, dock: str, robot: str) -> bool:
-        """A robot other than ``robot`` is next in line for ``dock``."""
-        return any(self._target.get(r) == dock for r, h in self._behind.items() if h == robot)
 
     def _blocked_long(self, name: str, now: float) -> bool:
         """``name`` has waited :data:`RETARGET_AFTER_S` on the same robots (then the clock
@@ -320,7 +252,6 @@ class Errands:
         if not free:
             return
         best = min(free, key=lambda d: (dist[d], d))
-        self._behind.pop(name, None)
         self._target[name] = best
         self.drive(name, [str(n) for n in paths[best]], purpose)
 
@@ -349,7 +280,6 @@ class Errands:
     def _go(self, name: str, node: str | None, purpose: Purpose) -> None:
         if node is None:
             return
-        self._behind.pop(name, None)
         self._target[name] = node
         if purpose is Purpose.CHARGE_WAIT:
             self._charge_wait.add(name)

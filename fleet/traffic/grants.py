@@ -3,10 +3,7 @@
 A block is the next path node and, inside a single-lane corridor (roadmap degree 2), every
 node to the corridor's far end; the far junction joins the block when it is a dead end or
 the path's end, when ``hold_far_end`` is set, or when another robot is about to come from it
-into the corridor. With ``next_in_line``, a junction followed by the path's end on a dead end
-(a dock's spur: a charger or a parking spot) is one block with it, so a robot heading for a
-dock another robot still stands on waits before the junction, not in the way out. A robot
-that cannot take its next block records who it waits for; one
+into the corridor. A robot that cannot take its next block records who it waits for; one
 that waited longer than ``starve_s`` claims the block so younger robots cannot take it."""
 
 from __future__ import annotations
@@ -28,8 +25,6 @@ def block(st: TrafficState, r: TrackedRobot) -> list[int]:
         if deg[node] != 2 or j == n - 1 or path[j + 1] == path[j - 1] or path[j + 1] == node:
             break
         j += 1
-    if st.params.next_in_line and out == [n - 2] and deg[path[-1]] == 1 and deg[path[-2]] > 2:
-        out.append(n - 1)  # the junction at a dock's spur and the dock, all or nothing
     if len(out) > 1 and st.params.follow and following(st, r, out):
         return out[:1]  # same-direction robots ahead in the corridor: follow them node by node
     if (

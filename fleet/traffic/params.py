@@ -51,12 +51,6 @@ class TrafficParams:
     of the shorter grant. ``dead_wait_s``: a robot with a detour limit
     (:meth:`TrafficManager.set_detour_limit`) blocked by a dead robot waits this long for it
     (a restarted agent is back within seconds) before it is rerouted around it.
-    ``next_in_line``: a robot that must charge and finds no free charger near it drives
-    straight to a busy one whose robot will be charged before it gets there, instead of
-    waiting on a parking dock first (:mod:`fleet.traffic.charger_line`); the robot on that
-    charger leaves it as soon as it is done, and a robot heading for a dock takes the
-    junction of the dock's spur and the dock as one block, so it waits before the junction
-    while the dock is being left instead of standing in the way out.
     """
 
     robot_radius: float = 0.3
@@ -84,7 +78,6 @@ class TrafficParams:
     turn_back: bool = True
     turn_back_m: float = 1.5
     dead_wait_s: float = 30.0
-    next_in_line: bool = True
 
     @property
     def clearance(self) -> float:

@@ -72,16 +72,15 @@ def join(
 
 
 class HeldByOthers:
-    """The nodes some robot other than ``robot`` holds, but ``allow`` (a container for
+    """The nodes some robot other than ``robot`` holds (a container for
     :meth:`RoadIndex.shortest`'s ``avoid``, looked up in the table when asked)."""
 
-    def __init__(self, st: TrafficState, robot: str, allow: str | None = None) -> None:
+    def __init__(self, st: TrafficState, robot: str) -> None:
         self.holder = st.table.holder
         self.robot = robot
-        self.allow = allow
 
     def __contains__(self, node: object) -> bool:
-        h = self.holder(node) if isinstance(node, str) and node != self.allow else None
+        h = self.holder(node) if isinstance(node, str) else None
         return h is not None and h != self.robot
 
 
@@ -109,8 +108,7 @@ def errand_way(st: TrafficState, r: TrackedRobot, target: str) -> list[str] | No
     (edges against it cost ``1 + flow_penalty`` times their length). The errand's way may
     also turn back, from the grant's end or from the first granted node at least
     ``turn_back_m`` ahead of the robot (where it can still stop), and drive against the
-    flow where nobody comes: it enters no node another robot holds (but ``target``, with
-    ``next_in_line``: the robot on it leaves before this one gets there) and drives no step
+    flow where nobody comes: it enters no node another robot holds and drives no step
     another robot is about to drive the other way (:class:`Oncoming`). It is taken when it
     is shorter (m); if it turns back before the grant's end, what lies beyond is released
     and the grant ends there. A robot called to a charger in the middle of its patrol's
@@ -132,9 +130,7 @@ def errand_way(st: TrafficState, r: TrackedRobot, target: str) -> list[str] | No
         if (x - r.x) * (x - r.x) + (y - r.y) * (y - r.y) >= stop2:
             break
         k += 1
-    # a robot next in line for a charger drives to it while its robot is still there
-    held = HeldByOthers(st, r.name, target if st.params.next_in_line else None)
-    onc = Oncoming(st, r.name)
+    held, onc = HeldByOthers(st, r.name), Oncoming(st, r.name)
     chosen: tuple[int, list[str]] | None = None
     for j in sorted({min(k, g), g}):
         way = roads.shortest(path[j], target, held, flow=False, avoid_moves=onc)

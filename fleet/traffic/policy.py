@@ -14,7 +14,6 @@ from fleet.errors import ConfigError, DockError, TrafficError
 from fleet.messages import Grant
 from fleet.roadmap.docks import add_docks
 from fleet.roadmap.graph import Roadmap
-from fleet.robots import BatteryModel
 from fleet.traffic.errands import Errands
 from fleet.traffic.manager import TrafficManager
 from fleet.traffic.params import TrafficParams
@@ -59,9 +58,8 @@ class ReservationTraffic:
       :data:`MAX_DEADLOCK_EVENTS`).
 
     ``roadmap`` is the traffic roadmap (with docks, see :func:`traffic_from_config`);
-    ``chargers`` / ``parking`` are its dock node names; ``battery`` the fleet's battery model
-    (:class:`Errands` uses it to queue robots on chargers that free before they arrive).
-    ``deliver`` may be set later (the coordinator sets it when it is ``None``).
+    ``chargers`` / ``parking`` are its dock node names. ``deliver`` may be set later (the
+    coordinator sets it when it is ``None``).
     """
 
     def __init__(
@@ -75,7 +73,6 @@ class ReservationTraffic:
         deadlock_s: float = 30.0,
         park_idle_s: float = 5.0,
         dead_release_s: float = 10.0,
-        battery: BatteryModel | None = None,
     ) -> None:
         self.roadmap = roadmap
         self.manager = TrafficManager(roadmap, params)
@@ -99,14 +96,7 @@ class ReservationTraffic:
         self._dead_since: dict[str, float] = {}
         self._last_dl = -math.inf
         self.errands = Errands(
-            self.manager,
-            roadmap,
-            self._purpose,
-            self._set_path,
-            self.chargers,
-            self.parking,
-            park_idle_s,
-            battery,
+            self.manager, roadmap, self._purpose, self._set_path, self.chargers, self.parking, park_idle_s
         )
         # grants of a later policy (a restarted coordinator) must outrank older ones at the
         # robots: seq counts up from the wall time this policy was made, in microseconds
@@ -321,7 +311,6 @@ def traffic_from_config(config: FleetConfig, deliver: Deliver | None = None) -> 
         deadlock_s=ts.deadlock_s,
         park_idle_s=ts.park_idle_s,
         dead_release_s=ts.dead_release_s,
-        battery=config.sim.battery,
     )
     policy.manager.set_flow(_loop_moves(roadmap, config))
     return policy
