@@ -8,6 +8,12 @@ whom. Deterministic (``--speed 0``), so two code versions compare row by row.
 
     python bench/traffic_time.py configs/warehouse_patrol.yaml --duration 1800
     python bench/traffic_time.py configs/warehouse_patrol.yaml --duration 1800 --no-traffic
+
+``--trips`` also prints every way to a charger the manager plans (``errand_way``): where the
+robot stood, its grant's end, the planned way (m, finishing the grant, with the flow), the
+shortest way ignoring every other robot, the way turning back at the first granted node at
+least ``turn_back_m`` ahead, and what blocked that way (nodes other robots hold, steps other
+robots are about to drive the other way), with a count at the end.
 """
 
 from __future__ import annotations
@@ -27,6 +33,50 @@ from fleet.config.loader import load_config  # noqa: E402
 from fleet.runtime.runner import FleetRunner  # noqa: E402
 
 
+def trace_trips(trips: Counter[str]) -> None:
+    """Wrap the manager's ``errand_way`` to print each way to a charger (see ``--trips``)."""
+    import fleet.traffic.manager as manager_mod
+    from fleet.traffic.paths import HeldByOthers, Oncoming
+
+    plan = manager_mod.errand_way
+
+    def traced(st, r, target):  # type: ignore[no-untyped-def]
+        if not target.startswith("dock:charger:"):
+            return plan(st, r, target)
+        roads, path, cur, g = st.roads, r.path, r.cur, r.g
+        planned = roads.shortest(path[g], target, frozenset())
+        plan_m = r.cum[g] - r.cum[cur] + (roads.cost(planned, flow=False) if planned else float("nan"))
+        straight = roads.shortest(path[cur], target, frozenset(), flow=False)
+        k = cur + 1
+        while k < g and (roads.pos[path[k]][0] - r.x) ** 2 + (roads.pos[path[k]][1] - r.y) ** 2 < (
+            st.params.turn_back_m**2
+        ):
+            k += 1
+        j = min(k, g)
+        back = roads.shortest(path[j], target, frozenset(), flow=False)
+        back_m = r.cum[j] - r.cum[cur] + roads.cost(back, flow=False) if back else float("nan")
+        held, onc = HeldByOthers(st, r.name), Oncoming(st, r.name)
+        why = []
+        if back and any(n in held for n in back):
+            why.append("held")
+        if back and any(m in onc for m in zip(back, back[1:], strict=False)):
+            why.append("oncoming")
+        way = plan(st, r, target)
+        shorter = back_m < plan_m - 1e-6
+        kind = (
+            "turned back" if way is not None else ("blocked: " + "+".join(why) if shorter else "not shorter")
+        )
+        trips[kind] += 1
+        print(
+            f"  trip t={st.now:7.1f} {r.name} at {path[cur]} grant to {path[g]} -> {target[13:]}: "
+            f"planned {plan_m:.1f} m, straight {roads.cost(straight, flow=False) if straight else 0:.1f} m, "
+            f"turning back at {path[j]} {back_m:.1f} m: {kind}"
+        )
+        return way
+
+    manager_mod.errand_way = traced  # type: ignore[assignment]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("config", nargs="?", default=str(ROOT / "configs" / "warehouse_patrol.yaml"))
@@ -34,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-traffic", action="store_true")
     ap.add_argument("--tree", default="patrol", help="patrol, picking or tasks (the config's initial tasks)")
     ap.add_argument("--top", type=int, default=12)
+    ap.add_argument("--trips", action="store_true", help="print every way to a charger the manager plans")
     ap.add_argument("--param", action="append", default=[], help="NAME=VALUE: a TrafficParams field (float)")
     ap.add_argument(
         "--set",
@@ -58,6 +109,9 @@ def main(argv: list[str] | None = None) -> int:
             return TrafficParams(**{**kw, **over})  # type: ignore[arg-type]
 
         policy_mod.TrafficParams = params  # type: ignore[misc,assignment]
+    trip_kinds: Counter[str] = Counter()
+    if a.trips:
+        trace_trips(trip_kinds)
     config = load_config(a.config)
     runner = FleetRunner(
         config,
@@ -164,6 +218,8 @@ def main(argv: list[str] | None = None) -> int:
         )
     print("waited at (robot-s, resource):", at.most_common(a.top))
     print("waited for (robot-s, who -> blocker):", whom.most_common(a.top))
+    if a.trips:
+        print("ways to a charger:", dict(trip_kinds))
     return 0
 
 
