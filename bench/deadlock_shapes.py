@@ -5,7 +5,7 @@ For each new deadlock episode (a wait-for cycle older than ``traffic.deadlock_s`
 report's definition) it prints the time, the cycle's size, each member's purpose (patrol,
 charge, charge-wait, park), the kind of roadmap node it stands on (``aisle`` inside an aisle,
 ``end`` an aisle's end on the north / south corridor, ``side`` the west / east corridor,
-``lane`` the parking lanes, ``dock`` a charger / parking spur, ``via`` a spur's junction) and
+``lane`` the parking lanes, ``dock`` a charger / parking spur, ``via`` a spur's junction, ``cell`` a piece of a cut edge) and
 the node it waits for. At the end: the episodes counted by shape (sorted purposes and node
 kinds), and the flat robots with where and in which mode they fell below 5 %.
 Deterministic (same seed, same run), so two code versions compare episode by episode.
@@ -42,6 +42,8 @@ def kind(node: str) -> str:
         return "dock"
     if node.startswith("via:"):
         return "via"
+    if node.startswith("cell:"):
+        return "cell"
     col, _, sfx = node.partition("_")
     if sfx.startswith("p"):
         return "lane"
@@ -60,6 +62,7 @@ class Watch:
         self.low: dict[str, tuple[float, str, str]] = {}
         self.last = -1.0
         self.waits: Counter[str] = Counter()
+        self.why: Counter[str] = Counter()
         self.trigger: dict[str, tuple[float, float]] = {}  # robot -> (t, battery) it began to charge
 
     def __call__(self, now: float, runner: FleetRunner) -> None:
@@ -98,6 +101,7 @@ class Watch:
                 mine = str(policy.purpose(n) or "none")
                 theirs = ",".join(sorted({str(policy.purpose(b) or "none") for b in r.blockers})) or "-"
                 self.waits[f"{mine:11s} at {kind(r.path[r.cur]):5s} on {theirs}"] += 1
+                self.why[why(st0, r)] += 1
         events = policy.deadlock_events
         if policy.deadlocks <= self.seen:
             return
@@ -132,6 +136,39 @@ class Watch:
             for te, msg in about[-8:]:
                 print(f"      {te:7.1f} {msg}", file=self.out)
             self.out.flush()
+
+
+def why(st: Any, r: Any) -> str:
+    """Which rule holds the waiting robot ``r`` back: the block it asks for (``corridor``: a
+    whole corridor, following refused; ``node``: one node) and how each blocker stands to it
+    (``lead``: drives ``r``'s way ahead of it, with the gap in m; ``cross``: another way;
+    ``claim``: only claims it), the closest blocker deciding."""
+    from fleet.traffic.grants import block
+
+    idx = block(st, r)
+    want = "corridor" if len(idx) > 1 else "node"
+    ahead = r.path[r.cur + 1 : r.cur + 12]
+    best = "none"
+    bestd = 1e9
+    for b in sorted(r.blockers):
+        o = st.robots.get(b)
+        if o is None or not o.path:
+            continue
+        d = ((o.x - r.x) ** 2 + (o.y - r.y) ** 2) ** 0.5
+        held = st.table.holder(r.path[idx[0]]) == b or any(st.table.holder(r.path[j]) == b for j in idx)
+        if not held:
+            rel = "claim"
+        else:
+            onext = o.path[o.cur + 1 : o.cur + 3]
+            here = o.path[o.cur]
+            same = here in ahead and all(n in ahead for n in onext[:1]) and (
+                not onext or ahead.index(onext[0]) > ahead.index(here)
+            )
+            rel = "lead" if same else "cross"
+        if d < bestd:
+            bestd = d
+            best = rel if rel != "lead" else f"lead {min(int(d // 2) * 2, 12):2d}m+"
+    return f"{want:8s} {kind(r.path[r.cur]):5s} {best}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -204,6 +241,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {n:4d}  {shape}")
     print("waiting robot-samples (every 5 s): purpose at node kind on the blockers' purposes")
     for what, n in watch.waits.most_common(15):
+        print(f"  {n:6d}  {what}")
+    print("why (every 5 s): block asked, node kind, the nearest blocker's relation (lead: same way, gap)")
+    for what, n in watch.why.most_common(25):
         print(f"  {n:6d}  {what}")
     print(f"below {LOW:.0%}:")
     for name, (t, mode, where) in sorted(watch.low.items(), key=lambda kv: kv[1][0]):
