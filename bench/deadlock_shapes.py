@@ -63,6 +63,7 @@ class Watch:
         self.last = -1.0
         self.waits: Counter[str] = Counter()
         self.why: Counter[str] = Counter()
+        self.heads: Counter[str] = Counter()
         self.trigger: dict[str, tuple[float, float]] = {}  # robot -> (t, battery) it began to charge
 
     def __call__(self, now: float, runner: FleetRunner) -> None:
@@ -102,6 +103,7 @@ class Watch:
                 theirs = ",".join(sorted({str(policy.purpose(b) or "none") for b in r.blockers})) or "-"
                 self.waits[f"{mine:11s} at {kind(r.path[r.cur]):5s} on {theirs}"] += 1
                 self.why[why(st0, r)] += 1
+                self.heads[head(st0, r)] += 1
         events = policy.deadlock_events
         if policy.deadlocks <= self.seen:
             return
@@ -161,14 +163,46 @@ def why(st: Any, r: Any) -> str:
         else:
             onext = o.path[o.cur + 1 : o.cur + 3]
             here = o.path[o.cur]
-            same = here in ahead and all(n in ahead for n in onext[:1]) and (
-                not onext or ahead.index(onext[0]) > ahead.index(here)
+            same = (
+                here in ahead
+                and all(n in ahead for n in onext[:1])
+                and (not onext or ahead.index(onext[0]) > ahead.index(here))
             )
             rel = "lead" if same else "cross"
         if d < bestd:
             bestd = d
             best = rel if rel != "lead" else f"lead {min(int(d // 2) * 2, 12):2d}m+"
     return f"{want:8s} {kind(r.path[r.cur]):5s} {best}"
+
+
+def head(st: Any, r: Any) -> str:
+    """What the queue ``r`` waits in waits for: follow each waiting robot's nearest blocker
+    to the first one that is not waiting (``moving``: the queue drains) or round a cycle;
+    that robot's :func:`why` (or ``moving``), with ``purpose`` of the head."""
+    seen = {r.name}
+    cur = r
+    for _ in range(50):
+        if not cur.blockers:
+            break
+        nxt = min(
+            (st.robots[b] for b in cur.blockers if b in st.robots),
+            key=lambda o: (o.x - cur.x) ** 2 + (o.y - cur.y) ** 2,
+            default=None,
+        )
+        if nxt is None:
+            break
+        if nxt.name in seen:
+            return "cycle"
+        seen.add(nxt.name)
+        if nxt.wait_since is None:
+            return f"moving head: {why(st, cur)}"
+        cur = nxt
+    return f"waiting head: {why(st, cur)}"
+
+
+def _num(v: str) -> float | None:
+    """A float, or ``None`` for ``none`` (e.g. ``--traffic cell_m=none``: edges not cut)."""
+    return None if v.lower() == "none" else float(v)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -185,7 +219,10 @@ def main(argv: list[str] | None = None) -> int:
         help="MODULE.NAME=VALUE: a module constant (float), e.g. fleet.traffic.errands.CHARGE_REACH_M=60",
     )
     ap.add_argument(
-        "--traffic", action="append", default=[], help="NAME=VALUE: a field of the config's traffic section"
+        "--traffic",
+        action="append",
+        default=[],
+        help="NAME=VALUE: a field of the config's traffic section (none: None)",
     )
     ap.add_argument(
         "--battery", action="append", default=[], help="NAME=VALUE: a field of the config's battery model"
@@ -198,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         import fleet.traffic.policy as policy_mod
         from fleet.traffic.params import TrafficParams
 
-        pover = {k: float(v) for k, v in (p.split("=", 1) for p in a.param)}
+        pover = {k: _num(v) for k, v in (p.split("=", 1) for p in a.param)}
 
         def params(**kw: Any) -> TrafficParams:
             return TrafficParams(**{**kw, **pover})
@@ -217,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
 
     FleetRunner.run = run_watched  # type: ignore[method-assign]
     t0 = time.monotonic()
-    over = {k: float(v) for k, v in (t.split("=", 1) for t in a.traffic)}
+    over = {k: _num(v) for k, v in (t.split("=", 1) for t in a.traffic)}
 
     bover = {k: float(v) for k, v in (t.split("=", 1) for t in a.battery)}
 
@@ -244,6 +281,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {n:6d}  {what}")
     print("why (every 5 s): block asked, node kind, the nearest blocker's relation (lead: same way, gap)")
     for what, n in watch.why.most_common(25):
+        print(f"  {n:6d}  {what}")
+    print("queue heads (every 5 s): what the robot a waiting robot's queue starts at waits for")
+    for what, n in watch.heads.most_common(20):
         print(f"  {n:6d}  {what}")
     print(f"below {LOW:.0%}:")
     for name, (t, mode, where) in sorted(watch.low.items(), key=lambda kv: kv[1][0]):

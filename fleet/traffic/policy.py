@@ -285,6 +285,7 @@ def traffic_from_config(config: FleetConfig, deliver: Deliver | None = None) -> 
         robot_radius=config.sim.model.radius,
         horizon_m=ts.horizon_m,
         stall_timeout_s=ts.stall_timeout_s,
+        cell_m=ts.cell_m,
     )
     docks: list[tuple[str, Pose2D]] = [(f"charger:{c.name}", c.pose) for c in config.chargers]
     docks += [(f"park:{i}", p) for i, p in enumerate(config.parking)]

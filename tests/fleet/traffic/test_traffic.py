@@ -346,10 +346,27 @@ def _bays(cell_m: float | None) -> Roadmap:
     """A single-lane corridor w - c1 - c2 - c3 - e of 5 m bays with a bay at each end (ws,
     et), cut into cells of at most ``cell_m`` (``None``: not cut)."""
     g = roadmap_of(
-        {"s0": (-5, 0), "w": (0, 0), "ws": (0, 2), "c1": (5, 0), "c2": (10, 0), "c3": (15, 0),
-         "e": (20, 0), "et": (20, 2), "f": (25, 0)},
-        [("s0", "w"), ("w", "ws"), ("w", "c1"), ("c1", "c2"), ("c2", "c3"), ("c3", "e"),
-         ("e", "et"), ("e", "f")],
+        {
+            "s0": (-5, 0),
+            "w": (0, 0),
+            "ws": (0, 2),
+            "c1": (5, 0),
+            "c2": (10, 0),
+            "c3": (15, 0),
+            "e": (20, 0),
+            "et": (20, 2),
+            "f": (25, 0),
+        },
+        [
+            ("s0", "w"),
+            ("w", "ws"),
+            ("w", "c1"),
+            ("c1", "c2"),
+            ("c2", "c3"),
+            ("c3", "e"),
+            ("e", "et"),
+            ("e", "f"),
+        ],
     ).graph
     return Roadmap.from_graph(split_cells(g, cell_m, 0.9) if cell_m is not None else g)
 
