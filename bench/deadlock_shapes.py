@@ -216,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
         "--set",
         action="append",
         default=[],
-        help="MODULE.NAME=VALUE: a module constant (float), e.g. fleet.traffic.errands.CHARGE_REACH_M=60",
+        help="MODULE.NAME=VALUE: a module constant (int if all digits, else float), e.g. fleet.traffic.errands.CHARGE_REACH_M=60",
     )
     ap.add_argument(
         "--traffic",
@@ -244,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
     for item in a.set:
         target, value = item.split("=", 1)
         mod, _, const = target.rpartition(".")
-        setattr(importlib.import_module(mod), const, float(value))
+        setattr(importlib.import_module(mod), const, int(value) if value.isdigit() else float(value))
     watch = Watch(sys.stdout)
     run = FleetRunner.run
 
