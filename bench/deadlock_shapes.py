@@ -5,7 +5,7 @@ For each new deadlock episode (a wait-for cycle older than ``traffic.deadlock_s`
 report's definition) it prints the time, the cycle's size, each member's purpose (patrol,
 charge, charge-wait, park), the kind of roadmap node it stands on (``aisle`` inside an aisle,
 ``end`` an aisle's end on the north / south corridor, ``side`` the west / east corridor,
-``lane`` the parking lanes, ``dock`` a charger / parking spur, ``via`` a spur's junction) and
+``lane`` the parking lanes, ``dock`` a charger / parking spur, ``via`` a spur's junction, ``cell`` a piece of a cut edge) and
 the node it waits for. At the end: the episodes counted by shape (sorted purposes and node
 kinds), and the flat robots with where and in which mode they fell below 5 %.
 Deterministic (same seed, same run), so two code versions compare episode by episode.
@@ -42,6 +42,8 @@ def kind(node: str) -> str:
         return "dock"
     if node.startswith("via:"):
         return "via"
+    if node.startswith("cell:"):
+        return "cell"
     col, _, sfx = node.partition("_")
     if sfx.startswith("p"):
         return "lane"
@@ -60,6 +62,8 @@ class Watch:
         self.low: dict[str, tuple[float, str, str]] = {}
         self.last = -1.0
         self.waits: Counter[str] = Counter()
+        self.why: Counter[str] = Counter()
+        self.heads: Counter[str] = Counter()
         self.trigger: dict[str, tuple[float, float]] = {}  # robot -> (t, battery) it began to charge
 
     def __call__(self, now: float, runner: FleetRunner) -> None:
@@ -98,6 +102,8 @@ class Watch:
                 mine = str(policy.purpose(n) or "none")
                 theirs = ",".join(sorted({str(policy.purpose(b) or "none") for b in r.blockers})) or "-"
                 self.waits[f"{mine:11s} at {kind(r.path[r.cur]):5s} on {theirs}"] += 1
+                self.why[why(st0, r)] += 1
+                self.heads[head(st0, r)] += 1
         events = policy.deadlock_events
         if policy.deadlocks <= self.seen:
             return
@@ -134,6 +140,71 @@ class Watch:
             self.out.flush()
 
 
+def why(st: Any, r: Any) -> str:
+    """Which rule holds the waiting robot ``r`` back: the block it asks for (``corridor``: a
+    whole corridor, following refused; ``node``: one node) and how each blocker stands to it
+    (``lead``: drives ``r``'s way ahead of it, with the gap in m; ``cross``: another way;
+    ``claim``: only claims it), the closest blocker deciding."""
+    from fleet.traffic.grants import block
+
+    idx = block(st, r)
+    want = "corridor" if len(idx) > 1 else "node"
+    ahead = r.path[r.cur + 1 : r.cur + 12]
+    best = "none"
+    bestd = 1e9
+    for b in sorted(r.blockers):
+        o = st.robots.get(b)
+        if o is None or not o.path:
+            continue
+        d = ((o.x - r.x) ** 2 + (o.y - r.y) ** 2) ** 0.5
+        held = st.table.holder(r.path[idx[0]]) == b or any(st.table.holder(r.path[j]) == b for j in idx)
+        if not held:
+            rel = "claim"
+        else:
+            onext = o.path[o.cur + 1 : o.cur + 3]
+            here = o.path[o.cur]
+            same = (
+                here in ahead
+                and all(n in ahead for n in onext[:1])
+                and (not onext or ahead.index(onext[0]) > ahead.index(here))
+            )
+            rel = "lead" if same else "cross"
+        if d < bestd:
+            bestd = d
+            best = rel if rel != "lead" else f"lead {min(int(d // 2) * 2, 12):2d}m+"
+    return f"{want:8s} {kind(r.path[r.cur]):5s} {best}"
+
+
+def head(st: Any, r: Any) -> str:
+    """What the queue ``r`` waits in waits for: follow each waiting robot's nearest blocker
+    to the first one that is not waiting (``moving``: the queue drains) or round a cycle;
+    that robot's :func:`why` (or ``moving``), with ``purpose`` of the head."""
+    seen = {r.name}
+    cur = r
+    for _ in range(50):
+        if not cur.blockers:
+            break
+        nxt = min(
+            (st.robots[b] for b in cur.blockers if b in st.robots),
+            key=lambda o: (o.x - cur.x) ** 2 + (o.y - cur.y) ** 2,
+            default=None,
+        )
+        if nxt is None:
+            break
+        if nxt.name in seen:
+            return "cycle"
+        seen.add(nxt.name)
+        if nxt.wait_since is None:
+            return f"moving head: {why(st, cur)}"
+        cur = nxt
+    return f"waiting head: {why(st, cur)}"
+
+
+def _num(v: str) -> float | None:
+    """A float, or ``None`` for ``none`` (e.g. ``--traffic cell_m=none``: edges not cut)."""
+    return None if v.lower() == "none" else float(v)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--robots", type=int, default=100)
@@ -145,10 +216,13 @@ def main(argv: list[str] | None = None) -> int:
         "--set",
         action="append",
         default=[],
-        help="MODULE.NAME=VALUE: a module constant (float), e.g. fleet.traffic.errands.CHARGE_REACH_M=60",
+        help="MODULE.NAME=VALUE: a module constant (int if all digits, else float), e.g. fleet.traffic.errands.CHARGE_REACH_M=60",
     )
     ap.add_argument(
-        "--traffic", action="append", default=[], help="NAME=VALUE: a field of the config's traffic section"
+        "--traffic",
+        action="append",
+        default=[],
+        help="NAME=VALUE: a field of the config's traffic section (none: None)",
     )
     ap.add_argument(
         "--battery", action="append", default=[], help="NAME=VALUE: a field of the config's battery model"
@@ -161,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         import fleet.traffic.policy as policy_mod
         from fleet.traffic.params import TrafficParams
 
-        pover = {k: float(v) for k, v in (p.split("=", 1) for p in a.param)}
+        pover = {k: _num(v) for k, v in (p.split("=", 1) for p in a.param)}
 
         def params(**kw: Any) -> TrafficParams:
             return TrafficParams(**{**kw, **pover})
@@ -170,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
     for item in a.set:
         target, value = item.split("=", 1)
         mod, _, const = target.rpartition(".")
-        setattr(importlib.import_module(mod), const, float(value))
+        setattr(importlib.import_module(mod), const, int(value) if value.isdigit() else float(value))
     watch = Watch(sys.stdout)
     run = FleetRunner.run
 
@@ -180,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
 
     FleetRunner.run = run_watched  # type: ignore[method-assign]
     t0 = time.monotonic()
-    over = {k: float(v) for k, v in (t.split("=", 1) for t in a.traffic)}
+    over = {k: _num(v) for k, v in (t.split("=", 1) for t in a.traffic)}
 
     bover = {k: float(v) for k, v in (t.split("=", 1) for t in a.battery)}
 
@@ -204,6 +278,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {n:4d}  {shape}")
     print("waiting robot-samples (every 5 s): purpose at node kind on the blockers' purposes")
     for what, n in watch.waits.most_common(15):
+        print(f"  {n:6d}  {what}")
+    print("why (every 5 s): block asked, node kind, the nearest blocker's relation (lead: same way, gap)")
+    for what, n in watch.why.most_common(25):
+        print(f"  {n:6d}  {what}")
+    print("queue heads (every 5 s): what the robot a waiting robot's queue starts at waits for")
+    for what, n in watch.heads.most_common(20):
         print(f"  {n:6d}  {what}")
     print(f"below {LOW:.0%}:")
     for name, (t, mode, where) in sorted(watch.low.items(), key=lambda kv: kv[1][0]):

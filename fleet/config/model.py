@@ -73,7 +73,9 @@ class TrafficSettings:
     ``horizon_m``: how much path ahead a robot is granted; ``stall_timeout_s``: a robot with
     a grant ahead that makes no progress this long is treated as stopped (its reservations
     ahead are released); ``dead_release_s``: a robot whose agent or bus link died keeps its
-    whole grant this long, then only the node it stands on."""
+    whole grant this long, then only the node it stands on; ``cell_m``: roadmap edges longer
+    than this are cut into cells for the traffic manager, so robots driving the same way
+    follow each other closely (``None``: not cut; ``TrafficParams.cell_m``)."""
 
     enabled: bool = True
     deadlock_s: float = 30.0
@@ -81,6 +83,7 @@ class TrafficSettings:
     horizon_m: float = 6.0
     stall_timeout_s: float = 20.0
     dead_release_s: float = 10.0
+    cell_m: float | None = 1.5
 
 
 #: Wall seconds an agent may be without its bus link (its Zenoh router) before its

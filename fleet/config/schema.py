@@ -250,6 +250,11 @@ class TrafficSection(Section):
         default=_TRAFFIC.dead_release_s,
         description="a robot whose agent died keeps its grant this long, then only its node (s)",
     )
+    cell_m: Annotated[float, Bounds(gt=0, le=1000)] | None = Field(
+        default=_TRAFFIC.cell_m,
+        description="roadmap edges longer than this are cut into cells so same-way robots follow closely (m); "
+        "null: not cut",
+    )
 
     def to_settings(self) -> TrafficSettings:
         return TrafficSettings(**self.model_dump())

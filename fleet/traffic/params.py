@@ -51,6 +51,11 @@ class TrafficParams:
     of the shorter grant. ``dead_wait_s``: a robot with a detour limit
     (:meth:`TrafficManager.set_detour_limit`) blocked by a dead robot waits this long for it
     (a restarted agent is back within seconds) before it is rerouted around it.
+    ``cell_m`` (``None`` = off): :func:`~fleet.traffic.policy.traffic_from_config` cuts every
+    straight roadmap edge longer than this into pieces of at most ``cell_m`` (never shorter
+    than ``clearance``; :func:`fleet.roadmap.cells.split_cells`), so a robot following
+    another one the same way along an aisle closes up to about a cell behind it instead of
+    a whole shelf bay.
     """
 
     robot_radius: float = 0.3
@@ -78,6 +83,7 @@ class TrafficParams:
     turn_back: bool = True
     turn_back_m: float = 1.5
     dead_wait_s: float = 30.0
+    cell_m: float | None = None
 
     @property
     def clearance(self) -> float:

@@ -12,6 +12,7 @@ import msgspec
 
 from fleet.errors import ConfigError, DockError, TrafficError
 from fleet.messages import Grant
+from fleet.roadmap.cells import split_cells
 from fleet.roadmap.docks import add_docks
 from fleet.roadmap.graph import Roadmap
 from fleet.traffic.errands import Errands
@@ -284,6 +285,7 @@ def traffic_from_config(config: FleetConfig, deliver: Deliver | None = None) -> 
         robot_radius=config.sim.model.radius,
         horizon_m=ts.horizon_m,
         stall_timeout_s=ts.stall_timeout_s,
+        cell_m=ts.cell_m,
     )
     docks: list[tuple[str, Pose2D]] = [(f"charger:{c.name}", c.pose) for c in config.chargers]
     docks += [(f"park:{i}", p) for i, p in enumerate(config.parking)]
@@ -294,6 +296,8 @@ def traffic_from_config(config: FleetConfig, deliver: Deliver | None = None) -> 
         )
     except DockError as e:
         raise ConfigError(str(config.path), "traffic", str(e)) from None
+    if params.cell_m is not None:
+        g = split_cells(g, params.cell_m, params.clearance)
     chargers = [node_of[f"charger:{c.name}"] for c in config.chargers]
     # idle robots park only on docks (a start pose on a roadmap node is no parking spot)
     parking = [

@@ -3,6 +3,7 @@ the direction of the patrol loops (``TrafficParams.flow_penalty``)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -49,7 +50,8 @@ def test_a_shipped_config_gives_its_patrol_loops_direction() -> None:
 def _aisle_robot() -> tuple[Any, str]:
     """The 6-robot warehouse's traffic policy with robot ``r1`` driving north in aisle 3 of
     the ``aisles_3_4`` loop (clockwise: north in aisle 3, south in aisle 4), 1 m past
-    ``a3_1``; and the charger west of aisle 3's south end."""
+    ``a3_1``; and the charger west of aisle 3's south end. The roadmap is not cut into cells
+    (``traffic.cell_m``), so the paths below name the warehouse's own nodes."""
     from pathlib import Path
 
     from fleet.config.loader import load_config
@@ -57,7 +59,10 @@ def _aisle_robot() -> tuple[Any, str]:
     from fleet.types import Pose2D
 
     root = Path(__file__).resolve().parents[3]
-    policy = traffic_from_config(load_config(root / "configs" / "warehouse_patrol.yaml"))
+    config = load_config(root / "configs" / "warehouse_patrol.yaml")
+    # the roadmap's own nodes (not cut into cells): the turn-back rule node by node
+    config.traffic = dataclasses.replace(config.traffic, cell_m=None)
+    policy = traffic_from_config(config)
     m = policy.manager
     m.add_robot("r1", Pose2D(12.0, 9.0, math.pi / 2), 0.0)
     m.set_path(

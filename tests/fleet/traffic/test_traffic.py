@@ -17,6 +17,7 @@ from fleet.clock import SimClock
 from fleet.errors import TrafficError
 from fleet.maps import OCCUPIED, OccupancyGrid
 from fleet.messages import Grant
+from fleet.roadmap.cells import split_cells
 from fleet.roadmap.graph import Roadmap
 from fleet.robots import BatteryModel, RobotSpec, SimParams
 from fleet.traffic.follower import TrafficFollower
@@ -338,6 +339,84 @@ def test_same_direction_robots_follow_into_a_corridor_opposite_ones_wait() -> No
     tm.set_path("C", ["t", "d", "c2", "c1", "b", "a"], 1.0)
     tm.cycle(1.5)
     assert tm.holder("c2") != "C" and tm.holder("c1") != "C"
+    tm.check()
+
+
+def _bays(cell_m: float | None) -> Roadmap:
+    """A single-lane corridor w - c1 - c2 - c3 - e of 5 m bays with a bay at each end (ws,
+    et), cut into cells of at most ``cell_m`` (``None``: not cut)."""
+    g = roadmap_of(
+        {
+            "s0": (-5, 0),
+            "w": (0, 0),
+            "ws": (0, 2),
+            "c1": (5, 0),
+            "c2": (10, 0),
+            "c3": (15, 0),
+            "e": (20, 0),
+            "et": (20, 2),
+            "f": (25, 0),
+        },
+        [
+            ("s0", "w"),
+            ("w", "ws"),
+            ("w", "c1"),
+            ("c1", "c2"),
+            ("c2", "c3"),
+            ("c3", "e"),
+            ("e", "et"),
+            ("e", "f"),
+        ],
+    ).graph
+    return Roadmap.from_graph(split_cells(g, cell_m, 0.9) if cell_m is not None else g)
+
+
+def _follow_gap(cell_m: float | None) -> tuple[float, float, World]:
+    """A drives through the corridor of :func:`_bays` towards the bay et, where D stands
+    idle (A waits at e); B drives the same way behind A. The closest the two came and
+    their gap at the end (m), and the world."""
+    rm = _bays(cell_m)
+    world = make_world(rm, {"/A": "c1", "/B": "s0", "/D": "et"}, TrafficParams(cell_m=cell_m))
+    world.tm.set_path("/A", rm.shortest_path("c1", "et"), 0.0)
+    world.tm.set_path("/B", rm.shortest_path("s0", "f"), 0.0)
+    closest = math.inf
+
+    def closer() -> bool:
+        nonlocal closest
+        a, b = world.sim.robot_state("/A").pose, world.sim.robot_state("/B").pose
+        assert a is not None and b is not None
+        closest = min(closest, a.distance_to(b))
+        return False
+
+    world.run(40.0, until=closer, check=True)
+    a, b = world.sim.robot_state("/A").pose, world.sim.robot_state("/B").pose
+    assert a is not None and b is not None
+    return closest, a.distance_to(b), world
+
+
+def test_with_cells_a_follower_closes_up_and_an_oncoming_robot_still_waits() -> None:
+    """``TrafficParams.cell_m``: with the corridor cut into cells, a robot following another
+    one the same way stops about a cell behind it, not a whole 5 m bay, and they never
+    touch; a robot coming the other way still waits for the whole corridor."""
+    closest, gap, world = _follow_gap(None)
+    assert gap > 4.5 and world.sim.collisions == 0  # node by node: a whole bay behind A
+    closest, gap, world = _follow_gap(1.5)
+    assert at(world, "/A", "e")  # A waits at e for D
+    assert 2 * 0.3 < closest and gap < 2.2  # B closed up to within about a cell
+    assert world.sim.collisions == 0
+    # the other way: A in the cut corridor drives east, C at the far end wants to go west
+    # through it: C takes none of the corridor while A is in it
+    rm = _bays(1.5)
+    tm = TrafficManager(rm, TrafficParams(cell_m=1.5))
+    tm.add_robot("A", Pose2D(10, 0), 0.0)
+    tm.add_robot("C", Pose2D(20, 2), 0.0)
+    tm.set_path("A", rm.shortest_path("c2", "f"), 0.0)
+    tm.set_path("C", rm.shortest_path("et", "s0"), 0.0)
+    tm.cycle(0.0)
+    tm.cycle(0.5)
+    inside = [n for n in tm.path("C") if 0 < tm.node_pos(n)[0] < 20 and tm.node_pos(n)[1] == 0]
+    assert len(inside) > 10 and not any(tm.holder(n) == "C" for n in inside)
+    assert tm.holder("cell:11.25,0.00") == "A"
     tm.check()
 
 
