@@ -50,8 +50,7 @@ CHARGE_REACH_M = 30.0
 #: reach without passing them (two robots head-on in a corridor, each heading for a charger
 #: behind the other, swap chargers instead of waiting for a step-aside that has no room).
 RETARGET_AFTER_S = 10.0
-#: ... within this much driving (m) of where it stands.
-RETARGET_REACH_M = 60.0
+#: ... within ``TrafficParams.retarget_reach_m`` of driving (m) of where it stands.
 
 #: A robot that needs a charger takes a detour around a dead robot (an agent being restarted,
 #: usually back within seconds) only if it is at most this much (m) longer than its way; else
@@ -126,6 +125,8 @@ class Errands:
             elif purpose is Purpose.PARK:
                 self._go(name, self._free_dock(name, self.parking), Purpose.PARK)
                 return
+        if target is not None and purpose is Purpose.CHARGE and self._charge_here(name, target):
+            return
         if target is not None and purpose in (Purpose.CHARGE, Purpose.CHARGE_WAIT, Purpose.PARK):
             path = self.manager.path(name)
             if path and path[-1] != target:
@@ -167,6 +168,23 @@ class Errands:
             if self._top_up(name, float(obs.battery)) or here in self._parking_set:
                 return
         self._go(name, self._free_dock(name, self.parking), Purpose.PARK)
+
+    def _charge_here(self, name: str, target: str) -> bool:
+        """With ``TrafficParams.charge_where_stepped``: ``name``, on its way to the charger
+        ``target``, stands on another charger dock (stepped aside or nudged there) that
+        nobody else holds or heads for: that dock becomes its charger (it stops there) and
+        ``target`` is freed for others. Whether it did."""
+        m = self.manager
+        if not m.params.charge_where_stepped:
+            return False
+        path = m.path(name)
+        here = path[0] if path else None
+        if here is None or here == target or here not in self._charger_set:
+            return False
+        if m.holder(here) not in (None, name) or any(n == here for r, n in self._target.items() if r != name):
+            return False
+        self._go(name, here, Purpose.CHARGE)
+        return True
 
     def _top_up(self, name: str, battery: float) -> bool:
         """Send the idle ``name`` to wait on a free charger (charging there) when its battery
@@ -231,8 +249,10 @@ class Errands:
 
     def _retarget(self, name: str, purpose: Purpose) -> None:
         """Send ``name`` to the nearest free dock of its errand's kind (chargers for
-        :attr:`Purpose.CHARGE`, else parking) that it reaches within :data:`RETARGET_REACH_M`
-        without entering a node its blockers hold; its current target counts too."""
+        :attr:`Purpose.CHARGE`, else parking) that it reaches within ``TrafficParams.retarget_reach_m``
+        without entering a node its blockers hold; its current target counts too. With
+        ``TrafficParams.retarget_shorter`` only a way shorter than the rest of its current
+        path is taken (else it waits where it is)."""
         m = self.manager
         path = m.path(name)
         if not path:
@@ -244,7 +264,8 @@ class Errands:
         def weight(u: str, v: str, d: dict[str, float]) -> float | None:
             return None if v in avoid else float(d.get("length", 1.0))
 
-        found = nx.single_source_dijkstra(self.roadmap.graph, here, cutoff=RETARGET_REACH_M, weight=weight)
+        reach = m.params.retarget_reach_m
+        found = nx.single_source_dijkstra(self.roadmap.graph, here, cutoff=reach, weight=weight)
         dist, paths = cast("tuple[dict[str, float], dict[str, list[str]]]", found)
         docks = self.chargers if purpose is Purpose.CHARGE else self.parking
         taken = {n for r, n in self._target.items() if r != name}
@@ -252,8 +273,16 @@ class Errands:
         if not free:
             return
         best = min(free, key=lambda d: (dist[d], d))
+        if m.params.retarget_shorter and dist[best] >= self._way_left(name) - 1e-9:
+            return  # no way round the blockers shorter than the one it waits on: it waits
         self._target[name] = best
         self.drive(name, [str(n) for n in paths[best]], purpose)
+
+    def _way_left(self, name: str) -> float:
+        """Length (m) of ``name``'s path from the node it last reached to its end."""
+        path = self.manager.path(name)
+        g = self.roadmap.graph
+        return sum(float(g.edges[u, v].get("length", 1.0)) for u, v in zip(path, path[1:], strict=False))
 
     def _cost(self, robot: str, node: str) -> float:
         """Roadmap cost (m, with the flow) from where ``robot`` stands to ``node`` (a search

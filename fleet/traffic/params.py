@@ -51,6 +51,17 @@ class TrafficParams:
     of the shorter grant. ``dead_wait_s``: a robot with a detour limit
     (:meth:`TrafficManager.set_detour_limit`) blocked by a dead robot waits this long for it
     (a restarted agent is back within seconds) before it is rerouted around it.
+
+    Charging errands (:class:`fleet.traffic.errands.Errands`): ``charge_where_stepped``: a
+    robot on its way to a charger that was stepped aside (or nudged) onto a free charger
+    dock charges there instead of driving on to the charger it was sent to (a charging robot
+    driving against the flow was stepped aside again and again and ran flat beside free
+    chargers). ``retarget_reach_m``: a robot on a dock errand blocked on the same robots for
+    :data:`~fleet.traffic.errands.RETARGET_AFTER_S` takes another dock only if it reaches it
+    within this much driving (m); farther, it waits (retargets to chargers up to 60 m away
+    sent robots in aisles round long detours, from one blocked way into the next).
+    ``retarget_shorter``: ... and only if that way is shorter than the rest of the path it
+    waits on.
     """
 
     robot_radius: float = 0.3
@@ -78,6 +89,9 @@ class TrafficParams:
     turn_back: bool = True
     turn_back_m: float = 1.5
     dead_wait_s: float = 30.0
+    charge_where_stepped: bool = True
+    retarget_reach_m: float = 20.0
+    retarget_shorter: bool = False
 
     @property
     def clearance(self) -> float:
