@@ -29,6 +29,7 @@ from fleet.types import Mode
 
 if TYPE_CHECKING:
     from fleet.roadmap.graph import Roadmap
+    from fleet.robots import BatteryModel
 
 #: An idle robot below this battery fraction waits on a free charger instead of a parking spot
 #: (it charges while it waits for work), so idle robots do not all run low together.
@@ -68,7 +69,9 @@ class Errands:
     ``manager``: the policy's traffic manager; ``roadmap``: its roadmap (with docks, edge
     attribute ``length`` in m); ``purposes``: the policy's purpose per robot (shared:
     errands set and drop ``CHARGE``, ``CHARGE_WAIT`` and ``PARK``); ``drive``: the policy's
-    way to give a robot a path; ``chargers`` / ``parking``: dock node names.
+    way to give a robot a path; ``chargers`` / ``parking``: dock node names; ``battery``:
+    the fleet's battery model (for ``TrafficParams.charge_margin_priority``; without it
+    robots are ranked by battery alone).
     """
 
     def __init__(
@@ -80,8 +83,10 @@ class Errands:
         chargers: Sequence[str],
         parking: Sequence[str],
         park_idle_s: float,
+        battery: BatteryModel | None = None,
     ) -> None:
         self.manager = manager
+        self.battery = battery
         self.roadmap = roadmap
         self.purposes = purposes
         self.drive = drive
@@ -137,6 +142,10 @@ class Errands:
                 self._retarget(name, purpose)
         if mode == Mode.CHARGING:
             self._idle_since.pop(name, None)
+            if purpose is Purpose.CHARGE and self._by_margin():
+                assert obs is not None
+                margin = float(obs.battery) - self._need(self._way_left(name))
+                self.manager.set_priority(name, CHARGE_PRIORITY * (2.0 - margin))
             if purpose is not Purpose.CHARGE:
                 assert obs is not None
                 requests.append((float(obs.battery), name))
@@ -205,13 +214,20 @@ class Errands:
         return True
 
     def serve_chargers(self, requests: list[tuple[float, str]]) -> None:
-        """Free chargers go to the robots with the lowest battery first; the others wait on a
+        """Free chargers go to the robots with the lowest battery first (with
+        ``TrafficParams.charge_margin_priority``: the least battery left once at the nearest
+        charger); the others wait on a
         free parking dock near the chargers (once; they stay there until a charger frees).
         Called once per cycle, after :meth:`step` of every robot."""
         self._wanted, self._wanting = self._wanting, 0
         if not requests:
             return
-        for battery, name in sorted(requests):
+        if self._by_margin():  # least energy left once at its nearest charger first
+            to = self._to_charger()
+            ranked = sorted((b - self._need(to.get(self._here(n), 0.0)), n) for b, n in requests)
+        else:
+            ranked = sorted(requests)
+        for battery, name in ranked:
             # a robot short of energy goes first at intersections and is never the one to yield,
             # and does not drive far round a dead robot
             self.manager.set_priority(name, CHARGE_PRIORITY * (2.0 - battery))
@@ -277,6 +293,22 @@ class Errands:
             return  # no way round the blockers shorter than the one it waits on: it waits
         self._target[name] = best
         self.drive(name, [str(n) for n in paths[best]], purpose)
+
+    def _by_margin(self) -> bool:
+        return self.battery is not None and self.manager.params.charge_margin_priority
+
+    def _need(self, meters: float) -> float:
+        """Battery fraction a robot uses driving ``meters`` of roadmap (the battery model's
+        drive part of :meth:`BatteryModel.charge_threshold`, no waiting, no margin)."""
+        b = self.battery
+        if b is None:
+            return 0.0
+        d = max(0.0, meters) * b.detour
+        return b.drain_per_m * d + b.drain_per_s * d / b.cruise_mps
+
+    def _here(self, name: str) -> str:
+        path = self.manager.path(name)
+        return path[0] if path else ""
 
     def _way_left(self, name: str) -> float:
         """Length (m) of ``name``'s path from the node it last reached to its end."""

@@ -61,7 +61,10 @@ class TrafficParams:
     within this much driving (m); farther, it waits (retargets to chargers up to 60 m away
     sent robots in aisles round long detours, from one blocked way into the next).
     ``retarget_shorter``: ... and only if that way is shorter than the rest of the path it
-    waits on.
+    waits on. ``charge_margin_priority``: robots that need a charger are ranked (for free
+    chargers, and as base priority at intersections, renewed every cycle on the way) by
+    their energy margin, battery minus the energy to drive to the charger, instead of by
+    the battery they had when they asked (needs the policy's battery model).
     """
 
     robot_radius: float = 0.3
@@ -92,6 +95,7 @@ class TrafficParams:
     charge_where_stepped: bool = True
     retarget_reach_m: float = 20.0
     retarget_shorter: bool = False
+    charge_margin_priority: bool = False
 
     @property
     def clearance(self) -> float:

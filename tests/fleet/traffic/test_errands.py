@@ -224,3 +224,32 @@ def test_a_blocked_robot_takes_another_dock_only_by_a_shorter_way_when_asked() -
     tm, _, purposes = _head_on_at_c2(retarget_shorter=True)
     # ce is no nearer than cw: R keeps its charger and waits (B is resolved by the manager)
     assert tm.path("R")[-1] == "cw" and purposes["R"] is Purpose.CHARGE
+
+
+def test_the_robot_with_the_least_energy_margin_gets_the_free_charger_first() -> None:
+    from fleet.robots import BatteryModel
+
+    rm = corridor()
+
+    def first_served(by_margin: bool) -> str:
+        tm = TrafficManager(rm, TrafficParams(charge_margin_priority=by_margin))
+        for name, node in {"N": "w", "F": "c3", "Z": "ce"}.items():
+            tm.add_robot(name, Pose2D(*rm.pos(node)), 0.0)
+        purposes: dict[str, Purpose] = {}
+
+        def drive(robot: str, nodes: list[str], purpose: Purpose) -> None:
+            tm.set_path(robot, nodes, 0.0)
+            purposes[robot] = purpose
+
+        er = Errands(tm, rm, purposes, drive, ["cw", "ce"], ["bay"], 5.0, BatteryModel())
+        requests: list[tuple[float, str]] = []
+        # Z stands on ce: cw is the only free charger. N (20 %) stands beside it; F (22 %)
+        # is 31 m from it, about 18 % of battery away: F has the least margin
+        er.step("N", charging(rm, "w", battery=0.20), 0.0, requests)
+        er.step("F", charging(rm, "c3", battery=0.22), 0.0, requests)
+        er.serve_chargers(requests)
+        assert purposes["N"] is not purposes["F"]
+        return "N" if purposes["N"] is Purpose.CHARGE else "F"
+
+    assert first_served(by_margin=False) == "N"  # lowest battery first
+    assert first_served(by_margin=True) == "F"
