@@ -52,14 +52,17 @@ class TrafficParams:
     (:meth:`TrafficManager.set_detour_limit`) blocked by a dead robot waits this long for it
     (a restarted agent is back within seconds) before it is rerouted around it.
 
-    Charging errands (:class:`fleet.traffic.errands.Errands`): ``charge_where_stepped``: a
+    Charging errands (:class:`fleet.traffic.errands.Errands`; the defaults keep the
+    behaviour measured on the shipped configs, ``docs/performance.md``, "Charging trips at
+    100 robots", has what each switch does): ``charge_where_stepped``: a
     robot on its way to a charger that was stepped aside (or nudged) onto a free charger
     dock charges there instead of driving on to the charger it was sent to (a charging robot
     driving against the flow was stepped aside again and again and ran flat beside free
     chargers). ``retarget_reach_m``: a robot on a dock errand blocked on the same robots for
     :data:`~fleet.traffic.errands.RETARGET_AFTER_S` takes another dock only if it reaches it
-    within this much driving (m); farther, it waits (retargets to chargers up to 60 m away
-    sent robots in aisles round long detours, from one blocked way into the next).
+    within this much driving (m); farther, it waits (at 100 robots retargets to chargers up
+    to 60 m away sent robots in aisles round long detours, from one blocked way into the
+    next; 20 m helped there but cost the 30-robot config laps).
     ``retarget_shorter``: ... and only if that way is shorter than the rest of the path it
     waits on. ``charge_margin_priority``: robots that need a charger are ranked (for free
     chargers, and as base priority at intersections, renewed every cycle on the way) by
@@ -92,8 +95,8 @@ class TrafficParams:
     turn_back: bool = True
     turn_back_m: float = 1.5
     dead_wait_s: float = 30.0
-    charge_where_stepped: bool = True
-    retarget_reach_m: float = 20.0
+    charge_where_stepped: bool = False
+    retarget_reach_m: float = 60.0
     retarget_shorter: bool = False
     charge_margin_priority: bool = False
 

@@ -160,7 +160,7 @@ def _drive(tm: TrafficManager, robot: str, nodes: list[str], t: float) -> float:
 
 
 def test_a_robot_stepped_aside_onto_a_free_charger_charges_there() -> None:
-    tm, er, purposes = _sent_to_ce_with_cw_free()
+    tm, er, purposes = _sent_to_ce_with_cw_free(charge_where_stepped=True)
     rm = er.roadmap
     tm.set_path("R", ["c1", "w", "cw"], 1.0)  # what a side step does: it ends on another dock
     t = _drive(tm, "R", ["w", "cw"], 1.0)
@@ -172,7 +172,7 @@ def test_a_robot_stepped_aside_onto_a_free_charger_charges_there() -> None:
 
 
 def test_without_the_rule_a_stepped_aside_robot_drives_on_to_its_charger() -> None:
-    tm, er, purposes = _sent_to_ce_with_cw_free(charge_where_stepped=False)
+    tm, er, purposes = _sent_to_ce_with_cw_free()  # the default
     rm = er.roadmap
     tm.set_path("R", ["c1", "w", "cw"], 1.0)
     t = _drive(tm, "R", ["w", "cw"], 1.0)
