@@ -50,8 +50,8 @@ CHARGE_REACH_M = 30.0
 #: waited this long (s) on the same robots takes the nearest free dock of the same kind it can
 #: reach without passing them (two robots head-on in a corridor, each heading for a charger
 #: behind the other, swap chargers instead of waiting for a step-aside that has no room).
+#: The dock must be within ``TrafficParams.retarget_reach_m`` of driving (m).
 RETARGET_AFTER_S = 10.0
-#: ... within ``TrafficParams.retarget_reach_m`` of driving (m) of where it stands.
 
 #: A robot that needs a charger takes a detour around a dead robot (an agent being restarted,
 #: usually back within seconds) only if it is at most this much (m) longer than its way; else
