@@ -8,6 +8,12 @@ charge, charge-wait, park), the kind of roadmap node it stands on (``aisle`` ins
 ``lane`` the parking lanes, ``dock`` a charger / parking spur, ``via`` a spur's junction, ``cell`` a piece of a cut edge) and
 the node it waits for. At the end: the episodes counted by shape (sorted purposes and node
 kinds), and the flat robots with where and in which mode they fell below 5 %.
+
+Charging: every robot that falls below 5 % is printed with its charging trip so far (one line
+per 5 s: battery, phase, node, target charger, nodes left, blockers, and what changed its
+path: a deadlock resolution, or the errand code that gave it a new path). At the end, the
+charging robot-samples by phase (on a charger, driving, waiting), the free chargers, and the
+trips to a charger: seconds from the trigger to the charger, battery used, chargers targeted.
 Deterministic (same seed, same run), so two code versions compare episode by episode.
 
     python bench/deadlock_shapes.py --robots 100 --duration 900
@@ -34,6 +40,29 @@ from fleet.loadtest.run import run_loadtest  # noqa: E402
 from fleet.runtime.runner import FleetRunner  # noqa: E402
 
 LOW = 0.05
+
+#: Recent ``TrafficManager.set_path`` calls: (time, robot, the errand code that made it).
+SET_PATHS: list[tuple[float, str, str]] = []
+
+
+def _trace_set_path() -> None:
+    """Record who gives robots new paths (the errand that called ``set_path``)."""
+    from fleet.traffic.manager import TrafficManager
+
+    orig = TrafficManager.set_path
+
+    def set_path(self: TrafficManager, robot: str, nodes: Any, now: float, *a: Any, **kw: Any) -> int:
+        f = sys._getframe(1)
+        names = []
+        while f is not None and len(names) < 4:
+            names.append(f.f_code.co_name)
+            f = f.f_back  # type: ignore[assignment]
+        SET_PATHS.append((now, robot, "/".join(names[1:])))
+        if len(SET_PATHS) > 4000:
+            del SET_PATHS[:2000]
+        return orig(self, robot, nodes, now, *a, **kw)
+
+    TrafficManager.set_path = set_path  # type: ignore[method-assign]
 
 
 def kind(node: str) -> str:
@@ -65,16 +94,61 @@ class Watch:
         self.why: Counter[str] = Counter()
         self.heads: Counter[str] = Counter()
         self.trigger: dict[str, tuple[float, float]] = {}  # robot -> (t, battery) it began to charge
+        # robot -> its charging episode so far, one sample every 5 s (bounded: one episode)
+        self.trace: dict[str, list[str]] = {}
+        self.phases: Counter[str] = Counter()  # charging robot-samples by phase
+        self.free_chargers: list[int] = []
+        # finished trips to a charger: (seconds from the trigger, battery used, targets tried)
+        self.trips: list[tuple[float, float, int]] = []
+        self.targets: dict[str, set[str]] = {}
 
     def __call__(self, now: float, runner: FleetRunner) -> None:
         policy = getattr(runner, "traffic_policy", None)
         if now - self.last >= 5.0:
             self.last = now
+            if policy is not None:
+                m0 = policy.manager
+                self.free_chargers.append(sum(1 for c in policy.chargers if m0.holder(c) is None))
             for rec in runner.records():
                 if rec.mode == "charging" and rec.robot not in self.trigger:
                     self.trigger[rec.robot] = (now, rec.battery)
+                    self.trace[rec.robot] = []
                 elif rec.mode != "charging":
                     self.trigger.pop(rec.robot, None)
+                    self.trace.pop(rec.robot, None)
+                    self.targets.pop(rec.robot, None)
+                if rec.mode == "charging" and policy is not None and policy.manager.knows(rec.robot):
+                    r0 = policy.manager._st.robots[rec.robot]  # noqa: SLF001
+                    here0 = r0.path[r0.cur] if r0.path else "?"
+                    end0 = r0.path[-1] if r0.path else "?"
+                    waiting0 = r0.wait_since is not None
+                    phase = (
+                        "on charger"
+                        if here0.startswith("dock:charger")
+                        else f"{policy.purpose(rec.robot) or 'none'} {'waiting' if waiting0 else 'moving'}"
+                    )
+                    self.phases[phase] += 1
+                    tried = self.targets.setdefault(rec.robot, set())
+                    if phase == "on charger":
+                        if rec.robot in self.trigger and "" not in tried:
+                            t1, b1 = self.trigger[rec.robot]
+                            self.trips.append((now - t1, b1 - rec.battery, len(tried)))
+                            tried.clear()
+                            tried.add("")  # arrived: counted once
+                    elif "" not in tried and end0.startswith("dock:charger"):
+                        tried.add(end0)
+                    about0 = (
+                        [
+                            msg
+                            for te, msg in policy.manager._st.metrics.events[-200:]  # noqa: SLF001
+                            if te > now - 5.0 and rec.robot in msg.split()
+                        ]
+                        + [who for te, r1, who in SET_PATHS[-400:] if r1 == rec.robot and te > now - 5.0]
+                    )
+                    self.trace[rec.robot].append(
+                        f"{now:6.0f} {rec.battery:4.0%} {phase:18s} at {here0} to {end0} "
+                        f"({len(r0.path) - r0.cur} nodes) on {sorted(r0.blockers)} {about0[-3:]}"
+                    )
                 if rec.battery < LOW and rec.robot not in self.low:
                     where = "?"
                     if policy is not None and policy.manager.knows(rec.robot):
@@ -89,6 +163,8 @@ class Watch:
                             f"ahead {r.path[r.cur : r.cur + 16]}",
                             file=self.out,
                         )
+                    for line in self.trace.get(rec.robot, [])[-40:]:
+                        print(f"      {line}", file=self.out)
                     t0, b0 = self.trigger.get(rec.robot, (now, rec.battery))
                     self.low[rec.robot] = (now, f"{rec.mode} since {now - t0:.0f} s, from {b0:.0%}", where)
         if policy is None:
@@ -210,6 +286,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--robots", type=int, default=100)
     ap.add_argument("--duration", type=float, default=900.0)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument(
+        "--start-offset",
+        type=int,
+        default=0,
+        help="robot i starts with the battery of robot i+K of the generated fleet (another run: "
+        "the seed only draws task shelves, so it does not change a patrol load test)",
+    )
     ap.add_argument("--no-traffic", action="store_true")
     ap.add_argument("--out", default="out/deadlock-shapes")
     ap.add_argument(
@@ -246,6 +329,7 @@ def main(argv: list[str] | None = None) -> int:
         mod, _, const = target.rpartition(".")
         setattr(importlib.import_module(mod), const, int(value) if value.isdigit() else float(value))
     watch = Watch(sys.stdout)
+    _trace_set_path()
     run = FleetRunner.run
 
     def run_watched(self: FleetRunner) -> Any:
@@ -261,6 +345,13 @@ def main(argv: list[str] | None = None) -> int:
     def on_config(cfg: Any) -> None:
         cfg.traffic = dataclasses.replace(cfg.traffic, **over)
         cfg.sim = dataclasses.replace(cfg.sim, battery=dataclasses.replace(cfg.sim.battery, **bover))
+        if a.start_offset:
+            from fleet.warehouse import start_battery
+
+            cfg.robots = [
+                dataclasses.replace(r, battery=start_battery(i + a.start_offset))
+                for i, r in enumerate(cfg.robots)
+            ]
 
     res = run_loadtest(
         a.robots, a.duration, out_dir=a.out, seed=a.seed, traffic=not a.no_traffic, on_config=on_config
@@ -285,6 +376,26 @@ def main(argv: list[str] | None = None) -> int:
     print("queue heads (every 5 s): what the robot a waiting robot's queue starts at waits for")
     for what, n in watch.heads.most_common(20):
         print(f"  {n:6d}  {what}")
+    print("charging robot-samples (every 5 s) by phase")
+    for what, n in watch.phases.most_common():
+        print(f"  {n:6d}  {what}")
+    fc = watch.free_chargers
+    if fc:
+        print(f"free chargers (not held): mean {sum(fc) / len(fc):.1f}, min {min(fc)}, samples {len(fc)}")
+    if watch.trips:
+
+        def pct(xs: list[float], q: float) -> float:
+            xs = sorted(xs)
+            return xs[min(len(xs) - 1, int(q * len(xs)))]
+
+        dur = [t for t, _, _ in watch.trips]
+        used = [u for _, u, _ in watch.trips]
+        tried_n = [k for _, _, k in watch.trips]
+        print(
+            f"trips to a charger: {len(dur)}, s from trigger p50/p90/max {pct(dur, 0.5):.0f}/{pct(dur, 0.9):.0f}/"
+            f"{max(dur):.0f}, battery used p50/p90/max {pct(used, 0.5):.0%}/{pct(used, 0.9):.0%}/{max(used):.0%}, "
+            f"chargers targeted mean {sum(tried_n) / len(tried_n):.1f} max {max(tried_n)}"
+        )
     print(f"below {LOW:.0%}:")
     for name, (t, mode, where) in sorted(watch.low.items(), key=lambda kv: kv[1][0]):
         print(f"  t={t:7.1f} {name:9s} {mode:9s} at {where} ({kind(where)})")

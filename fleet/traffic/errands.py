@@ -29,6 +29,7 @@ from fleet.types import Mode
 
 if TYPE_CHECKING:
     from fleet.roadmap.graph import Roadmap
+    from fleet.robots import BatteryModel
 
 #: An idle robot below this battery fraction waits on a free charger instead of a parking spot
 #: (it charges while it waits for work), so idle robots do not all run low together.
@@ -49,9 +50,8 @@ CHARGE_REACH_M = 30.0
 #: waited this long (s) on the same robots takes the nearest free dock of the same kind it can
 #: reach without passing them (two robots head-on in a corridor, each heading for a charger
 #: behind the other, swap chargers instead of waiting for a step-aside that has no room).
+#: The dock must be within ``TrafficParams.retarget_reach_m`` of driving (m).
 RETARGET_AFTER_S = 10.0
-#: ... within this much driving (m) of where it stands.
-RETARGET_REACH_M = 60.0
 
 #: A robot that needs a charger takes a detour around a dead robot (an agent being restarted,
 #: usually back within seconds) only if it is at most this much (m) longer than its way; else
@@ -69,7 +69,9 @@ class Errands:
     ``manager``: the policy's traffic manager; ``roadmap``: its roadmap (with docks, edge
     attribute ``length`` in m); ``purposes``: the policy's purpose per robot (shared:
     errands set and drop ``CHARGE``, ``CHARGE_WAIT`` and ``PARK``); ``drive``: the policy's
-    way to give a robot a path; ``chargers`` / ``parking``: dock node names.
+    way to give a robot a path; ``chargers`` / ``parking``: dock node names; ``battery``:
+    the fleet's battery model (for ``TrafficParams.charge_margin_priority``; without it
+    robots are ranked by battery alone).
     """
 
     def __init__(
@@ -81,8 +83,10 @@ class Errands:
         chargers: Sequence[str],
         parking: Sequence[str],
         park_idle_s: float,
+        battery: BatteryModel | None = None,
     ) -> None:
         self.manager = manager
+        self.battery = battery
         self.roadmap = roadmap
         self.purposes = purposes
         self.drive = drive
@@ -126,6 +130,8 @@ class Errands:
             elif purpose is Purpose.PARK:
                 self._go(name, self._free_dock(name, self.parking), Purpose.PARK)
                 return
+        if target is not None and purpose is Purpose.CHARGE and self._charge_here(name, target):
+            return
         if target is not None and purpose in (Purpose.CHARGE, Purpose.CHARGE_WAIT, Purpose.PARK):
             path = self.manager.path(name)
             if path and path[-1] != target:
@@ -136,6 +142,10 @@ class Errands:
                 self._retarget(name, purpose)
         if mode == Mode.CHARGING:
             self._idle_since.pop(name, None)
+            if purpose is Purpose.CHARGE and self._by_margin():
+                assert obs is not None
+                margin = float(obs.battery) - self._need(self._way_left(name))
+                self.manager.set_priority(name, CHARGE_PRIORITY * (2.0 - margin))
             if purpose is not Purpose.CHARGE:
                 assert obs is not None
                 requests.append((float(obs.battery), name))
@@ -168,6 +178,23 @@ class Errands:
                 return
         self._go(name, self._free_dock(name, self.parking), Purpose.PARK)
 
+    def _charge_here(self, name: str, target: str) -> bool:
+        """With ``TrafficParams.charge_where_stepped``: ``name``, on its way to the charger
+        ``target``, stands on another charger dock (stepped aside or nudged there) that
+        nobody else holds or heads for: that dock becomes its charger (it stops there) and
+        ``target`` is freed for others. Whether it did."""
+        m = self.manager
+        if not m.params.charge_where_stepped:
+            return False
+        path = m.path(name)
+        here = path[0] if path else None
+        if here is None or here == target or here not in self._charger_set:
+            return False
+        if m.holder(here) not in (None, name) or any(n == here for r, n in self._target.items() if r != name):
+            return False
+        self._go(name, here, Purpose.CHARGE)
+        return True
+
     def _top_up(self, name: str, battery: float) -> bool:
         """Send the idle ``name`` to wait on a free charger (charging there) when its battery
         is below :data:`TOP_UP_BELOW`, nobody waits for a charger and more than
@@ -187,13 +214,20 @@ class Errands:
         return True
 
     def serve_chargers(self, requests: list[tuple[float, str]]) -> None:
-        """Free chargers go to the robots with the lowest battery first; the others wait on a
+        """Free chargers go to the robots with the lowest battery first (with
+        ``TrafficParams.charge_margin_priority``: the least battery left once at the nearest
+        charger); the others wait on a
         free parking dock near the chargers (once; they stay there until a charger frees).
         Called once per cycle, after :meth:`step` of every robot."""
         self._wanted, self._wanting = self._wanting, 0
         if not requests:
             return
-        for battery, name in sorted(requests):
+        if self._by_margin():  # least energy left once at its nearest charger first
+            to = self._to_charger()
+            ranked = sorted((b - self._need(to.get(self._here(n), 0.0)), n) for b, n in requests)
+        else:
+            ranked = sorted(requests)
+        for battery, name in ranked:
             # a robot short of energy goes first at intersections and is never the one to yield,
             # and does not drive far round a dead robot
             self.manager.set_priority(name, CHARGE_PRIORITY * (2.0 - battery))
@@ -231,8 +265,10 @@ class Errands:
 
     def _retarget(self, name: str, purpose: Purpose) -> None:
         """Send ``name`` to the nearest free dock of its errand's kind (chargers for
-        :attr:`Purpose.CHARGE`, else parking) that it reaches within :data:`RETARGET_REACH_M`
-        without entering a node its blockers hold; its current target counts too."""
+        :attr:`Purpose.CHARGE`, else parking) that it reaches within ``TrafficParams.retarget_reach_m``
+        without entering a node its blockers hold; its current target counts too. With
+        ``TrafficParams.retarget_shorter`` only a way shorter than the rest of its current
+        path is taken (else it waits where it is)."""
         m = self.manager
         path = m.path(name)
         if not path:
@@ -244,7 +280,8 @@ class Errands:
         def weight(u: str, v: str, d: dict[str, float]) -> float | None:
             return None if v in avoid else float(d.get("length", 1.0))
 
-        found = nx.single_source_dijkstra(self.roadmap.graph, here, cutoff=RETARGET_REACH_M, weight=weight)
+        reach = m.params.retarget_reach_m
+        found = nx.single_source_dijkstra(self.roadmap.graph, here, cutoff=reach, weight=weight)
         dist, paths = cast("tuple[dict[str, float], dict[str, list[str]]]", found)
         docks = self.chargers if purpose is Purpose.CHARGE else self.parking
         taken = {n for r, n in self._target.items() if r != name}
@@ -252,8 +289,32 @@ class Errands:
         if not free:
             return
         best = min(free, key=lambda d: (dist[d], d))
+        if m.params.retarget_shorter and dist[best] >= self._way_left(name) - 1e-9:
+            return  # no way round the blockers shorter than the one it waits on: it waits
         self._target[name] = best
         self.drive(name, [str(n) for n in paths[best]], purpose)
+
+    def _by_margin(self) -> bool:
+        return self.battery is not None and self.manager.params.charge_margin_priority
+
+    def _need(self, meters: float) -> float:
+        """Battery fraction a robot uses driving ``meters`` of roadmap (the battery model's
+        drive part of :meth:`BatteryModel.charge_threshold`, no waiting, no margin)."""
+        b = self.battery
+        if b is None:
+            return 0.0
+        d = max(0.0, meters) * b.detour
+        return b.drain_per_m * d + b.drain_per_s * d / b.cruise_mps
+
+    def _here(self, name: str) -> str:
+        path = self.manager.path(name)
+        return path[0] if path else ""
+
+    def _way_left(self, name: str) -> float:
+        """Length (m) of ``name``'s path from the node it last reached to its end."""
+        path = self.manager.path(name)
+        g = self.roadmap.graph
+        return sum(float(g.edges[u, v].get("length", 1.0)) for u, v in zip(path, path[1:], strict=False))
 
     def _cost(self, robot: str, node: str) -> float:
         """Roadmap cost (m, with the flow) from where ``robot`` stands to ``node`` (a search

@@ -56,6 +56,23 @@ class TrafficParams:
     than ``clearance``; :func:`fleet.roadmap.cells.split_cells`), so a robot following
     another one the same way along an aisle closes up to about a cell behind it instead of
     a whole shelf bay.
+
+    Charging errands (:class:`fleet.traffic.errands.Errands`; the defaults keep the
+    behaviour measured on the shipped configs, ``docs/performance.md``, "Charging trips at
+    100 robots", has what each switch does): ``charge_where_stepped``: a
+    robot on its way to a charger that was stepped aside (or nudged) onto a free charger
+    dock charges there instead of driving on to the charger it was sent to (a charging robot
+    driving against the flow was stepped aside again and again and ran flat beside free
+    chargers). ``retarget_reach_m``: a robot on a dock errand blocked on the same robots for
+    :data:`~fleet.traffic.errands.RETARGET_AFTER_S` takes another dock only if it reaches it
+    within this much driving (m); farther, it waits (at 100 robots retargets to chargers up
+    to 60 m away sent robots in aisles round long detours, from one blocked way into the
+    next; 20 m helped there but cost the 30-robot config laps).
+    ``retarget_shorter``: ... and only if that way is shorter than the rest of the path it
+    waits on. ``charge_margin_priority``: robots that need a charger are ranked (for free
+    chargers, and as base priority at intersections, renewed every cycle on the way) by
+    their energy margin, battery minus the energy to drive to the charger, instead of by
+    the battery they had when they asked (needs the policy's battery model).
     """
 
     robot_radius: float = 0.3
@@ -84,6 +101,10 @@ class TrafficParams:
     turn_back_m: float = 1.5
     dead_wait_s: float = 30.0
     cell_m: float | None = None
+    charge_where_stepped: bool = False
+    retarget_reach_m: float = 60.0
+    retarget_shorter: bool = False
+    charge_margin_priority: bool = False
 
     @property
     def clearance(self) -> float:

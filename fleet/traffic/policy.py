@@ -24,6 +24,7 @@ from fleet.types import Pose2D
 
 if TYPE_CHECKING:
     from fleet.config.model import FleetConfig
+    from fleet.robots import BatteryModel
 
 #: Hands a robot's changed grant to it: ``deliver(robot, grant)``.
 Deliver = Callable[[str, Grant], None]
@@ -60,7 +61,8 @@ class ReservationTraffic:
 
     ``roadmap`` is the traffic roadmap (with docks, see :func:`traffic_from_config`);
     ``chargers`` / ``parking`` are its dock node names. ``deliver`` may be set later (the
-    coordinator sets it when it is ``None``).
+    coordinator sets it when it is ``None``). ``battery``: the fleet's battery model, for
+    the charging errands' energy margins (``TrafficParams.charge_margin_priority``).
     """
 
     def __init__(
@@ -74,6 +76,7 @@ class ReservationTraffic:
         deadlock_s: float = 30.0,
         park_idle_s: float = 5.0,
         dead_release_s: float = 10.0,
+        battery: BatteryModel | None = None,
     ) -> None:
         self.roadmap = roadmap
         self.manager = TrafficManager(roadmap, params)
@@ -97,7 +100,14 @@ class ReservationTraffic:
         self._dead_since: dict[str, float] = {}
         self._last_dl = -math.inf
         self.errands = Errands(
-            self.manager, roadmap, self._purpose, self._set_path, self.chargers, self.parking, park_idle_s
+            self.manager,
+            roadmap,
+            self._purpose,
+            self._set_path,
+            self.chargers,
+            self.parking,
+            park_idle_s,
+            battery,
         )
         # grants of a later policy (a restarted coordinator) must outrank older ones at the
         # robots: seq counts up from the wall time this policy was made, in microseconds
@@ -315,6 +325,7 @@ def traffic_from_config(config: FleetConfig, deliver: Deliver | None = None) -> 
         deadlock_s=ts.deadlock_s,
         park_idle_s=ts.park_idle_s,
         dead_release_s=ts.dead_release_s,
+        battery=config.sim.battery,
     )
     policy.manager.set_flow(_loop_moves(roadmap, config))
     return policy

@@ -42,8 +42,10 @@ def corridor(length_m: float = 10.0) -> Roadmap:
     return Roadmap.from_graph(g)
 
 
-def errands_on(rm: Roadmap, robots: dict[str, str]) -> tuple[TrafficManager, Errands, dict[str, Purpose]]:
-    tm = TrafficManager(rm, TrafficParams(detect_period_s=0.5))
+def errands_on(
+    rm: Roadmap, robots: dict[str, str], **params: float | bool
+) -> tuple[TrafficManager, Errands, dict[str, Purpose]]:
+    tm = TrafficManager(rm, TrafficParams(detect_period_s=0.5, **params))  # type: ignore[arg-type]
     for name, node in robots.items():
         x, y = rm.pos(node)
         tm.add_robot(name, Pose2D(x, y), 0.0)
@@ -125,3 +127,129 @@ def test_a_starving_robots_claim_on_what_the_robot_ahead_needs_is_dropped() -> N
     assert tm.claimant("c3") is None and "L" in follower.yield_to
     claim(st, follower, ["c2", "c3"])  # starving again: it does not claim what it yields
     assert tm.claimant("c3") is None
+
+
+def _sent_to_ce_with_cw_free(**params: float | bool) -> tuple[TrafficManager, Errands, dict[str, Purpose]]:
+    """R (at c1) is sent to the far charger ``ce`` because Q (lower battery) took ``cw``;
+    then Q gets work and ``cw`` is free again."""
+    rm = corridor()
+    tm, er, purposes = errands_on(rm, {"R": "c1", "Q": "qw"}, **params)
+    requests: list[tuple[float, str]] = []
+    er.step("Q", charging(rm, "qw", battery=0.1), 0.0, requests)
+    er.step("R", charging(rm, "c1"), 0.0, requests)
+    er.serve_chargers(requests)
+    assert tm.path("Q")[-1] == "cw" and tm.path("R")[-1] == "ce"
+    er.forget("Q")
+    tm.clear_path("Q", 0.5)
+    return tm, er, purposes
+
+
+def _drive(tm: TrafficManager, robot: str, nodes: list[str], t: float) -> float:
+    """Drive ``robot`` node by node along ``nodes`` (each granted first); the time after."""
+    for n in nodes:
+        for _ in range(20):
+            tm.cycle(t)
+            t += 0.5
+            if n in tm.grant(robot).nodes or tm.path(robot)[:1] == [n]:
+                break
+        x, y = tm.node_pos(n)
+        tm.update(robot, Pose2D(x, y), t)
+        tm.cycle(t)
+        t += 0.5
+    return t
+
+
+def test_a_robot_stepped_aside_onto_a_free_charger_charges_there() -> None:
+    tm, er, purposes = _sent_to_ce_with_cw_free(charge_where_stepped=True)
+    rm = er.roadmap
+    tm.set_path("R", ["c1", "w", "cw"], 1.0)  # what a side step does: it ends on another dock
+    t = _drive(tm, "R", ["w", "cw"], 1.0)
+    assert tm.path("R")[0] == "cw"
+    er.step("R", charging(rm, "cw"), t, [])
+    # it stays on cw and charges there; ce is free for the next robot that needs a charger
+    assert tm.path("R") == ["cw"] and purposes["R"] is Purpose.CHARGE
+    assert "ce" not in er._target.values()
+
+
+def test_without_the_rule_a_stepped_aside_robot_drives_on_to_its_charger() -> None:
+    tm, er, purposes = _sent_to_ce_with_cw_free()  # the default
+    rm = er.roadmap
+    tm.set_path("R", ["c1", "w", "cw"], 1.0)
+    t = _drive(tm, "R", ["w", "cw"], 1.0)
+    er.step("R", charging(rm, "cw"), t, [])
+    assert tm.path("R")[-1] == "ce" and purposes["R"] is Purpose.CHARGE
+
+
+def test_a_blocked_robot_takes_no_dock_beyond_the_retarget_reach() -> None:
+    rm = corridor()
+    tm, er, purposes = errands_on(rm, {"R": "c1", "B": "c2", "Q": "qw"}, retarget_reach_m=5.0)
+    requests: list[tuple[float, str]] = []
+    er.step("Q", charging(rm, "qw", battery=0.1), 0.0, requests)
+    er.step("R", charging(rm, "c1"), 0.0, requests)
+    er.serve_chargers(requests)
+    er.forget("Q")
+    tm.clear_path("Q", 0.5)
+    tm.set_path("B", ["c2", "c1", "w"], 0.5)  # head-on, as in the test above
+    tm.cycle(1.0)
+    assert tm.blockers("R") == {"B"}
+    t = 1.0
+    while t <= 1.0 + RETARGET_AFTER_S:
+        er.step("R", charging(rm, "c1"), t, [])
+        t += 0.5
+    # cw is 11 m away, beyond the 5 m reach: R keeps its way to ce and waits
+    assert tm.path("R")[-1] == "ce" and purposes["R"] is Purpose.CHARGE
+
+
+def _head_on_at_c2(**params: float | bool) -> tuple[TrafficManager, Errands, dict[str, Purpose]]:
+    """R (at c2) heads west for ``cw``; B (at c1) drives east into it: head-on. ``ce`` (21 m
+    east, as far as ``cw``) is free; R waits on B for :data:`RETARGET_AFTER_S`."""
+    rm = corridor()
+    tm, er, purposes = errands_on(rm, {"R": "c2", "B": "c1"}, retarget_reach_m=30.0, **params)
+    er._target["R"] = "cw"
+    purposes["R"] = Purpose.CHARGE
+    tm.set_path("R", ["c2", "c1", "w", "cw"], 0.0)
+    tm.set_path("B", ["c1", "c2", "c3"], 0.0)
+    tm.cycle(1.0)
+    assert tm.blockers("R") == {"B"}
+    t = 1.0
+    while t <= 1.0 + RETARGET_AFTER_S:
+        er.step("R", charging(rm, "c2"), t, [])
+        t += 0.5
+    return tm, er, purposes
+
+
+def test_a_blocked_robot_takes_another_dock_only_by_a_shorter_way_when_asked() -> None:
+    tm, _, _ = _head_on_at_c2()  # the default: the nearest free dock it reaches, round B
+    assert tm.path("R")[-1] == "ce"
+    tm, _, purposes = _head_on_at_c2(retarget_shorter=True)
+    # ce is no nearer than cw: R keeps its charger and waits (B is resolved by the manager)
+    assert tm.path("R")[-1] == "cw" and purposes["R"] is Purpose.CHARGE
+
+
+def test_the_robot_with_the_least_energy_margin_gets_the_free_charger_first() -> None:
+    from fleet.robots import BatteryModel
+
+    rm = corridor()
+
+    def first_served(by_margin: bool) -> str:
+        tm = TrafficManager(rm, TrafficParams(charge_margin_priority=by_margin))
+        for name, node in {"N": "w", "F": "c3", "Z": "ce"}.items():
+            tm.add_robot(name, Pose2D(*rm.pos(node)), 0.0)
+        purposes: dict[str, Purpose] = {}
+
+        def drive(robot: str, nodes: list[str], purpose: Purpose) -> None:
+            tm.set_path(robot, nodes, 0.0)
+            purposes[robot] = purpose
+
+        er = Errands(tm, rm, purposes, drive, ["cw", "ce"], ["bay"], 5.0, BatteryModel())
+        requests: list[tuple[float, str]] = []
+        # Z stands on ce: cw is the only free charger. N (20 %) stands beside it; F (22 %)
+        # is 31 m from it, about 18 % of battery away: F has the least margin
+        er.step("N", charging(rm, "w", battery=0.20), 0.0, requests)
+        er.step("F", charging(rm, "c3", battery=0.22), 0.0, requests)
+        er.serve_chargers(requests)
+        assert purposes["N"] is not purposes["F"]
+        return "N" if purposes["N"] is Purpose.CHARGE else "F"
+
+    assert first_served(by_margin=False) == "N"  # lowest battery first
+    assert first_served(by_margin=True) == "F"
