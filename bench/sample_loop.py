@@ -16,7 +16,6 @@ sampling does not, but it sees only where the main thread is, not how often a fu
 
 from __future__ import annotations
 
-import _thread
 import argparse
 import collections
 import sys
@@ -49,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--report-s", type=float, default=60.0, help="wall seconds between rate lines")
     p.add_argument("--wall-limit", type=float, default=0.0, help="stop after this many loop wall s (0: none)")
     p.add_argument("--top", type=int, default=30)
-    p.add_argument("--window-top", type=int, default=12, help="functions listed with each rate line")
+    p.add_argument("--window-top", type=int, default=30, help="functions listed with each rate line")
     args = p.parse_args(argv)
 
     from fleet.loadtest.run import run_loadtest
@@ -68,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def sampled(self: runner.FleetRunner, world: Any) -> None:
         holder["world"] = world
+        holder["runner"] = self
         started.set()
         try:
             loop(self, world)
@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
                 window_n[0] = 0
             if args.wall_limit and w - w0 >= args.wall_limit and not holder.get("stopped"):
                 holder["stopped"] = True
-                _thread.interrupt_main()
+                holder["runner"].stop()  # the run ends after this period, and reports
         holder["loop"] = (time.monotonic() - w0, time.process_time() - c0, clock.now())
 
     runner.FleetRunner._loop = sampled  # type: ignore[method-assign]
