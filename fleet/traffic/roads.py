@@ -15,6 +15,7 @@ import numpy.typing as npt
 
 from fleet.errors import TrafficError
 from fleet.roadmap.dijkstra import Csr, FloatArray
+from fleet.roadmap.graph import GRID_FROM_NODES, NodeGrid
 from fleet.traffic.reservations import edge_key
 
 #: :meth:`RoadIndex.costs_from` keeps its latest rows up to about this many bytes (8 per node
@@ -96,6 +97,7 @@ class RoadIndex:
         self._csr: Csr | None = None  # the directed, flow-weighted rows (built when first asked)
         self._rows: OrderedDict[str, CostRow] = OrderedDict()
         self._heur: OrderedDict[str, FloatArray] = OrderedDict()
+        self._grid: NodeGrid | None = None  # nearest-node buckets, built on the first query
         self._masks: dict[tuple[str, ...], tuple[npt.NDArray[np.bool_], int]] = {}
         self._xs: list[float] | None = None
         self._ys: list[float] = []
@@ -115,8 +117,12 @@ class RoadIndex:
         """The node nearest ``(x, y)``; raises :class:`TrafficError` on an empty roadmap."""
         if not self._names:
             raise TrafficError("the roadmap has no nodes")
-        d = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
-        return self._names[int(np.argmin(d))]
+        if len(self._names) < GRID_FROM_NODES:
+            d = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
+            return self._names[int(np.argmin(d))]
+        if self._grid is None:  # buckets: the node the whole-array argmin gives, ties included
+            self._grid = NodeGrid(self._xy)
+        return self._names[self._grid.nearest(x, y)]
 
     def costs_from(self, a: str) -> Mapping[str, float]:
         """Cost (m, edges against the flow weighted as in :meth:`shortest`) of the cheapest

@@ -96,3 +96,27 @@ def test_the_compiled_searches_on_a_generated_floor(tmp_path: Path) -> None:
             for reach in (CHARGE_REACH_M, math.inf):
                 assert roads.costs_near(here, docks, reach) == roads.costs_near_reference(here, docks, reach)
             assert roads.nearest(here, docks) == roads.nearest_reference(here, docks)
+
+
+def test_the_traffic_roadmaps_nearest_node_is_the_whole_arrays(tmp_path: Path) -> None:
+    """``RoadIndex.nearest_node`` (buckets on a large roadmap: robots register by it) gives the
+    node the whole-array ``argmin`` gives: on nodes, near them, between two, off the map."""
+    import numpy as np
+
+    from fleet.loadtest.run import prepare_config
+    from fleet.roadmap.graph import GRID_FROM_NODES
+    from fleet.traffic.policy import traffic_from_config
+
+    roads = traffic_from_config(prepare_config(300, tmp_path)).manager._st.roads
+    names = list(roads.pos)
+    assert len(names) >= GRID_FROM_NODES
+    xy = np.array([roads.pos[n] for n in names])
+    rng = np.random.default_rng(7)
+    (x0, y0), (x1, y1) = xy.min(axis=0), xy.max(axis=0)
+    pts = np.concatenate(
+        [xy, xy + rng.normal(0, 0.7, xy.shape), rng.uniform([x0 - 30, y0 - 30], [x1 + 30, y1 + 30], (300, 2))]
+        + [(xy[:-1] + xy[1:]) / 2]
+    )
+    for x, y in pts:
+        d2 = (xy[:, 0] - x) ** 2 + (xy[:, 1] - y) ** 2
+        assert roads.nearest_node(float(x), float(y)) == names[int(np.argmin(d2))]
