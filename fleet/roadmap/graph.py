@@ -92,6 +92,11 @@ class _NodeGrid:
         return int(np.argmin(d2))
 
 
+#: The bucketed nearest-node index, for other road indexes over node positions
+#: (:class:`fleet.traffic.roads.RoadIndex`): the node the whole-array ``argmin`` gives.
+NodeGrid = _NodeGrid
+
+
 class Roadmap:
     """A read-only roadmap graph. Build it with :meth:`from_config_dict` or :meth:`from_graph`.
 

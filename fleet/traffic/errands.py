@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from operator import countOf
 from typing import TYPE_CHECKING, cast
 
 import networkx as nx
@@ -201,9 +202,7 @@ class Errands:
         :data:`SPARE_CHARGERS` of the chargers are free; whether it was sent."""
         if battery >= TOP_UP_BELOW or self._charge_wait or not self.chargers:
             return False
-        m = self.manager
-        taken = set(self._target.values())
-        free = sum(1 for c in self.chargers if m.holder(c) is None and c not in taken)
+        free = len(self.manager.free_docks(None, self.chargers, set(self._target.values())))
         if free < 1 or free <= SPARE_CHARGERS * len(self.chargers):
             self._wanting += 1
             return False
@@ -348,6 +347,16 @@ class Errands:
             self._charge_wait.discard(name)
         self.drive(name, [node], purpose)
 
+    def _taken_by_others(self, robot: str) -> set[str]:
+        """The docks robots other than ``robot`` head for: ``{n for r, n in _target.items() if
+        r != robot}``, built by set operations (every queued robot asks every cycle)."""
+        targets = self._target
+        taken = set(targets.values())
+        own = targets.get(robot)
+        if own is not None and countOf(targets.values(), own) == 1:
+            taken.discard(own)
+        return taken
+
     def _free_dock(
         self,
         robot: str,
@@ -363,8 +372,7 @@ class Errands:
         stops ``reach`` past the nearest dock (:meth:`TrafficManager.costs_near`) instead
         of costing the whole roadmap: the same answer."""
         m = self.manager
-        taken = {n for r, n in self._target.items() if r != robot}
-        free = [d for d in docks if m.holder(d) in (None, robot) and d not in taken]
+        free = m.free_docks(robot, docks, self._taken_by_others(robot))
         if not free:
             return None
         path = m.path(robot)

@@ -50,8 +50,8 @@ Time is always passed in (seconds); nothing here reads a clock. Units: meters, s
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
-from typing import TYPE_CHECKING
+from collections.abc import Container, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, cast
 
 import networkx as nx
 
@@ -360,6 +360,11 @@ class TrafficManager:
     def holder(self, res: Resource) -> str | None:
         """The robot holding node or edge ``res``, or ``None``."""
         return self._st.table.holder(res)
+
+    def free_docks(self, robot: str | None, docks: Sequence[str], skip: Container[str] = ()) -> list[str]:
+        """The nodes of ``docks`` (in order) that nobody or ``robot`` holds and that are not in
+        ``skip`` (:meth:`ReservationTable.free_for <fleet.traffic.reservations.ReservationTable.free_for>`)."""
+        return cast("list[str]", self._st.table.free_for(robot, docks, skip))
 
     def held(self, robot: str) -> frozenset[Resource]:
         """The nodes and edges ``robot`` holds."""

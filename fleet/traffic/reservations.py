@@ -3,7 +3,7 @@ lets two robots hold the same one."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Container, Iterable, Sequence
 
 #: A reservable resource: a node name, or an undirected edge as a sorted ``(a, b)`` pair.
 Resource = str | tuple[str, str]
@@ -28,6 +28,16 @@ class ReservationTable:
     def holder(self, res: Resource) -> str | None:
         """The robot holding ``res``, or ``None``."""
         return self._holder.get(res)
+
+    def free_for(
+        self, robot: str | None, resources: Iterable[Resource], skip: Container[Resource] = ()
+    ) -> list[Resource]:
+        """The resources of ``resources`` (in their order) that nobody or ``robot`` holds and
+        that are not in ``skip``: ``[x for x in resources if holder(x) in (None, robot) and x
+        not in skip]`` in one pass over the table (the charger queue asks it of every dock,
+        for every queued robot, every cycle)."""
+        get = self._holder.get
+        return [x for x in resources if x not in skip and get(x) in (None, robot)]
 
     def held(self, robot: str) -> frozenset[Resource]:
         """The resources ``robot`` holds (a copy)."""

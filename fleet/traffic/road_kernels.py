@@ -1,5 +1,7 @@
 """Compiled searches over the traffic manager's roadmap (:class:`fleet.traffic.roads.RoadIndex`):
-the A* of :meth:`~fleet.traffic.roads.RoadIndex.shortest` for paths that avoid nothing.
+the A* of :meth:`~fleet.traffic.roads.RoadIndex.shortest` for paths that avoid nothing, and the
+bounded Dijkstras of :meth:`~fleet.traffic.roads.RoadIndex.costs_near` and
+:meth:`~fleet.traffic.roads.RoadIndex.nearest` (the charger queue's searches, every cycle).
 
 It must return the very path the Python A* returns, ties included, so that no decision of the
 traffic manager changes. It does so by doing the same thing step by step:
@@ -76,4 +78,85 @@ def astar(
     return np.empty(0, dtype=np.int64)
 
 
-__all__ = ["astar"]
+@njit(cache=True, nogil=True)
+def dijkstra_near(
+    indptr: np.ndarray,
+    indices: np.ndarray,
+    weights: np.ndarray,
+    a: int,
+    want: np.ndarray,
+    n_want: int,
+    reach: float,
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """``(nodes, costs)`` of the wanted nodes (``want[v]``; ``n_want`` of them) settled by a
+    Dijkstra from ``a`` until it is past ``reach`` beyond the first one settled, or has
+    settled all of them, in the order settled. A node's cost is ``min(dist[u] + weight)``
+    over the neighbours settled before it, one double addition per edge, as in the Python
+    search: the same floats, whatever order ties leave the heap in."""
+    n = indptr.shape[0] - 1
+    dist = np.full(n, np.inf)
+    done = np.zeros(n, dtype=np.bool_)
+    nodes = np.empty(n_want, dtype=np.int64)
+    costs = np.empty(n_want, dtype=np.float64)
+    found = 0
+    stop = np.inf
+    dist[a] = 0.0
+    heap = [(0.0, a)]
+    while heap:
+        d, u = heapq.heappop(heap)
+        if d > stop:
+            break
+        if done[u]:
+            continue
+        done[u] = True
+        if want[u]:
+            if found == 0:
+                stop = d + reach
+            nodes[found] = u
+            costs[found] = d
+            found += 1
+            if found == n_want:
+                break
+        for k in range(indptr[u], indptr[u + 1]):
+            v = indices[k]
+            nd = d + weights[k]
+            if nd < dist[v]:
+                dist[v] = nd
+                heapq.heappush(heap, (nd, v))
+    return nodes[:found], costs[:found]
+
+
+@njit(cache=True, nogil=True)
+def dijkstra_nearest(
+    indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, a: int, want: np.ndarray
+) -> int:  # pragma: no cover - compiled
+    """The wanted node (``want[v]``) of least cost from ``a``, ties to the least node number
+    (nodes are numbered in name order); -1 when none is reached. The search stops once past
+    the best cost found."""
+    n = indptr.shape[0] - 1
+    dist = np.full(n, np.inf)
+    done = np.zeros(n, dtype=np.bool_)
+    best = -1
+    best_d = np.inf
+    dist[a] = 0.0
+    heap = [(0.0, a)]
+    while heap:
+        d, u = heapq.heappop(heap)
+        if d > best_d:
+            break
+        if done[u]:
+            continue
+        done[u] = True
+        if want[u] and (best < 0 or d < best_d or u < best):
+            best = u
+            best_d = d
+        for k in range(indptr[u], indptr[u + 1]):
+            v = indices[k]
+            nd = d + weights[k]
+            if nd < dist[v]:
+                dist[v] = nd
+                heapq.heappush(heap, (nd, v))
+    return best
+
+
+__all__ = ["astar", "dijkstra_near", "dijkstra_nearest"]

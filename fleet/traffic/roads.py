@@ -11,9 +11,11 @@ from collections.abc import Container, Iterable, Iterator, Mapping, Sequence
 
 import networkx as nx
 import numpy as np
+import numpy.typing as npt
 
 from fleet.errors import TrafficError
 from fleet.roadmap.dijkstra import Csr, FloatArray
+from fleet.roadmap.graph import GRID_FROM_NODES, NodeGrid
 from fleet.traffic.reservations import edge_key
 
 #: :meth:`RoadIndex.costs_from` keeps its latest rows up to about this many bytes (8 per node
@@ -26,6 +28,9 @@ LONG_SEARCH_M = 30.0
 
 #: Heuristic arrays (one float per node) kept for the compiled A*'s latest targets.
 HEURISTICS_KEPT = 64
+
+#: Target masks kept for :meth:`RoadIndex.costs_near` (one per distinct list of docks asked about).
+MASKS_KEPT = 16
 
 
 class CostRow(Mapping[str, float]):
@@ -92,6 +97,8 @@ class RoadIndex:
         self._csr: Csr | None = None  # the directed, flow-weighted rows (built when first asked)
         self._rows: OrderedDict[str, CostRow] = OrderedDict()
         self._heur: OrderedDict[str, FloatArray] = OrderedDict()
+        self._grid: NodeGrid | None = None  # nearest-node buckets, built on the first query
+        self._masks: dict[tuple[str, ...], tuple[npt.NDArray[np.bool_], int]] = {}
         self._xs: list[float] | None = None
         self._ys: list[float] = []
 
@@ -110,8 +117,12 @@ class RoadIndex:
         """The node nearest ``(x, y)``; raises :class:`TrafficError` on an empty roadmap."""
         if not self._names:
             raise TrafficError("the roadmap has no nodes")
-        d = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
-        return self._names[int(np.argmin(d))]
+        if len(self._names) < GRID_FROM_NODES:
+            d = (self._xy[:, 0] - x) ** 2 + (self._xy[:, 1] - y) ** 2
+            return self._names[int(np.argmin(d))]
+        if self._grid is None:  # buckets: the node the whole-array argmin gives, ties included
+            self._grid = NodeGrid(self._xy)
+        return self._names[self._grid.nearest(x, y)]
 
     def costs_from(self, a: str) -> Mapping[str, float]:
         """Cost (m, edges against the flow weighted as in :meth:`shortest`) of the cheapest
@@ -156,6 +167,30 @@ class RoadIndex:
                     heapq.heappush(heap, (nd, v))
         return dist
 
+    def _directed(self) -> Csr:
+        """The directed, flow-weighted rows (:meth:`_directed_csr`), built when first asked."""
+        if self._csr is None:
+            self._csr = self._directed_csr()
+        return self._csr
+
+    def _mask(self, targets: Iterable[str]) -> tuple[npt.NDArray[np.bool_], int]:
+        """``(mask over the numbered nodes, count)`` of the ``targets`` that are nodes; the
+        masks of the latest target lists are kept (the charger queue asks about the same
+        docks every cycle)."""
+        key = tuple(targets)
+        hit = self._masks.get(key)
+        if hit is not None:
+            return hit
+        index = self._index
+        mask = np.zeros(len(self._sorted), dtype=np.bool_)
+        known = {index[t] for t in key if t in index}
+        mask[list(known)] = True
+        hit = (mask, len(known))
+        self._masks[key] = hit
+        if len(self._masks) > MASKS_KEPT:
+            self._masks.pop(next(iter(self._masks)))
+        return hit
+
     def _directed_csr(self) -> Csr:
         """The roadmap as directed rows: node ``u``'s entry for ``v`` costs the edge's length
         times ``1 + against[(u, v)]`` (the same float :meth:`costs_from_reference` adds)."""
@@ -177,7 +212,27 @@ class RoadIndex:
         ``{t: c for t, c in costs_from(a).items() if t in targets and c <= c0 + reach}``
         where ``c0`` is the least cost of a target (every reachable target when ``reach`` is
         infinite; ``{}`` when none is reachable). The search stops once it is past
-        ``c0 + reach`` or has found every target, instead of costing the whole roadmap."""
+        ``c0 + reach`` or has found every target, instead of costing the whole roadmap.
+        Compiled (:func:`fleet.traffic.road_kernels.dijkstra_near`): the very floats of
+        :meth:`costs_near_reference`."""
+        from fleet.traffic.road_kernels import dijkstra_near
+
+        mask, n_want = self._mask(targets)
+        if n_want == 0:
+            return {}
+        i = self._index.get(a)
+        if i is None:
+            raise KeyError(a)
+        csr = self._directed()
+        nodes, costs = dijkstra_near(csr.indptr, csr.indices, csr.lengths, i, mask, n_want, float(reach))
+        names = self._sorted
+        return dict(zip([names[k] for k in nodes.tolist()], costs.tolist(), strict=True))
+
+    def costs_near_reference(
+        self, a: str, targets: Iterable[str], reach: float = math.inf
+    ) -> dict[str, float]:
+        """:meth:`costs_near` as a Dijkstra in Python (the reference the compiled search is
+        tested against)."""
         want = set(targets)
         out: dict[str, float] = {}
         if not want:
@@ -223,7 +278,28 @@ class RoadIndex:
         """The candidate of least :meth:`costs_from` ``a`` (ties: the least name; one that
         cannot be reached only if none can: then the least name); ``None`` for none. The same
         answer as ``min(candidates, key=lambda c: (costs_from(a).get(c, inf), c))``, but the
-        search stops at the nearest candidate instead of costing the whole roadmap."""
+        search stops at the nearest candidate instead of costing the whole roadmap. Compiled
+        (:func:`fleet.traffic.road_kernels.dijkstra_nearest`): the answer of
+        :meth:`nearest_reference`."""
+        from fleet.traffic.road_kernels import dijkstra_nearest
+
+        want = set(candidates)
+        if not want:
+            return None
+        i = self._index.get(a)
+        if i is None:
+            raise KeyError(a)
+        index = self._index
+        mask = np.zeros(len(self._sorted), dtype=np.bool_)
+        known = [index[c] for c in want if c in index]
+        mask[known] = True
+        csr = self._directed()
+        best = dijkstra_nearest(csr.indptr, csr.indices, csr.lengths, i, mask)
+        return self._sorted[best] if best >= 0 else min(want)
+
+    def nearest_reference(self, a: str, candidates: Iterable[str]) -> str | None:
+        """:meth:`nearest` as a Dijkstra in Python (the reference the compiled search is
+        tested against)."""
         want = set(candidates)
         if not want:
             return None

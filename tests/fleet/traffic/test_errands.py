@@ -6,6 +6,8 @@ claim on what the robot ahead needs is dropped to break the cycle it makes."""
 from __future__ import annotations
 
 import networkx as nx
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fleet.roadmap.graph import Roadmap
 from fleet.traffic.deadlocks import resolve
@@ -253,3 +255,30 @@ def test_the_robot_with_the_least_energy_margin_gets_the_free_charger_first() ->
 
     assert first_served(by_margin=False) == "N"  # lowest battery first
     assert first_served(by_margin=True) == "F"
+@settings(max_examples=60, deadline=None)
+@given(
+    targets=st.dictionaries(st.sampled_from([f"r{i}" for i in range(6)]), st.sampled_from(list("abcdef"))),
+    holds=st.dictionaries(st.sampled_from(list("abcdefg")), st.sampled_from([f"r{i}" for i in range(6)])),
+    robot=st.sampled_from([f"r{i}" for i in range(7)]),
+)
+def test_the_charger_queues_dock_scans_give_what_the_plain_scans_gave(
+    targets: dict[str, str], holds: dict[str, str], robot: str
+) -> None:
+    """The free docks of a queued robot (``Errands._taken_by_others`` and
+    ``TrafficManager.free_docks``, set operations and one pass over the table) are the plain
+    scans' answer: docks nobody else holds or heads for, in the docks' order."""
+    from fleet.traffic.reservations import ReservationTable
+
+    e = Errands.__new__(Errands)
+    e._target = dict(targets)
+    taken = {n for r, n in targets.items() if r != robot}
+    assert e._taken_by_others(robot) == taken
+    table = ReservationTable()
+    for res, who in holds.items():
+        table.try_acquire(who, [res])
+    docks = list("gfedcba")
+    plain = [d for d in docks if table.holder(d) in (None, robot) and d not in taken]
+    assert table.free_for(robot, docks, taken) == plain
+    assert table.free_for(None, docks, set(targets.values())) == [
+        d for d in docks if table.holder(d) is None and d not in set(targets.values())
+    ]
