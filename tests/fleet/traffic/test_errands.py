@@ -255,6 +255,8 @@ def test_the_robot_with_the_least_energy_margin_gets_the_free_charger_first() ->
 
     assert first_served(by_margin=False) == "N"  # lowest battery first
     assert first_served(by_margin=True) == "F"
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     targets=st.dictionaries(st.sampled_from([f"r{i}" for i in range(6)]), st.sampled_from(list("abcdef"))),
