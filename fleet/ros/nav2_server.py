@@ -450,14 +450,15 @@ def main(argv: list[str] | None = None) -> int:
 
         cfg = load_config(args.config, robots=args.robots)
         index, count = shard_of(args.shard_of) if args.shard_of else (0, 1)
-        sim = simulator_for(cfg, cfg.robots[index::count])
+        parent = args.shards > 1 and args.shard_of is None  # its shards simulate, it does not
+        sim = simulator_for(cfg, [] if parent else cfg.robots[index::count])
         for tree in (args.nav_to_pose_xml, args.nav_through_poses_xml):
             if tree is not None:
                 parse_file(tree)  # a default tree that cannot load is an error at start, as in Nav2
     except (FleetError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    if args.shards > 1 and args.shard_of is None:
+    if parent:
         return run_shards(
             cfg, argv, args.shards, ready_file=args.ready_file, truth=args.truth, plot=args.plot
         )
