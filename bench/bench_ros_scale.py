@@ -29,7 +29,7 @@ Private ROS domain, loopback, the fleet's FastDDS discovery profile (``FLEET_ROS
 in the environment: the 20 s-lease profile for both sides; the row's profile_file names it).
 
 Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full] [--shards 1,2,4]
-       [--hog 0,1]
+       [--hog 0,1] [--domains same,shard]
        [--executor single,events] [--client-actions all,nav] [--goal wait|here]
        [--discovery-server]
        [--config configs/warehouse_patrol_30.yaml] [--json out/bench_ros_scale.json]
@@ -123,6 +123,7 @@ def one(
     goal: str = "wait",
     server_timeout_s: float = 3.0,
     hog: int = 0,
+    domains: str = "same",
 ) -> dict[str, float | int | str]:
     from fleet.ros.backend import BACKEND_KINDS, make_ros_backends
     from fleet.ros.executors import EXECUTOR_VAR
@@ -138,6 +139,7 @@ def one(
         "goal": goal,
         "server_timeout_s": server_timeout_s,
         "hog": hog,
+        "domains": domains,
         "load_start": round(os.getloadavg()[0], 1),
     }
     eager = CLIENT_ACTIONS[client_actions] or BACKEND_KINDS
@@ -154,6 +156,7 @@ def one(
         "0.5",
         "--shards",
         str(shards),
+        *(["--shard-domains"] if domains == "shard" and shards > 1 else []),
         ready_timeout_s=timeout_s,
     ) as srv:
         row["launch_s"] = round(time.monotonic() - t_launch, 3)
@@ -164,8 +167,19 @@ def one(
         rss0 = rss_mb()
         t0 = time.monotonic()
         names = [f"/robot{i + 1}" for i in range(n)]
-        # one client: one participant, whatever the server's shards
-        groups = [make_ros_backends(names, eager=eager, server_timeout_s=server_timeout_s)]
+        # one client: one participant, whatever the server's shards; with --domains shard one
+        # participant per shard, on that shard's domain (robot i in shard (i-1) % K)
+        ids = srv.info.get("shard_domain_ids", [int(srv.info["domain_id"])])
+        groups = (
+            [make_ros_backends(names, eager=eager, server_timeout_s=server_timeout_s)]
+            if len(set(ids)) == 1
+            else [
+                make_ros_backends(
+                    names[k::shards], eager=eager, server_timeout_s=server_timeout_s, domain_id=d
+                )
+                for k, d in enumerate(ids)
+            ]
+        )
         rb = {ns: g[ns] for g in groups for ns in g.backends}
         row["client_create_s"] = round(time.monotonic() - t0, 3)
         deadline = time.monotonic() + timeout_s
@@ -223,7 +237,7 @@ CLIENT_ACTIONS: dict[str, tuple[str, ...] | None] = {
 def summarize(rows: list[dict[str, float | int | str]]) -> None:
     """One line per row: discovery and the cold start, each against the 1-shard row of the
     same robots, profile and hogs (ratios within this run)."""
-    print("robots hog shards | launch  discover  answered  total | discover/1  total/1 | goals")
+    print("robots hog shards domains | launch  discover  answered  total | discover/1  total/1 | goals")
     for r in rows:
         base = next(
             (b for b in rows if b["shards"] == 1 and all(b[k] == r[k] for k in ("robots", "hog", "profile"))),
@@ -239,7 +253,7 @@ def summarize(rows: list[dict[str, float | int | str]]) -> None:
             return f"{float(row[key]):7.1f}" if key in row else "      -"
 
         print(
-            f"{r['robots']:6} {r['hog']:3} {r['shards']:6} | {sec('launch_s')} {sec('discover_s')}"
+            f"{r['robots']:6} {r['hog']:3} {r['shards']:6} {r['domains']:>7} | {sec('launch_s')} {sec('discover_s')}"
             f"   {sec('answered_s')} {sec('total_s')} | {ratio('discover_s'):>10} {ratio('total_s'):>8} | "
             f"{r.get('wait_ok', 0)}/{r['robots']}"
         )
@@ -255,6 +269,13 @@ def main(argv: list[str] | None = None) -> int:
         "--shards",
         default="1",
         help="comma-separated server process counts (fleet sim-ros --shards), one run each",
+    )
+    ap.add_argument(
+        "--domains",
+        default="same",
+        help="comma-separated: same (every shard on one ROS domain, one client participant) or "
+        "shard (fleet sim-ros --shard-domains: a domain per shard, one client participant per "
+        "domain), one run each",
     )
     ap.add_argument(
         "--hog",
@@ -296,14 +317,17 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("ROS_DOMAIN_ID", str(private_domain_id(base=190, span=40)))
     apply_ros_env_defaults()
     rows = []
-    for profile, n, hog, shards, executor, actions in itertools.product(
+    for profile, n, hog, shards, domains, executor, actions in itertools.product(
         args.profile.split(","),
         (int(x) for x in args.robots.split(",")),
         (int(x) for x in args.hog.split(",")),
         (int(x) for x in args.shards.split(",")),
+        args.domains.split(","),
         args.executor.split(","),
         args.client_actions.split(","),
     ):
+        if shards == 1 and domains != "same" and "same" in args.domains.split(","):
+            continue  # one shard has one domain: the row is already measured
         with contextlib.ExitStack() as stack:
             if args.discovery_server:
                 stack.enter_context(discovery_server())
@@ -319,6 +343,7 @@ def main(argv: list[str] | None = None) -> int:
                 args.goal,
                 args.server_timeout,
                 hog,
+                domains,
             )
         row["discovery"] = "server" if args.discovery_server else "simple"
         row["profile_file"] = Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]).name

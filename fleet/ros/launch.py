@@ -37,6 +37,8 @@ class ReadyInfo(TypedDict):
     #: With ``--shards`` above 1: each shard process's pid and creation time (wall s).
     shard_pids: NotRequired[list[int]]
     shard_create_s: NotRequired[list[float]]
+    #: With ``--shards`` above 1: each shard's ROS domain (differ with ``--shard-domains``).
+    shard_domain_ids: NotRequired[list[int]]
 
 
 def private_domain_id(base: int = 40, span: int = 150) -> int:

@@ -339,6 +339,7 @@ def map_msg(grid: OccupancyGrid, stamp: Time) -> GridMsg:
     return m
 
 
+# long: one add_argument per option of the command
 def build_parser() -> argparse.ArgumentParser:
     """The ``fleet sim-ros`` argument parser."""
     ap = argparse.ArgumentParser(
@@ -394,6 +395,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="DDS participants (rclpy contexts) one process spreads its robots' nodes over "
         "(default 1; more did not make discovery faster here: docs/ros.md, Scale)",
     )
+    shard_domains_help = "with --shards: shard I on ROS_DOMAIN_ID + I - 1 (docs/ros.md, Shards)"
+    ap.add_argument("--shard-domains", action="store_true", help=shard_domains_help)
     ap.add_argument("--shard-of", default=None, help=argparse.SUPPRESS)  # I/K: one shard's process
     ap.add_argument("--ready-file", default=None, help="write a JSON line here once every server exists")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
@@ -460,8 +463,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if parent:
         return run_shards(
-            cfg, argv, args.shards, ready_file=args.ready_file, truth=args.truth, plot=args.plot
-        )
+            cfg, argv, args.shards, ready_file=args.ready_file, truth=args.truth, plot=args.plot,
+            domains=args.shard_domains,
+        )  # fmt: skip
     if args.shard_of:
         follow_parent()
     code = serve(

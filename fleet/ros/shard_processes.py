@@ -22,7 +22,12 @@ reaches them all anyway, they share its process group); a shard still running af
 on its own with an error stops the others (exit 1). The ready file (``--ready-file``) is
 written once every shard is ready: ``pid`` (the parent), ``robots``, ``create_s`` (wall s from
 the parent's start), ``shards``, ``participants`` (per shard), ``shard_pids``,
-``shard_create_s``. ``--truth`` / ``--plot`` merge the shards' ground truth.
+``shard_create_s``, ``shard_domain_ids``. ``--truth`` / ``--plot`` merge the shards' ground truth.
+
+``--shard-domains`` puts shard ``I`` on ROS domain ``ROS_DOMAIN_ID + I - 1``: FastDDS's simple
+discovery then no longer makes every shard match every other shard's endpoints (its cost grows
+with the endpoints on both sides), but a client sees a shard's robots only from a participant
+on that shard's domain (``make_ros_backends(..., domain_id=...)`` per shard; RViz per domain).
 
 Imports nothing from ROS (the parent stays a small process).
 """
@@ -57,7 +62,11 @@ POLL_S = 0.05
 #: Exit status after SIGINT / SIGTERM (as one process: docs/cli.md).
 EXIT_INTERRUPTED = 130
 #: Options of the parent that its shards do not get (the parent handles them).
-PARENT_ONLY = ("--shards", "--ready-file", "--truth", "--plot")
+PARENT_ONLY = ("--shards", "--ready-file", "--truth", "--plot", "--shard-domains")
+#: Options of :data:`PARENT_ONLY` that take no value.
+FLAGS = ("--shard-domains",)
+#: Highest ROS domain id FastDDS can use on Linux (its port arithmetic).
+MAX_DOMAIN_ID = 101
 _PR_SET_PDEATHSIG = 1
 
 
@@ -75,6 +84,8 @@ def child_argv(argv: list[str]) -> list[str]:
     out: list[str] = []
     it = iter(argv)
     for a in it:
+        if a in FLAGS:
+            continue
         if a in PARENT_ONLY:
             next(it, None)
         elif not a.startswith(tuple(f"{o}=" for o in PARENT_ONLY)):
@@ -112,11 +123,13 @@ def run_shards(
     ready_file: str | None = None,
     truth: str | None = None,
     plot: str | None = None,
+    domains: bool = False,
 ) -> int:
     """The parent of ``count`` shard processes serving ``cfg``'s robots (``argv``: the
     command's arguments, passed on without :data:`PARENT_ONLY`). Returns the exit status: 0
     when every shard ended its ``--duration``, 130 after SIGINT / SIGTERM, 1 when a shard
-    failed, 2 when there are more shards than robots."""
+    failed, 2 when there are more shards than robots. ``domains``: shard ``I`` on ROS domain
+    ``ROS_DOMAIN_ID + I - 1`` (``--shard-domains``)."""
     if count > len(cfg.robots):
         print(f"error: --shards {count} is more than the {len(cfg.robots)} robots", file=sys.stderr)
         return 2
@@ -124,6 +137,14 @@ def run_shards(
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGTERM, stop)
     t0 = time.monotonic()
+    base = int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
+    ids = [base + i if domains else base for i in range(count)]
+    if ids[-1] > MAX_DOMAIN_ID:
+        print(
+            f"error: --shard-domains needs domains {base}..{ids[-1]}; at most {MAX_DOMAIN_ID}",
+            file=sys.stderr,
+        )
+        return 2
     with tempfile.TemporaryDirectory(prefix="fleet-sim-ros-shards-") as tmp:
         files = [Path(tmp) / f"ready{i}.json" for i in range(count)]
         truths = [Path(tmp) / f"truth{i}.json" for i in range(count)]
@@ -132,6 +153,7 @@ def run_shards(
         try:
             for i in range(count):
                 extra = ["--shard-of", f"{i + 1}/{count}", "--ready-file", str(files[i])]
+                extra += ["--domain-id", str(ids[i])] if domains else []
                 extra += ["--truth", str(truths[i])] if truth or plot else []
                 cmd = [sys.executable, "-m", "fleet.ros.nav2_server", *child_argv(argv), *extra]
                 procs.append(subprocess.Popen(cmd, env=env))
@@ -192,6 +214,7 @@ def _announce(
         "participants": infos[0]["participants"],
         "shard_pids": [p.pid for p in procs],
         "shard_create_s": [i["create_s"] for i in infos],
+        "shard_domain_ids": [int(i["domain_id"]) for i in infos],
     }
     print(
         f"[sim-ros] serving {len(cfg.robots)} robots from {len(procs)} shard processes (ready in "
