@@ -65,8 +65,8 @@ EXIT_INTERRUPTED = 130
 PARENT_ONLY = ("--shards", "--ready-file", "--truth", "--plot", "--shard-domains")
 #: Options of :data:`PARENT_ONLY` that take no value.
 FLAGS = ("--shard-domains",)
-#: Highest ROS domain id FastDDS can use on Linux (its port arithmetic).
-MAX_DOMAIN_ID = 101
+#: Highest ROS domain id (ROS 2; FastDDS advises at most 101 on Linux, ephemeral ports).
+MAX_DOMAIN_ID = 232
 _PR_SET_PDEATHSIG = 1
 
 

@@ -142,3 +142,21 @@ def test_the_shards_get_the_command_line_without_the_parents_options() -> None:
     for bad in ("0/4", "5/4", "x", "2/"):
         with pytest.raises(ValueError, match="shard-of"):
             shard_of(bad)
+
+
+def test_shard_domains_put_each_shard_on_its_own_ros_domain() -> None:
+    """``--shard-domains``: shard I on ``ROS_DOMAIN_ID + I - 1``. A client on the second
+    domain drives robot 2 (shard 2) to its goal, and sees none of shard 1's robots."""
+    from fleet.ros.action_graph import served_actions
+    from fleet.ros.backend import OWN_NODES, make_ros_backends
+    from fleet.types import GoalStatus, NavigateToPose
+
+    base = int(os.environ["ROS_DOMAIN_ID"])
+    with ServerProcess.for_config(WAREHOUSE, *_args("--shard-domains"), ready_timeout_s=READY_S) as srv:
+        assert srv.info.get("shard_domain_ids") == [base, base + 1]
+        with make_ros_backends(["/robot2"], domain_id=base + 1, wait_s=GOAL_S, server_timeout_s=GOAL_S) as rb:
+            goal = rb["/robot2"].send_goal(NavigateToPose(Pose2D(3.5, 5.5, 1.57)))
+            wait_until(lambda: rb["/robot2"].goal_state(goal).status.terminal, GOAL_S, "robot 2's goal")
+            assert rb["/robot2"].goal_state(goal).status is GoalStatus.SUCCEEDED
+            seen = served_actions(rb["/robot2"].node, ["/robot1", "/robot2"], OWN_NODES)
+            assert seen["/robot1"] == frozenset() and "navigate_to_pose" in seen["/robot2"]
