@@ -2,14 +2,16 @@
 """How many namespaced Nav2 robots one ROS 2 process (``fleet sim-ros``) can serve, and what
 it costs: a benchmark, not a test.
 
-For each robot count N (and interface profile): start ``python -m fleet.ros.nav2_server
-CONFIG --robots N`` in a child process and measure
-  * create_s: creating the N facades (nodes, action servers, services) in the server;
-  * server_rss_mb: the server's resident memory once ready;
+For each robot count N (and interface profile, shard count, CPU hogs): start ``python -m
+fleet.ros.nav2_server CONFIG --robots N --shards K`` in a child process (K > 1: a parent and K
+shard processes, each serving and simulating N/K robots) and measure
+  * launch_s: from starting the server until it (every shard) is ready;
+  * create_s: creating the N facades (nodes, action servers, services) in the server (with
+    shards: the slowest shard's; launch_s includes Python's start-up);
+  * server_rss_mb: the server's resident memory once ready (the parent and its shards);
   * client_create_s: creating N RosNavigationBackends in this process (one lean node each,
-    in as many rclpy contexts, i.e. DDS participants, as the server's --shards, one executor
-    thread each; with --client-actions nav each makes only the two navigators' action clients
-    at start);
+    one rclpy context, i.e. one DDS participant: "a client"; with --client-actions nav each
+    makes only the two navigators' action clients at start);
   * discover_s: from the same start until every robot's 7 action servers are discovered (read
     from the graph node by node: fleet.ros.action_graph);
   * active_s: from the same start until every robot's navigator answers ``active`` on its
@@ -17,11 +19,17 @@ CONFIG --robots N`` in a child process and measure
   * wait_all_s: sending one goal to every robot at once (--goal wait: Wait(0.5 s); here:
     NavigateToPose to where the robot stands) until all SUCCEEDED (the goal round trip under
     load, at --speed 1); wait_ok of N succeeded, wait_other how the others ended;
-  * client_rss_mb: this process's resident memory growth.
+  * answered_s: from the client's start until every robot answered its goal (discovery,
+    navigators active, the goal round trip); total_s: launch_s + answered_s (a cold start);
+  * client_rss_mb: this process's resident memory growth;
+  * load: the 1-minute load average at the row's start and end.
+--hog H runs H busy loops (one Python process each, not niced) beside the row: the same
+fleet on a machine that is busy with something else.
 Private ROS domain, loopback, the fleet's FastDDS discovery profile (``FLEET_ROS_DISCOVERY=scale``
 in the environment: the 20 s-lease profile for both sides; the row's profile_file names it).
 
-Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full] [--shards 1,8]
+Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full] [--shards 1,2,4]
+       [--hog 0,1] [--domains same,shard]
        [--executor single,events] [--client-actions all,nav] [--goal wait|here]
        [--discovery-server]
        [--config configs/warehouse_patrol_30.yaml] [--json out/bench_ros_scale.json]
@@ -92,6 +100,18 @@ def discovery_server(timeout_s: float = 30.0) -> Iterator[str]:
             proc.wait()
 
 
+@contextlib.contextmanager
+def hogs(count: int) -> Iterator[None]:
+    """``count`` busy loops (one Python process each) while the block runs."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+    try:
+        yield
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
+
+
 def one(
     config: str,
     n: int,
@@ -102,6 +122,8 @@ def one(
     client_actions: str = "all",
     goal: str = "wait",
     server_timeout_s: float = 3.0,
+    hog: int = 0,
+    domains: str = "same",
 ) -> dict[str, float | int | str]:
     from fleet.ros.backend import BACKEND_KINDS, make_ros_backends
     from fleet.ros.executors import EXECUTOR_VAR
@@ -116,8 +138,12 @@ def one(
         "client_actions": client_actions,
         "goal": goal,
         "server_timeout_s": server_timeout_s,
+        "hog": hog,
+        "domains": domains,
+        "load_start": round(os.getloadavg()[0], 1),
     }
     eager = CLIENT_ACTIONS[client_actions] or BACKEND_KINDS
+    t_launch = time.monotonic()
     with ServerProcess.for_config(
         config,
         "--robots",
@@ -130,19 +156,30 @@ def one(
         "0.5",
         "--shards",
         str(shards),
+        *(["--shard-domains"] if domains == "shard" and shards > 1 else []),
         ready_timeout_s=timeout_s,
     ) as srv:
-        row["create_s"] = srv.info["create_s"]
+        row["launch_s"] = round(time.monotonic() - t_launch, 3)
+        row["create_s"] = max(srv.info.get("shard_create_s", [srv.info["create_s"]]))
         time.sleep(0.5)
-        row["server_rss_mb"] = round(rss_mb(srv.proc.pid), 1)
+        pids = [srv.proc.pid, *srv.info.get("shard_pids", [])]
+        row["server_rss_mb"] = round(sum(rss_mb(p) for p in pids), 1)
         rss0 = rss_mb()
         t0 = time.monotonic()
         names = [f"/robot{i + 1}" for i in range(n)]
-        # the client side in as many participants (contexts) as the server side
-        groups = [
-            make_ros_backends(names[k::shards], eager=eager, server_timeout_s=server_timeout_s)
-            for k in range(min(shards, n))
-        ]
+        # one client: one participant, whatever the server's shards; with --domains shard one
+        # participant per shard, on that shard's domain (robot i in shard (i-1) % K)
+        ids = srv.info.get("shard_domain_ids", [int(srv.info["domain_id"])])
+        groups = (
+            [make_ros_backends(names, eager=eager, server_timeout_s=server_timeout_s)]
+            if len(set(ids)) == 1
+            else [
+                make_ros_backends(
+                    names[k::shards], eager=eager, server_timeout_s=server_timeout_s, domain_id=d
+                )
+                for k, d in enumerate(ids)
+            ]
+        )
         rb = {ns: g[ns] for g in groups for ns in g.backends}
         row["client_create_s"] = round(time.monotonic() - t0, 3)
         deadline = time.monotonic() + timeout_s
@@ -179,7 +216,10 @@ def one(
                     row["wait_other"] = json.dumps(ends)
                 row["wait_all_s"] = round(time.monotonic() - t1, 3)
                 row["wait_ok"] = ok
+                row["answered_s"] = round(time.monotonic() - t0, 3)
+                row["total_s"] = round(float(row["launch_s"]) + float(row["answered_s"]), 3)
             row["client_rss_mb"] = round(rss_mb() - rss0, 1)
+            row["load_end"] = round(os.getloadavg()[0], 1)
         finally:
             for g in groups:
                 g.close()
@@ -194,6 +234,31 @@ CLIENT_ACTIONS: dict[str, tuple[str, ...] | None] = {
 }
 
 
+def summarize(rows: list[dict[str, float | int | str]]) -> None:
+    """One line per row: discovery and the cold start, each against the 1-shard row of the
+    same robots, profile and hogs (ratios within this run)."""
+    print("robots hog shards domains | launch  discover  answered  total | discover/1  total/1 | goals")
+    for r in rows:
+        base = next(
+            (b for b in rows if b["shards"] == 1 and all(b[k] == r[k] for k in ("robots", "hog", "profile"))),
+            None,
+        )
+
+        def ratio(key: str, row: dict[str, float | int | str] = r, b: object = base) -> str:
+            if not isinstance(b, dict) or key not in row or key not in b:
+                return "-"
+            return f"{float(row[key]) / float(b[key]):.2f}"
+
+        def sec(key: str, row: dict[str, float | int | str] = r) -> str:
+            return f"{float(row[key]):7.1f}" if key in row else "      -"
+
+        print(
+            f"{r['robots']:6} {r['hog']:3} {r['shards']:6} {r['domains']:>7} | {sec('launch_s')} {sec('discover_s')}"
+            f"   {sec('answered_s')} {sec('total_s')} | {ratio('discover_s'):>10} {ratio('total_s'):>8} | "
+            f"{r.get('wait_ok', 0)}/{r['robots']}"
+        )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--robots", default="10,50,100")
@@ -203,7 +268,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--shards",
         default="1",
-        help="comma-separated DDS participant counts of the server (fleet sim-ros --shards), one run each",
+        help="comma-separated server process counts (fleet sim-ros --shards), one run each",
+    )
+    ap.add_argument(
+        "--domains",
+        default="same",
+        help="comma-separated: same (every shard on one ROS domain, one client participant) or "
+        "shard (fleet sim-ros --shard-domains: a domain per shard, one client participant per "
+        "domain), one run each",
+    )
+    ap.add_argument(
+        "--hog",
+        default="0",
+        help="comma-separated counts of busy-loop processes run beside the row, one run each",
     )
     ap.add_argument(
         "--executor",
@@ -240,30 +317,39 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("ROS_DOMAIN_ID", str(private_domain_id(base=190, span=40)))
     apply_ros_env_defaults()
     rows = []
-    for profile in args.profile.split(","):
-        for n in (int(x) for x in args.robots.split(",")):
-            for shards in (int(x) for x in args.shards.split(",")):
-                for executor, actions in itertools.product(
-                    args.executor.split(","), args.client_actions.split(",")
-                ):
-                    with contextlib.ExitStack() as stack:
-                        if args.discovery_server:
-                            stack.enter_context(discovery_server())
-                        row = one(
-                            args.config,
-                            n,
-                            profile,
-                            args.timeout,
-                            shards,
-                            executor,
-                            actions,
-                            args.goal,
-                            args.server_timeout,
-                        )
-                    row["discovery"] = "server" if args.discovery_server else "simple"
-                    row["profile_file"] = Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]).name
-                    rows.append(row)
-                    print(json.dumps(row), flush=True)
+    for profile, n, hog, shards, domains, executor, actions in itertools.product(
+        args.profile.split(","),
+        (int(x) for x in args.robots.split(",")),
+        (int(x) for x in args.hog.split(",")),
+        (int(x) for x in args.shards.split(",")),
+        args.domains.split(","),
+        args.executor.split(","),
+        args.client_actions.split(","),
+    ):
+        if shards == 1 and domains != "same" and "same" in args.domains.split(","):
+            continue  # one shard has one domain: the row is already measured
+        with contextlib.ExitStack() as stack:
+            if args.discovery_server:
+                stack.enter_context(discovery_server())
+            stack.enter_context(hogs(hog))
+            row = one(
+                args.config,
+                n,
+                profile,
+                args.timeout,
+                shards,
+                executor,
+                actions,
+                args.goal,
+                args.server_timeout,
+                hog,
+                domains,
+            )
+        row["discovery"] = "server" if args.discovery_server else "simple"
+        row["profile_file"] = Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]).name
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    summarize(rows)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")

@@ -17,7 +17,7 @@ import tempfile
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TypedDict
+from typing import NotRequired, TypedDict
 
 from fleet.errors import BackendError
 from fleet.ros.env import apply_ros_env_defaults
@@ -30,7 +30,15 @@ class ReadyInfo(TypedDict):
     robots: list[str]
     create_s: float
     domain_id: str
+    #: Processes serving the robots (``--shards``; 1 for one process).
     shards: int
+    #: DDS participants per process (``--participants``).
+    participants: int
+    #: With ``--shards`` above 1: each shard process's pid and creation time (wall s).
+    shard_pids: NotRequired[list[int]]
+    shard_create_s: NotRequired[list[float]]
+    #: With ``--shards`` above 1: each shard's ROS domain (differ with ``--shard-domains``).
+    shard_domain_ids: NotRequired[list[int]]
 
 
 def private_domain_id(base: int = 40, span: int = 150) -> int:

@@ -17,9 +17,11 @@ localization, motion and navigation checks of :mod:`fleet.diagnostics`, and each
 manager's health) at ``--diagnostics-hz``.
 
 This module is the server process: :class:`Nav2SimServer` owns the rclpy contexts (one DDS
-participant each, ``--shards``, one by default), one
+participant each, ``--participants``, one by default), one
 single-threaded executor per context (:mod:`fleet.ros.shards`) and the simulator's time;
-:func:`serve` runs it until a signal; :func:`main` is the command line.
+:func:`serve` runs it until a signal; :func:`main` is the command line. ``--shards K`` runs K
+such processes instead, each serving (and simulating) a share of the robots
+(:mod:`fleet.ros.shard_processes`).
 
 Threading: with one shard everything (ROS callbacks, stepping the simulator) runs on one
 thread; with more, each further shard's executor waits for work in a thread of its own, but
@@ -70,7 +72,10 @@ from fleet.types import Pose2D  # noqa: E402
 from nodes.bt_xml import parse_file  # noqa: E402
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from fleet.config.model import FleetConfig
+    from fleet.robots import RobotSpec
     from sim.simulator import Simulator
 
 #: Most simulator steps one timer callback runs to catch up; beyond, the backlog is dropped
@@ -110,11 +115,12 @@ class Nav2SimServer:
         nav_to_pose_xml, nav_through_poses_xml: the navigator trees of goals with an empty
             ``behavior_tree`` (default: the project's ``nodes/trees/navigate_to_pose.xml`` /
             ``navigate_through_poses.xml``).
-        shards: spread the robots' nodes over this many rclpy contexts, i.e. DDS
-            participants (robot ``k`` in shard ``k % shards``), each with its own executor
+        participants: spread the robots' nodes over this many rclpy contexts, i.e. DDS
+            participants (robot ``k`` in participant ``k % participants``), each with its own executor
             and thread, callbacks serialized by one lock (:mod:`fleet.ros.shards`: the
             simulator stays one world, touched by one callback at a time). Needs ``context``
             unset when above 1.
+        world_node: name of the node publishing ``/map``, ``/tf`` and ``/diagnostics``.
 
     Call :meth:`spin` (blocks until :meth:`request_stop`, e.g. from a signal handler) or
     :meth:`spin_once` in your own loop, then :meth:`close`.
@@ -137,14 +143,13 @@ class Nav2SimServer:
         wall: Clock | None = None,
         nav_to_pose_xml: str | None = None,
         nav_through_poses_xml: str | None = None,
-        shards: int = 1,
+        participants: int = 1,
+        world_node: str = "fleet_sim",
     ) -> None:
         profile = Profile.parse(profile)
         if not speed >= 0 or speed == float("inf"):
             raise BackendError(f"speed must be a finite number >= 0, got {speed}")
-        if shards < 1 or (shards > 1 and context is not None):
-            raise BackendError(f"shards must be >= 1 (and 1 with a context passed in), got {shards}")
-        self.shards = Shards(shards, domain_id, context)  # the DDS participants (fleet.ros.shards)
+        self.shards = Shards(participants, domain_id, context)  # the DDS participants (fleet.ros.shards)
         self.sim = sim
         self.speed = float(speed)
         self.wall = wall if wall is not None else WallClock()
@@ -160,7 +165,7 @@ class Nav2SimServer:
         self.end_time: float | None = None
         t_create = self.wall.now()
         self.world = Node(
-            "fleet_sim", context=self.context, start_parameter_services=False, enable_rosout=False
+            world_node, context=self.context, start_parameter_services=False, enable_rosout=False
         )
         self.robots: dict[str, RobotFacade] = {}
         for k, ns in enumerate(namespaces if namespaces is not None else list(sim.namespaces)):
@@ -168,7 +173,7 @@ class Nav2SimServer:
             self.robots[ns] = RobotFacade(
                 sim,
                 ns,
-                contexts[k % shards],
+                contexts[k % participants],
                 profile,
                 stamp=self.stamp,
                 feedback_period=feedback_period,
@@ -182,7 +187,7 @@ class Nav2SimServer:
         self.executor.add_node(self.world)
         for k, r in enumerate(self.robots.values()):
             for node in r.nodes:
-                self.executors[k % shards].add_node(node)
+                self.executors[k % participants].add_node(node)
         self.tf_pub = self.world.create_publisher(TFMessage, "/tf", 100)
         self.map_pub = self.world.create_publisher(GridMsg, "/map", MAP_QOS)
         self.diag_pub = self.world.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -309,13 +314,13 @@ def build_simulator(config_path: str, robots: int | None = None) -> Simulator:
     return simulator_for(load_config(config_path, robots=robots))
 
 
-def simulator_for(cfg: FleetConfig) -> Simulator:
-    """A simulator with the robots of the loaded config ``cfg``."""
+def simulator_for(cfg: FleetConfig, robots: Sequence[RobotSpec] | None = None) -> Simulator:
+    """A simulator with the robots of the loaded config ``cfg`` (or only ``robots`` of them)."""
     from fleet.clock import SimClock
     from sim.simulator import Simulator
 
     sim = Simulator(cfg.grid, cfg.sim, SimClock())
-    for spec in cfg.robots:
+    for spec in cfg.robots if robots is None else robots:
         sim.add_robot(spec)
     return sim
 
@@ -334,6 +339,7 @@ def map_msg(grid: OccupancyGrid, stamp: Time) -> GridMsg:
     return m
 
 
+# long: one add_argument per option of the command
 def build_parser() -> argparse.ArgumentParser:
     """The ``fleet sim-ros`` argument parser."""
     ap = argparse.ArgumentParser(
@@ -378,9 +384,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--shards",
         type=int,
         default=1,
-        help="DDS participants the robots' nodes are spread over (default 1; see docs/ros.md, "
-        "Scale: more did not make discovery faster here)",
+        help="serve the robots from K processes, each simulating its share of them (robot i in "
+        "shard (i-1) %% K; robots of different shards do not see each other: see docs/ros.md, "
+        "Scale); default 1",
     )
+    ap.add_argument(
+        "--participants",
+        type=int,
+        default=1,
+        help="DDS participants (rclpy contexts) one process spreads its robots' nodes over "
+        "(default 1; more did not make discovery faster here: docs/ros.md, Scale)",
+    )
+    shard_domains_help = "with --shards: shard I on ROS_DOMAIN_ID + I - 1 (docs/ros.md, Shards)"
+    ap.add_argument("--shard-domains", action="store_true", help=shard_domains_help)
+    ap.add_argument("--shard-of", default=None, help=argparse.SUPPRESS)  # I/K: one shard's process
     ap.add_argument("--ready-file", default=None, help="write a JSON line here once every server exists")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
     ap.add_argument(
@@ -411,10 +428,12 @@ def main(argv: list[str] | None = None) -> int:
     """``fleet sim-ros CONFIG``: serve the config's simulated robots as namespaced Nav2.
     Returns the exit status: 0 after ``--duration``, 130 after Ctrl-C / SIGTERM, 2 for a bad
     config or argument."""
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(argv)
-    if args.shards < 1:
-        print(f"error: --shards must be at least 1, got {args.shards}", file=sys.stderr)
-        return 2
+    for opt in ("shards", "participants"):
+        if getattr(args, opt) < 1:
+            print(f"error: --{opt} must be at least 1, got {getattr(args, opt)}", file=sys.stderr)
+            return 2
     if args.duration is not None and not args.duration > 0:
         print(
             f"error: --duration must be a positive number of simulated seconds, got {args.duration}",
@@ -430,15 +449,25 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         from fleet.config.loader import load_config
+        from fleet.ros.shard_processes import follow_parent, run_shards, shard_of
 
         cfg = load_config(args.config, robots=args.robots)
-        sim = simulator_for(cfg)
+        index, count = shard_of(args.shard_of) if args.shard_of else (0, 1)
+        parent = args.shards > 1 and args.shard_of is None  # its shards simulate, it does not
+        sim = simulator_for(cfg, [] if parent else cfg.robots[index::count])
         for tree in (args.nav_to_pose_xml, args.nav_through_poses_xml):
             if tree is not None:
                 parse_file(tree)  # a default tree that cannot load is an error at start, as in Nav2
-    except FleetError as exc:
+    except (FleetError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if parent:
+        return run_shards(
+            cfg, argv, args.shards, ready_file=args.ready_file, truth=args.truth, plot=args.plot,
+            domains=args.shard_domains,
+        )  # fmt: skip
+    if args.shard_of:
+        follow_parent()
     code = serve(
         sim,
         speed=args.speed,
@@ -453,7 +482,9 @@ def main(argv: list[str] | None = None) -> int:
         duration_s=args.duration,
         nav_to_pose_xml=args.nav_to_pose_xml,
         nav_through_poses_xml=args.nav_through_poses_xml,
-        shards=args.shards,
+        participants=args.participants,
+        label=f"sim-ros shard {index + 1}/{count}" if args.shard_of else "sim-ros",
+        world_node="fleet_sim" if index == 0 else f"fleet_sim_shard{index + 1}",
     )
     if args.truth:
         write_truth(sim, args.truth)
@@ -497,12 +528,14 @@ def serve(
     domain_id: int | None = None,
     nav_to_pose_xml: str | None = None,
     nav_through_poses_xml: str | None = None,
-    shards: int = 1,
+    participants: int = 1,
+    label: str = "sim-ros",
+    world_node: str = "fleet_sim",
 ) -> int:
-    """Serve ``sim`` (the other arguments are :class:`Nav2SimServer`'s) until SIGINT/SIGTERM
-    or ``duration_s`` simulated seconds have passed. Writes ``ready_file`` (JSON: pid, robots,
-    create_s, domain_id, shards) once every server exists. Returns the process exit status: 0 after
-    the duration, :data:`EXIT_INTERRUPTED` after a signal."""
+    """Serve ``sim`` (the other arguments are :class:`Nav2SimServer`'s; ``label`` starts the
+    printed lines) until SIGINT/SIGTERM or ``duration_s`` simulated seconds have passed. Writes
+    ``ready_file`` (:class:`~fleet.ros.launch.ReadyInfo`) once every server exists. Returns the
+    exit status: 0 after the duration, :data:`EXIT_INTERRUPTED` after a signal."""
     wall = WallClock()
     t0 = wall.now()
     server = Nav2SimServer(
@@ -517,7 +550,8 @@ def serve(
         domain_id=domain_id,
         nav_to_pose_xml=nav_to_pose_xml,
         nav_through_poses_xml=nav_through_poses_xml,
-        shards=shards,
+        participants=participants,
+        world_node=world_node,
     )
     gc.freeze()  # the robots' ROS objects live as long as this process: the collector skips them
 
@@ -532,10 +566,11 @@ def serve(
         "robots": server.served,
         "create_s": round(wall.now() - t0, 3),
         "domain_id": os.environ.get("ROS_DOMAIN_ID", "0"),
-        "shards": len(server.contexts),
+        "shards": 1,
+        "participants": len(server.contexts),
     }
     print(
-        f"[sim-ros] serving {len(server.served)} robots as namespaced Nav2 over {info['shards']} DDS "
+        f"[{label}] serving {len(server.served)} robots as namespaced Nav2 over {info['participants']} DDS "
         f"participant(s) (created in {info['create_s']} s, "
         f"ROS_DOMAIN_ID={info['domain_id']}); Ctrl-C stops",
         flush=True,
@@ -556,7 +591,7 @@ def serve(
     finally:
         server.close()
     t = sim.clock.now() - sim_t0
-    print(f"[sim-ros] stopped ({server.stopped_by or 'shut down'}) after {t:.1f} s simulated", flush=True)
+    print(f"[{label}] stopped ({server.stopped_by or 'shut down'}) after {t:.1f} s simulated", flush=True)
     return EXIT_INTERRUPTED if server.stopped_by == "signal" else 0
 
 

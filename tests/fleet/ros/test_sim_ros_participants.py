@@ -1,4 +1,4 @@
-"""``fleet sim-ros --shards K``: the robots' Nav2 interfaces spread over K DDS participants of
+"""``fleet sim-ros --participants K``: the robots' Nav2 interfaces spread over K DDS participants of
 one server process, one simulated world. Every robot is discovered and answers its actions,
 whichever participant serves it, and robots of different participants still see each other.
 
@@ -36,7 +36,7 @@ def truth_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def server(truth_file: Path) -> Iterator[ServerProcess]:
     with ServerProcess.for_config(
-        WAREHOUSE, "--speed", "2", "--profile", "lean", "--shards", "3", "--truth", str(truth_file)
+        WAREHOUSE, "--speed", "2", "--profile", "lean", "--participants", "3", "--truth", str(truth_file)
     ) as srv:
         yield srv
 
@@ -55,7 +55,7 @@ def backends(server: ServerProcess) -> Iterator[RosBackends]:
 def test_every_robot_of_every_participant_is_discovered_and_answers(
     server: ServerProcess, backends: RosBackends
 ) -> None:
-    assert server.info["shards"] == 3
+    assert server.info["participants"] == 3 and server.info["shards"] == 1
     assert sorted(server.info["robots"]) == sorted(ROBOTS)
     ids = {ns: backends[ns].send_goal(Wait(0.5)) for ns in ROBOTS}
     wait_until(
