@@ -63,6 +63,31 @@ def warm_up() -> None:
 register_warm_up(warm_up)
 
 
+@jit
+def _relax(
+    heap: list[tuple[float, int]],
+    cost: np.ndarray,
+    parent: np.ndarray,
+    n: int,
+    cur: int,
+    ng: float,
+    width: int,
+    gx: int,
+    gy: int,
+    k: float,
+) -> None:  # pragma: no cover - compiled
+    """:func:`astar`'s step to cell ``n`` from ``cur`` at cost ``ng``: kept and pushed with the
+    octile heuristic (weighted 1.001) when cheaper than what ``n`` had."""
+    if ng < cost[n]:
+        cost[n] = ng
+        parent[n] = cur
+        ny = n // width
+        nx = n - ny * width
+        dx = nx - gx if nx > gx else gx - nx
+        dy = ny - gy if ny > gy else gy - ny
+        heapq.heappush(heap, (ng + 1.001 * (dx + dy + k * (dx if dx < dy else dy)), n))
+
+
 # long: the planner's A* as written in Python, loop for loop
 @jit
 def astar(
@@ -100,29 +125,13 @@ def astar(
         for off in straight:
             n = cur + off
             if free[n] and not closed[n]:
-                ng = base + 1.0
-                if ng < cost[n]:
-                    cost[n] = ng
-                    parent[n] = cur
-                    ny = n // width
-                    nx = n - ny * width
-                    dx = nx - gx if nx > gx else gx - nx
-                    dy = ny - gy if ny > gy else gy - ny
-                    heapq.heappush(heap, (ng + 1.001 * (dx + dy + k * (dx if dx < dy else dy)), n))
+                _relax(heap, cost, parent, n, cur, base + 1.0, width, gx, gy, k)
         for d in range(4):
             ox = 1 if d % 2 == 0 else -1
             oy = width if d < 2 else -width
             n = cur + oy + ox
             if free[n] and free[cur + ox] and free[cur + oy] and not closed[n]:
-                ng = base + sqrt2
-                if ng < cost[n]:
-                    cost[n] = ng
-                    parent[n] = cur
-                    ny = n // width
-                    nx = n - ny * width
-                    dx = nx - gx if nx > gx else gx - nx
-                    dy = ny - gy if ny > gy else gy - ny
-                    heapq.heappush(heap, (ng + 1.001 * (dx + dy + k * (dx if dx < dy else dy)), n))
+                _relax(heap, cost, parent, n, cur, base + sqrt2, width, gx, gy, k)
     return 0
 
 
