@@ -11,9 +11,11 @@ Robots blocked by dead or parked robots: the parked robot is nudged aside, or th
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import networkx as nx
 
+from fleet.traffic.grants import moves_ahead
 from fleet.traffic.paths import install, next_must, splice
 from fleet.traffic.reservations import Resource, edge_key
 from fleet.traffic.state import TrackedRobot, TrafficState
@@ -180,6 +182,7 @@ def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | N
         if orr is not None:
             avoid.update(orr.path[orr.cur : orr.cur + SIDESTEP_CLEAR_NODES])
     holder, adj, claims = st.table.holder, st.roads.adj, st.claims
+    entered = _entered_corridor(st, r.name) if st.params.sidestep_clear_corridor else None
     parent: dict[str, str] = {start: start}
     frontier = [start]
     target = None
@@ -195,7 +198,7 @@ def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | N
                     continue
                 parent[v] = u
                 nxt.append(v)
-                if v not in avoid and target is None:
+                if v not in avoid and target is None and (entered is None or not entered(v)):
                     target = v
         if target is not None or not nxt:
             break
@@ -207,6 +210,40 @@ def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | N
         seg.append(parent[seg[-1]])
     seg.reverse()
     return seg
+
+
+def _entered_corridor(st: TrafficState, robot: str) -> Callable[[str], bool]:
+    """A test: whether the node lies inside a single-lane corridor (roadmap degree 2, a cut
+    edge's cells included) into which, or along which, another live robot's next
+    :data:`~fleet.traffic.params.ONCOMING_NODES` path nodes step. A robot stepped aside
+    there stands in that robot's way: it waits to come back out while the other waits for
+    the corridor it blocks (a head-on pair at an aisle's first cell)."""
+    idx = moves_ahead(st)
+    adj, deg = st.roads.adj, st.roads.deg
+
+    def others_enter(v: str) -> bool:
+        for u in adj[v]:
+            who = idx.get((u, v))
+            if who is not None and (len(who) > 1 or robot not in who):
+                return True
+        return False
+
+    def entered(v: str) -> bool:
+        if deg[v] != 2:
+            return False
+        seen = {v}
+        todo = [v]
+        while todo:  # the corridor's nodes: v's chain of degree-2 nodes
+            u = todo.pop()
+            if others_enter(u):
+                return True
+            for w in adj[u]:
+                if w not in seen and deg[w] == 2:
+                    seen.add(w)
+                    todo.append(w)
+        return False
+
+    return entered
 
 
 def sidestep(st: TrafficState, r: TrackedRobot, others: set[str], now: float, back: bool) -> bool:

@@ -105,6 +105,7 @@ class TrafficParams:
     retarget_reach_m: float = 60.0
     retarget_shorter: bool = False
     charge_margin_priority: bool = False
+    sidestep_clear_corridor: bool = True
 
     @property
     def clearance(self) -> float:
