@@ -22,6 +22,7 @@ from fleet.traffic.state import TrackedRobot, TrafficState
 
 #: How many of another robot's next path nodes a robot stepping aside must not stop on.
 SIDESTEP_CLEAR_NODES = 12
+WHOLE = 0
 
 
 def cycles(st: TrafficState, now: float = math.inf, min_wait: float = -math.inf) -> list[set[str]]:
@@ -116,6 +117,15 @@ def resolve(st: TrafficState, comp: set[str], now: float) -> bool:
             st.metrics.sidesteps += 1
             st.log(now, f"{v.name} stepped aside to {v.path[v.g]} to break a deadlock")
             return True
+    deep = st.params.sidestep_deep_depth
+    if deep > st.params.sidestep_depth:
+        # nobody found a free node off the others' way nearby (two robots head-on on a
+        # corridor with cells): a member steps aside farther before outsiders are moved
+        for v in members:
+            if sidestep(st, v, {m.name for m in members if m is not v}, now, back=True, depth=deep):
+                st.metrics.sidesteps += 1
+                st.log(now, f"{v.name} stepped aside far to {v.path[v.g]} to break a deadlock")
+                return True
     make_room(st, comp, members, now)
     return False
 
@@ -172,9 +182,11 @@ def reroute(st: TrafficState, r: TrackedRobot, avoid: set[str], now: float, boun
     return True
 
 
-def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | None:
-    """Nodes from ``r``'s grant end to the nearest node within ``sidestep_depth`` edges that
-    is reachable over free nodes and edges and not on the next part of ``others``' paths."""
+def _aside(st: TrafficState, r: TrackedRobot, others: set[str], depth: int) -> list[str] | None:
+    """Nodes from ``r``'s grant end to the nearest node within ``depth`` edges that is
+    reachable over free nodes and edges and not on the next part of ``others``' paths. With
+    ``sidestep_clear_corridor``, a corridor node another robot is about to enter is taken
+    only when no other such node lies within ``depth`` edges."""
     start = r.path[r.g]
     avoid: set[str] = set()
     for o in others:
@@ -185,8 +197,8 @@ def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | N
     entered = _entered_corridor(st, r.name) if st.params.sidestep_clear_corridor else None
     parent: dict[str, str] = {start: start}
     frontier = [start]
-    target = None
-    for _ in range(st.params.sidestep_depth):
+    target = fallback = None
+    for _ in range(depth):
         nxt: list[str] = []
         for u in frontier:
             for v in adj[u]:
@@ -198,11 +210,16 @@ def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | N
                     continue
                 parent[v] = u
                 nxt.append(v)
-                if v not in avoid and target is None and (entered is None or not entered(v)):
+                if v in avoid or target is not None:
+                    continue
+                if entered is None or not entered(v):
                     target = v
+                elif fallback is None:
+                    fallback = v
         if target is not None or not nxt:
             break
         frontier = nxt
+    target = target or fallback
     if target is None:
         return None
     seg = [target]
@@ -213,15 +230,15 @@ def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | N
 
 
 def _entered_corridor(st: TrafficState, robot: str) -> Callable[[str], bool]:
-    """A test: whether the node lies inside a single-lane corridor (roadmap degree 2, a cut
-    edge's cells included) into which, or along which, another live robot's next
-    :data:`~fleet.traffic.params.ONCOMING_NODES` path nodes step. A robot stepped aside
-    there stands in that robot's way: it waits to come back out while the other waits for
-    the corridor it blocks (a head-on pair at an aisle's first cell)."""
+    """A test: whether the node is a single-lane corridor node (roadmap degree 2: an aisle's
+    node or a cut edge's cell) that another live robot's next
+    :data:`~fleet.traffic.params.ONCOMING_NODES` path nodes step onto. A robot stepped
+    aside there stands in that robot's way: it waits to come back out while the other
+    waits for the node it holds (a head-on pair at an aisle's first cell)."""
     idx = moves_ahead(st)
     adj, deg = st.roads.adj, st.roads.deg
 
-    def others_enter(v: str) -> bool:
+    def enters(v: str) -> bool:
         for u in adj[v]:
             who = idx.get((u, v))
             if who is not None and (len(who) > 1 or robot not in who):
@@ -231,11 +248,13 @@ def _entered_corridor(st: TrafficState, robot: str) -> Callable[[str], bool]:
     def entered(v: str) -> bool:
         if deg[v] != 2:
             return False
+        if not WHOLE:
+            return enters(v)
         seen = {v}
         todo = [v]
-        while todo:  # the corridor's nodes: v's chain of degree-2 nodes
+        while todo:
             u = todo.pop()
-            if others_enter(u):
+            if enters(u):
                 return True
             for w in adj[u]:
                 if w not in seen and deg[w] == 2:
@@ -246,15 +265,17 @@ def _entered_corridor(st: TrafficState, robot: str) -> Callable[[str], bool]:
     return entered
 
 
-def sidestep(st: TrafficState, r: TrackedRobot, others: set[str], now: float, back: bool) -> bool:
+def sidestep(
+    st: TrafficState, r: TrackedRobot, others: set[str], now: float, back: bool, depth: int = 0
+) -> bool:
     """Move ``r`` to a free node a few edges away that is not on the next part of the
     paths of ``others`` (granted at once), then (``back``) continue its path from there to
     its next must-visit node (by the shortest way, against the flow if need be, for a robot
     with a detour limit; else with the flow); without ``back`` it ends there. ``r`` then
-    yields to ``others``."""
+    yields to ``others``. ``depth``: how many edges away at most (0: ``sidestep_depth``)."""
     if not r.alive or not r.path:
         return False
-    seg = _aside(st, r, others)
+    seg = _aside(st, r, others, depth or st.params.sidestep_depth)
     if seg is None:
         return False
     target = seg[-1]

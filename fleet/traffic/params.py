@@ -73,6 +73,15 @@ class TrafficParams:
     chargers, and as base priority at intersections, renewed every cycle on the way) by
     their energy margin, battery minus the energy to drive to the charger, instead of by
     the battery they had when they asked (needs the policy's battery model).
+
+    Side steps on a roadmap with cells (``docs/traffic.md``, "Why waits cannot become
+    permanent deadlocks"): ``sidestep_clear_corridor``: a robot stepping aside never stops on
+    a single-lane corridor node (degree 2: an aisle's node or a cut edge's cell) that another
+    robot's next :data:`ONCOMING_NODES` path nodes step onto (it stood in that robot's way at
+    an aisle's first cell, each waiting for the other's node). ``sidestep_deep_depth`` (0 =
+    off): when no member of a deadlock can reroute or step aside within ``sidestep_depth``
+    edges, a member may step aside up to this many edges away before a robot outside the
+    deadlock is moved.
     """
 
     robot_radius: float = 0.3
@@ -106,6 +115,7 @@ class TrafficParams:
     retarget_shorter: bool = False
     charge_margin_priority: bool = False
     sidestep_clear_corridor: bool = True
+    sidestep_deep_depth: int = 0
 
     @property
     def clearance(self) -> float:
