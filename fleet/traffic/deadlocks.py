@@ -98,6 +98,7 @@ def resolve(st: TrafficState, comp: set[str], now: float) -> bool:
     """Make one member of the deadlocked set ``comp`` give way, lowest priority first;
     True if one did. Otherwise a robot next to the set makes room (False: retried later)."""
     members = sorted((st.robots[n] for n in comp), key=lambda r: (st.priority(r, now), -r.rank))
+    strict = st.params.sidestep_clear_corridor
     for v in members:
         others = [m for m in members if m is not v]
         if v.claims & {x for m in others for x in m.blocked_on}:
@@ -113,18 +114,21 @@ def resolve(st: TrafficState, comp: set[str], now: float) -> bool:
             st.log(now, f"{v.name} rerouted to break a deadlock")
             after_yield(st, v, others, now)
             return True
-        if sidestep(st, v, {m.name for m in others}, now, back=True):
+        if sidestep(st, v, {m.name for m in others}, now, back=True, strict=strict):
             st.metrics.sidesteps += 1
             st.log(now, f"{v.name} stepped aside to {v.path[v.g]} to break a deadlock")
             return True
-    deep = st.params.sidestep_deep_depth
-    if deep > st.params.sidestep_depth:
-        # nobody found a free node off the others' way nearby (two robots head-on on a
-        # corridor with cells): a member steps aside farther before outsiders are moved
+    # no member found a side step clear of every corridor another robot is about to enter:
+    # one steps into such a corridor after all, then (``sidestep_deep_depth``) farther away
+    p = st.params
+    tries = [p.sidestep_depth] if strict else []
+    if p.sidestep_deep_depth > p.sidestep_depth:
+        tries.append(p.sidestep_deep_depth)
+    for depth in tries:
         for v in members:
-            if sidestep(st, v, {m.name for m in members if m is not v}, now, back=True, depth=deep):
+            if sidestep(st, v, {m.name for m in members if m is not v}, now, back=True, depth=depth):
                 st.metrics.sidesteps += 1
-                st.log(now, f"{v.name} stepped aside far to {v.path[v.g]} to break a deadlock")
+                st.log(now, f"{v.name} stepped aside to {v.path[v.g]} to break a deadlock")
                 return True
     make_room(st, comp, members, now)
     return False
@@ -182,11 +186,13 @@ def reroute(st: TrafficState, r: TrackedRobot, avoid: set[str], now: float, boun
     return True
 
 
-def _aside(st: TrafficState, r: TrackedRobot, others: set[str], depth: int) -> list[str] | None:
+def _aside(
+    st: TrafficState, r: TrackedRobot, others: set[str], depth: int, strict: bool = False
+) -> list[str] | None:
     """Nodes from ``r``'s grant end to the nearest node within ``depth`` edges that is
     reachable over free nodes and edges and not on the next part of ``others``' paths. With
     ``sidestep_clear_corridor``, a corridor node another robot is about to enter is taken
-    only when no other such node lies within ``depth`` edges."""
+    only when no other such node lies within ``depth`` edges, and never if ``strict``."""
     start = r.path[r.g]
     avoid: set[str] = set()
     for o in others:
@@ -198,7 +204,7 @@ def _aside(st: TrafficState, r: TrackedRobot, others: set[str], depth: int) -> l
     parent: dict[str, str] = {start: start}
     frontier = [start]
     target = fallback = None
-    for _ in range(depth):
+    for _ in range(int(depth)):
         nxt: list[str] = []
         for u in frontier:
             for v in adj[u]:
@@ -219,7 +225,8 @@ def _aside(st: TrafficState, r: TrackedRobot, others: set[str], depth: int) -> l
         if target is not None or not nxt:
             break
         frontier = nxt
-    target = target or fallback
+    if not strict:
+        target = target or fallback
     if target is None:
         return None
     seg = [target]
@@ -266,16 +273,23 @@ def _entered_corridor(st: TrafficState, robot: str) -> Callable[[str], bool]:
 
 
 def sidestep(
-    st: TrafficState, r: TrackedRobot, others: set[str], now: float, back: bool, depth: int = 0
+    st: TrafficState,
+    r: TrackedRobot,
+    others: set[str],
+    now: float,
+    back: bool,
+    depth: int = 0,
+    strict: bool = False,
 ) -> bool:
     """Move ``r`` to a free node a few edges away that is not on the next part of the
     paths of ``others`` (granted at once), then (``back``) continue its path from there to
     its next must-visit node (by the shortest way, against the flow if need be, for a robot
     with a detour limit; else with the flow); without ``back`` it ends there. ``r`` then
-    yields to ``others``. ``depth``: how many edges away at most (0: ``sidestep_depth``)."""
+    yields to ``others``. ``depth``: how many edges away at most (0: ``sidestep_depth``);
+    ``strict``: never into a corridor another robot is about to enter (:func:`_aside`)."""
     if not r.alive or not r.path:
         return False
-    seg = _aside(st, r, others, depth or st.params.sidestep_depth)
+    seg = _aside(st, r, others, depth or st.params.sidestep_depth, strict)
     if seg is None:
         return False
     target = seg[-1]
