@@ -22,7 +22,6 @@ from fleet.traffic.state import TrackedRobot, TrafficState
 
 #: How many of another robot's next path nodes a robot stepping aside must not stop on.
 SIDESTEP_CLEAR_NODES = 12
-WHOLE = 0
 
 
 def cycles(st: TrafficState, now: float = math.inf, min_wait: float = -math.inf) -> list[set[str]]:
@@ -245,28 +244,13 @@ def _entered_corridor(st: TrafficState, robot: str) -> Callable[[str], bool]:
     idx = moves_ahead(st)
     adj, deg = st.roads.adj, st.roads.deg
 
-    def enters(v: str) -> bool:
+    def entered(v: str) -> bool:
+        if deg[v] != 2:
+            return False
         for u in adj[v]:
             who = idx.get((u, v))
             if who is not None and (len(who) > 1 or robot not in who):
                 return True
-        return False
-
-    def entered(v: str) -> bool:
-        if deg[v] != 2:
-            return False
-        if not WHOLE:
-            return enters(v)
-        seen = {v}
-        todo = [v]
-        while todo:
-            u = todo.pop()
-            if enters(u):
-                return True
-            for w in adj[u]:
-                if w not in seen and deg[w] == 2:
-                    seen.add(w)
-                    todo.append(w)
         return False
 
     return entered
