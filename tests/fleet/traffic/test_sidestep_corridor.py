@@ -96,3 +96,44 @@ def test_side_step_leaves_the_aisle_free_and_everyone_arrives() -> None:
     assert stepped == "s"  # the bay, off every robot's way
     assert tm.metrics.deadlocks_detected == 1 and tm.metrics.deadlocks_resolved == 1
     assert t < 60.0, {n: (tm.path(n), tm.blockers(n)) for n in GOALS}
+
+
+def _line(deep: int) -> TrafficManager:
+    # one corridor n0 .. n8, and at n0 a bay s and the way on west, w; B stands on the dead
+    # end n8 heading to w, A in the middle heading east: the only free node off B's way is
+    # the bay, 5 edges from A
+    g: nx.Graph[str] = nx.Graph()
+    for i in range(9):
+        g.add_node(f"n{i}", pos=(2.0 * i, 0.0))
+    g.add_node("s", pos=(0.0, 2.0))
+    g.add_node("w", pos=(-2.0, 0.0))
+    g.add_edges_from([(f"n{i}", f"n{i + 1}") for i in range(8)] + [("n0", "s"), ("n0", "w")])
+    params = TrafficParams(deadlock_detect_s=1.0, detect_period_s=0.1, sidestep_deep_depth=deep)
+    tm = TrafficManager(Roadmap.from_graph(g), params)
+    tm.add_robot("A", Pose2D(8.0, 0.0, 0.0), 0.0)
+    tm.add_robot("B", Pose2D(16.0, 0.0, 0.0), 0.0)
+    tm.set_path("A", ["n4", "n5", "n6", "n7", "n8"], 0.0)
+    tm.set_path("B", [f"n{i}" for i in range(8, -1, -1)] + ["w"], 0.0)
+    return tm
+
+
+def _run_line(tm: TrafficManager, until_s: float) -> bool:
+    t = 0.0
+    while t < until_s:
+        tm.cycle(t)
+        for name in ("A", "B"):
+            nodes = tm.grant(name).nodes
+            if nodes:
+                tm.update(name, Pose2D(*tm.node_pos(nodes[0]), 0.0), t)
+        tm.check()
+        if tm.done("A") and tm.done("B") and tm.path("A")[-1] == "n8" and tm.path("B")[-1] == "w":
+            return True
+        t = round(t + 0.1, 6)
+    return False
+
+
+def test_a_deeper_side_step_resolves_a_head_on_pair_with_no_free_node_nearby() -> None:
+    assert not _run_line(_line(deep=0), 30.0)  # within sidestep_depth (4) edges: nothing
+    tm = _line(deep=8)
+    assert _run_line(tm, 30.0)
+    assert any("A stepped aside to s" in msg for _, msg in tm.metrics.events)
