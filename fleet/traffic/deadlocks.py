@@ -16,6 +16,7 @@ from collections.abc import Callable
 import networkx as nx
 
 from fleet.traffic.grants import moves_ahead
+from fleet.traffic.params import ONCOMING_NODES
 from fleet.traffic.paths import install, next_must, splice
 from fleet.traffic.reservations import Resource, edge_key
 from fleet.traffic.state import TrackedRobot, TrafficState
@@ -97,7 +98,7 @@ def resolve(st: TrafficState, comp: set[str], now: float) -> bool:
     """Make one member of the deadlocked set ``comp`` give way, lowest priority first;
     True if one did. Otherwise a robot next to the set makes room (False: retried later)."""
     members = sorted((st.robots[n] for n in comp), key=lambda r: (st.priority(r, now), -r.rank))
-    strict = st.params.sidestep_clear_corridor
+    strict = st.params.sidestep_clear_corridor > 0
     for v in members:
         others = [m for m in members if m is not v]
         if v.claims & {x for m in others for x in m.blocked_on}:
@@ -237,11 +238,20 @@ def _aside(
 
 def _entered_corridor(st: TrafficState, robot: str) -> Callable[[str], bool]:
     """A test: whether the node is a single-lane corridor node (roadmap degree 2: an aisle's
-    node or a cut edge's cell) that another live robot's next
-    :data:`~fleet.traffic.params.ONCOMING_NODES` path nodes step onto. A robot stepped
-    aside there stands in that robot's way: it waits to come back out while the other
-    waits for the node it holds (a head-on pair at an aisle's first cell)."""
-    idx = moves_ahead(st)
+    node or a cut edge's cell) that another live robot's next ``sidestep_clear_corridor``
+    path nodes step onto. A robot stepped aside there stands in that robot's way: it waits
+    to come back out while the other waits for the node it holds (a head-on pair at an
+    aisle's first cell)."""
+    k = int(st.params.sidestep_clear_corridor)
+    if k == ONCOMING_NODES:
+        idx = moves_ahead(st)
+    else:
+        idx = {}
+        for o in st.robots.values():
+            if o.alive:
+                seg = o.path[o.cur : o.cur + k]
+                for a, b in zip(seg, seg[1:], strict=False):
+                    idx.setdefault((a, b), set()).add(o.name)
     adj, deg = st.roads.adj, st.roads.deg
 
     def entered(v: str) -> bool:

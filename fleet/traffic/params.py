@@ -75,9 +75,10 @@ class TrafficParams:
     the battery they had when they asked (needs the policy's battery model).
 
     Side steps on a roadmap with cells (``docs/traffic.md``, "Why waits cannot become
-    permanent deadlocks"): ``sidestep_clear_corridor``: a robot stepping aside never stops on
-    a single-lane corridor node (degree 2: an aisle's node or a cut edge's cell) that another
-    robot's next :data:`ONCOMING_NODES` path nodes step onto (it stood in that robot's way at
+    permanent deadlocks"): ``sidestep_clear_corridor`` (path nodes, 0 = off): a robot
+    stepping aside stops on a single-lane corridor node (degree 2: an aisle's node or a cut
+    edge's cell) that another robot's next this many path nodes step onto only when no
+    member of the deadlock has another side step (it stood in that robot's way at
     an aisle's first cell, each waiting for the other's node). ``sidestep_deep_depth`` (0 =
     off): when no member of a deadlock can reroute or step aside within ``sidestep_depth``
     edges, a member may step aside up to this many edges away before a robot outside the
@@ -114,7 +115,7 @@ class TrafficParams:
     retarget_reach_m: float = 60.0
     retarget_shorter: bool = False
     charge_margin_priority: bool = False
-    sidestep_clear_corridor: bool = True
+    sidestep_clear_corridor: int = ONCOMING_NODES
     sidestep_deep_depth: int = 0
 
     @property

@@ -47,7 +47,9 @@ def _world(clear: bool) -> TrafficManager:
     for name, xy in NODES.items():
         g.add_node(name, pos=xy)
     g.add_edges_from(EDGES)
-    params = TrafficParams(deadlock_detect_s=1.0, detect_period_s=0.1, sidestep_clear_corridor=clear)
+    params = TrafficParams(
+        deadlock_detect_s=1.0, detect_period_s=0.1, sidestep_clear_corridor=8 if clear else 0
+    )
     tm = TrafficManager(Roadmap.from_graph(g), params)
     # A stands on the junction b heading east; B comes west from the dead end d: a head-on
     # pair. C waits on the spur n to drive up the aisle, behind A's node b; it ranks above A
