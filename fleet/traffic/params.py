@@ -115,7 +115,7 @@ class TrafficParams:
     retarget_reach_m: float = 60.0
     retarget_shorter: bool = False
     charge_margin_priority: bool = False
-    sidestep_clear_corridor: int = ONCOMING_NODES
+    sidestep_clear_corridor: int = 0
     sidestep_deep_depth: int = 0
 
     @property
