@@ -11,9 +11,12 @@ Robots blocked by dead or parked robots: the parked robot is nudged aside, or th
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import networkx as nx
 
+from fleet.traffic.grants import moves_ahead
+from fleet.traffic.params import ONCOMING_NODES
 from fleet.traffic.paths import install, next_must, splice
 from fleet.traffic.reservations import Resource, edge_key
 from fleet.traffic.state import TrackedRobot, TrafficState
@@ -95,6 +98,7 @@ def resolve(st: TrafficState, comp: set[str], now: float) -> bool:
     """Make one member of the deadlocked set ``comp`` give way, lowest priority first;
     True if one did. Otherwise a robot next to the set makes room (False: retried later)."""
     members = sorted((st.robots[n] for n in comp), key=lambda r: (st.priority(r, now), -r.rank))
+    strict = st.params.sidestep_clear_corridor > 0
     for v in members:
         others = [m for m in members if m is not v]
         if v.claims & {x for m in others for x in m.blocked_on}:
@@ -110,10 +114,22 @@ def resolve(st: TrafficState, comp: set[str], now: float) -> bool:
             st.log(now, f"{v.name} rerouted to break a deadlock")
             after_yield(st, v, others, now)
             return True
-        if sidestep(st, v, {m.name for m in others}, now, back=True):
+        if sidestep(st, v, {m.name for m in others}, now, back=True, strict=strict):
             st.metrics.sidesteps += 1
             st.log(now, f"{v.name} stepped aside to {v.path[v.g]} to break a deadlock")
             return True
+    # no member found a side step clear of every corridor another robot is about to enter:
+    # one steps into such a corridor after all, then (``sidestep_deep_depth``) farther away
+    p = st.params
+    tries = [p.sidestep_depth] if strict else []
+    if p.sidestep_deep_depth > p.sidestep_depth:
+        tries.append(p.sidestep_deep_depth)
+    for depth in tries:
+        for v in members:
+            if sidestep(st, v, {m.name for m in members if m is not v}, now, back=True, depth=depth):
+                st.metrics.sidesteps += 1
+                st.log(now, f"{v.name} stepped aside to {v.path[v.g]} to break a deadlock")
+                return True
     make_room(st, comp, members, now)
     return False
 
@@ -170,9 +186,13 @@ def reroute(st: TrafficState, r: TrackedRobot, avoid: set[str], now: float, boun
     return True
 
 
-def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | None:
-    """Nodes from ``r``'s grant end to the nearest node within ``sidestep_depth`` edges that
-    is reachable over free nodes and edges and not on the next part of ``others``' paths."""
+def _aside(
+    st: TrafficState, r: TrackedRobot, others: set[str], depth: int, strict: bool = False
+) -> list[str] | None:
+    """Nodes from ``r``'s grant end to the nearest node within ``depth`` edges that is
+    reachable over free nodes and edges and not on the next part of ``others``' paths. With
+    ``sidestep_clear_corridor``, a corridor node another robot is about to enter is taken
+    only when no other such node lies within ``depth`` edges, and never if ``strict``."""
     start = r.path[r.g]
     avoid: set[str] = set()
     for o in others:
@@ -180,10 +200,11 @@ def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | N
         if orr is not None:
             avoid.update(orr.path[orr.cur : orr.cur + SIDESTEP_CLEAR_NODES])
     holder, adj, claims = st.table.holder, st.roads.adj, st.claims
+    entered = _entered_corridor(st, r.name) if st.params.sidestep_clear_corridor else None
     parent: dict[str, str] = {start: start}
     frontier = [start]
-    target = None
-    for _ in range(st.params.sidestep_depth):
+    target = fallback = None
+    for _ in range(int(depth)):
         nxt: list[str] = []
         for u in frontier:
             for v in adj[u]:
@@ -195,11 +216,17 @@ def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | N
                     continue
                 parent[v] = u
                 nxt.append(v)
-                if v not in avoid and target is None:
+                if v in avoid or target is not None:
+                    continue
+                if entered is None or not entered(v):
                     target = v
+                elif fallback is None:
+                    fallback = v
         if target is not None or not nxt:
             break
         frontier = nxt
+    if not strict:
+        target = target or fallback
     if target is None:
         return None
     seg = [target]
@@ -209,15 +236,54 @@ def _aside(st: TrafficState, r: TrackedRobot, others: set[str]) -> list[str] | N
     return seg
 
 
-def sidestep(st: TrafficState, r: TrackedRobot, others: set[str], now: float, back: bool) -> bool:
+def _entered_corridor(st: TrafficState, robot: str) -> Callable[[str], bool]:
+    """A test: whether the node is a single-lane corridor node (roadmap degree 2: an aisle's
+    node or a cut edge's cell) that another live robot's next ``sidestep_clear_corridor``
+    path nodes step onto. A robot stepped aside there stands in that robot's way: it waits
+    to come back out while the other waits for the node it holds (a head-on pair at an
+    aisle's first cell)."""
+    k = int(st.params.sidestep_clear_corridor)
+    if k == ONCOMING_NODES:
+        idx = moves_ahead(st)
+    else:
+        idx = {}
+        for o in st.robots.values():
+            if o.alive:
+                seg = o.path[o.cur : o.cur + k]
+                for a, b in zip(seg, seg[1:], strict=False):
+                    idx.setdefault((a, b), set()).add(o.name)
+    adj, deg = st.roads.adj, st.roads.deg
+
+    def entered(v: str) -> bool:
+        if deg[v] != 2:
+            return False
+        for u in adj[v]:
+            who = idx.get((u, v))
+            if who is not None and (len(who) > 1 or robot not in who):
+                return True
+        return False
+
+    return entered
+
+
+def sidestep(
+    st: TrafficState,
+    r: TrackedRobot,
+    others: set[str],
+    now: float,
+    back: bool,
+    depth: int = 0,
+    strict: bool = False,
+) -> bool:
     """Move ``r`` to a free node a few edges away that is not on the next part of the
     paths of ``others`` (granted at once), then (``back``) continue its path from there to
     its next must-visit node (by the shortest way, against the flow if need be, for a robot
     with a detour limit; else with the flow); without ``back`` it ends there. ``r`` then
-    yields to ``others``."""
+    yields to ``others``. ``depth``: how many edges away at most (0: ``sidestep_depth``);
+    ``strict``: never into a corridor another robot is about to enter (:func:`_aside`)."""
     if not r.alive or not r.path:
         return False
-    seg = _aside(st, r, others)
+    seg = _aside(st, r, others, depth or st.params.sidestep_depth, strict)
     if seg is None:
         return False
     target = seg[-1]

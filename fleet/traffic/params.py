@@ -73,6 +73,16 @@ class TrafficParams:
     chargers, and as base priority at intersections, renewed every cycle on the way) by
     their energy margin, battery minus the energy to drive to the charger, instead of by
     the battery they had when they asked (needs the policy's battery model).
+
+    Side steps on a roadmap with cells (``docs/traffic.md``, "Why waits cannot become
+    permanent deadlocks"): ``sidestep_clear_corridor`` (path nodes, 0 = off): a robot
+    stepping aside stops on a single-lane corridor node (degree 2: an aisle's node or a cut
+    edge's cell) that another robot's next this many path nodes step onto only when no
+    member of the deadlock has another side step (it stood in that robot's way at
+    an aisle's first cell, each waiting for the other's node). ``sidestep_deep_depth`` (0 =
+    off): when no member of a deadlock can reroute or step aside within ``sidestep_depth``
+    edges, a member may step aside up to this many edges away before a robot outside the
+    deadlock is moved.
     """
 
     robot_radius: float = 0.3
@@ -105,6 +115,8 @@ class TrafficParams:
     retarget_reach_m: float = 60.0
     retarget_shorter: bool = False
     charge_margin_priority: bool = False
+    sidestep_clear_corridor: int = 0
+    sidestep_deep_depth: int = 0
 
     @property
     def clearance(self) -> float:
