@@ -79,6 +79,27 @@ def astar(
 
 
 @njit(cache=True, nogil=True)
+def _relax(
+    indptr: np.ndarray,
+    indices: np.ndarray,
+    weights: np.ndarray,
+    u: int,
+    d: float,
+    dist: np.ndarray,
+    heap: list[tuple[float, int]],
+) -> None:  # pragma: no cover - compiled
+    """The Dijkstras' step from node ``u`` settled at cost ``d``: every neighbour reached
+    cheaper than ``dist`` has it lowered and is pushed on ``heap`` (one double addition per
+    edge, as in the Python searches)."""
+    for k in range(indptr[u], indptr[u + 1]):
+        v = indices[k]
+        nd = d + weights[k]
+        if nd < dist[v]:
+            dist[v] = nd
+            heapq.heappush(heap, (nd, v))
+
+
+@njit(cache=True, nogil=True)
 def dijkstra_near(
     indptr: np.ndarray,
     indices: np.ndarray,
@@ -117,12 +138,7 @@ def dijkstra_near(
             found += 1
             if found == n_want:
                 break
-        for k in range(indptr[u], indptr[u + 1]):
-            v = indices[k]
-            nd = d + weights[k]
-            if nd < dist[v]:
-                dist[v] = nd
-                heapq.heappush(heap, (nd, v))
+        _relax(indptr, indices, weights, u, d, dist, heap)
     return nodes[:found], costs[:found]
 
 
@@ -150,12 +166,7 @@ def dijkstra_nearest(
         if want[u] and (best < 0 or d < best_d or u < best):
             best = u
             best_d = d
-        for k in range(indptr[u], indptr[u + 1]):
-            v = indices[k]
-            nd = d + weights[k]
-            if nd < dist[v]:
-                dist[v] = nd
-                heapq.heappush(heap, (nd, v))
+        _relax(indptr, indices, weights, u, d, dist, heap)
     return best
 
 
