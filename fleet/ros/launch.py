@@ -41,6 +41,14 @@ class ReadyInfo(TypedDict):
     shard_domain_ids: NotRequired[list[int]]
 
 
+def write_ready(path: str, info: ReadyInfo) -> None:
+    """Write the ready file ``path`` atomically (:meth:`ServerProcess._wait_ready` never reads
+    half of it)."""
+    tmp = Path(path + ".tmp")
+    tmp.write_text(json.dumps(info) + "\n")
+    tmp.replace(path)
+
+
 def private_domain_id(base: int = 40, span: int = 150) -> int:
     """A ROS domain id in ``[base, base + span)`` derived from this process id (tests)."""
     return base + os.getpid() % span

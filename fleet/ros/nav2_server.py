@@ -65,6 +65,7 @@ from fleet.maps import FREE, OccupancyGrid  # noqa: E402
 from fleet.navigation import Clock  # noqa: E402
 from fleet.ros.conversions import pose2d_to_pose, seconds_to_time  # noqa: E402
 from fleet.ros.executors import executor_kind  # noqa: E402
+from fleet.ros.launch import ReadyInfo, write_ready  # noqa: E402
 from fleet.ros.lifecycle import LIFECYCLE_NODES  # noqa: E402
 from fleet.ros.nav2_facade import Profile, RobotFacade  # noqa: E402
 from fleet.ros.shards import Shards  # noqa: E402
@@ -561,7 +562,7 @@ def serve(
 
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
-    info = {
+    info: ReadyInfo = {
         "pid": os.getpid(),
         "robots": server.served,
         "create_s": round(wall.now() - t0, 3),
@@ -576,9 +577,7 @@ def serve(
         flush=True,
     )
     if ready_file:
-        tmp = Path(ready_file + ".tmp")
-        tmp.write_text(json.dumps(info) + "\n")
-        tmp.replace(ready_file)
+        write_ready(ready_file, info)
     sim_t0 = sim.clock.now()
     if duration_s is not None:
         server.end_time = sim_t0 + duration_s

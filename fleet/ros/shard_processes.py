@@ -47,6 +47,8 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING
 
+from fleet.ros.launch import ReadyInfo, write_ready
+
 if TYPE_CHECKING:
     from fleet.config.model import FleetConfig
 
@@ -205,7 +207,7 @@ def _announce(
     took: float,
 ) -> None:
     infos = [json.loads(f.read_text()) for f in files]
-    info = {
+    info: ReadyInfo = {
         "pid": os.getpid(),
         "robots": [r.namespace for r in cfg.robots],
         "create_s": round(took, 3),
@@ -222,9 +224,7 @@ def _announce(
         flush=True,
     )
     if ready_file:
-        tmp = Path(ready_file + ".tmp")
-        tmp.write_text(json.dumps(info) + "\n")
-        tmp.replace(ready_file)
+        write_ready(ready_file, info)
 
 
 def _stop_all(procs: list[subprocess.Popen[bytes]]) -> None:
