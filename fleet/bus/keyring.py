@@ -182,6 +182,17 @@ class Keyring:
             c.insert_json5("transport/link/tls", json.dumps(_client_tls(self.dir, identity)))
         return c
 
+    def written_endpoint(self) -> str | None:
+        """The endpoint ``fleet keys init`` wrote into the router config (what the identity
+        files connect to when a plain Zenoh session opens them), or None if unreadable."""
+        try:
+            listen: list[str] = json.loads(
+                self._config(self.router_file, "router config").get_json("listen/endpoints")
+            )
+        except (BusError, ValueError):
+            return None
+        return listen[0] if listen else None
+
     def access(self) -> dict[str, Any]:
         """The router config's ``access_control`` section (what the router enforces)."""
         acl: dict[str, Any] = json.loads(self.router_config().get_json("access_control"))

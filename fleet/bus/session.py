@@ -147,12 +147,38 @@ def bus_note(secure: Secure | None) -> str:
     return f"secured bus: {over}identity {secure.identity!r} from {secure.keys}"
 
 
+_warned_endpoints: set[tuple[Path, str]] = set()
+
+
+def _warn_other_endpoint(ring: Keyring, endpoint: str) -> None:
+    """Warn once per directory and endpoint when a session runs on another endpoint than the
+    one its key directory was made for: the fleet's commands use their own (``--endpoint``
+    or the config's ``bus.endpoint``), but a plain Zenoh session opening the directory's
+    identity files connects to the written one and would find no router."""
+    written = ring.written_endpoint()
+    if written is None or written == endpoint or (ring.dir, endpoint) in _warned_endpoints:
+        return
+    _warned_endpoints.add((ring.dir, endpoint))
+    logger.warning(
+        "the keys in %s were made for %s but this fleet's bus is %s (--endpoint or the config's "
+        "bus.endpoint); the fleet's own commands follow the bus, but plain Zenoh sessions opening "
+        "the identity files connect to %s: remake them with `fleet keys init CONFIG %s --endpoint %s --force`",
+        ring.dir,
+        written,
+        endpoint,
+        written,
+        ring.dir,
+        endpoint,
+    )
+
+
 def _secure_config(
     secure: Secure, endpoint: str, role: Role, do_listen: bool, connect_timeout_s: float
 ) -> zenoh.Config:
     if not isinstance(endpoint, str) or not _ENDPOINT_RE.match(endpoint):
         raise BusError(f"bad Zenoh endpoint {endpoint!r}: expected e.g. tcp/127.0.0.1:7447")
     ring = secure.keyring()
+    _warn_other_endpoint(ring, ring.endpoint(endpoint))
     if role == "router":
         return ring.router_config(endpoint)
     if do_listen:

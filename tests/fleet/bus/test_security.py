@@ -6,6 +6,7 @@ the observer only reads)."""
 from __future__ import annotations
 
 import json
+import logging
 import stat
 import threading
 import time
@@ -15,6 +16,7 @@ from pathlib import Path
 import pytest
 import zenoh
 from bus_peer import record
+from ports import pick_free_port
 
 from fleet.bus.access import describe
 from fleet.bus.keyring import Keyring, init_keyring
@@ -380,3 +382,19 @@ def test_tls_keys_need_the_identity_s_own_certificate(tmp_path: Path, zenoh_endp
         for s in sessions:
             s.close()  # type: ignore[no-untyped-call]
         router.close()  # type: ignore[no-untyped-call]
+
+
+def test_a_bus_on_another_endpoint_than_the_keys_is_named_once(
+    keys: Path, zenoh_endpoint: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Keys made for one endpoint, a router run on another (the config's ``bus.endpoint``):
+    the fleet follows its bus and says once that the identity files point elsewhere."""
+    other = f"tcp/127.0.0.1:{pick_free_port()}"
+    with caplog.at_level(logging.WARNING, logger="fleet.bus.session"):
+        open_session(zenoh_endpoint, "router", secure=Secure(keys, "router")).close()  # type: ignore[no-untyped-call]
+        assert not caplog.records  # the keys' own endpoint: nothing to say
+        for _ in range(2):
+            open_session(other, "router", secure=Secure(keys, "router")).close()  # type: ignore[no-untyped-call]
+    warned = [r.getMessage() for r in caplog.records]
+    assert len(warned) == 1, warned
+    assert zenoh_endpoint in warned[0] and other in warned[0] and "--endpoint" in warned[0]
