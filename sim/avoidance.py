@@ -54,6 +54,10 @@ _SORTED_POS = np.argsort(_SORTED_K, kind="stable")
 #: offset in the order ``_ORDERS[side + 1]`` whose sorted position is not set in ``mask``, -1
 #: if every one is.
 _BIT = np.left_shift(1, np.arange(OFFSETS.size, dtype=np.int64))
+#: The offsets' cosines and sines (:func:`sim.detour_kernels.detour_blocks` turns a neighbor's
+#: offset by them).
+_COS_OFF = np.cos(OFFSETS)
+_SIN_OFF = np.sin(OFFSETS)
 _FIRST_FREE = np.full((3, 1 << OFFSETS.size), -1, dtype=np.int64)
 for _i, _order in enumerate(_ORDERS):
     _free = ((np.arange(1 << OFFSETS.size)[:, None] >> _SORTED_POS[_order][None, :]) & 1) == 0
@@ -162,11 +166,6 @@ class Avoidance:
         self._pair_blocks_fn = kernels.pair_blocks if self.compiled else pair_blocks_numpy
         #: each robot's row among the blocked robots of a detour search (-1: not blocked)
         self._loc = np.zeros(0, dtype=np.int64)
-        #: compiled: each robot's last detour headings' unit vectors, by its wanted heading
-        #: (:func:`sim.detour_kernels.cached_headings`); reallocated (empty) as the fleet grows
-        self._h_db = np.zeros(0)
-        self._h_ok = np.zeros(0, dtype=bool)
-        self._h_x = self._h_y = np.zeros((0, OFFSETS.size))
 
     def corridor_free(
         self, idx: np.ndarray, hx: np.ndarray, hy: np.ndarray, cap: np.ndarray, obst: np.ndarray
@@ -264,16 +263,12 @@ class Avoidance:
         if loc.size < n:
             loc = self._loc = np.full(s.capacity, -1, dtype=np.int64)
         loc[fb] = np.arange(fb.size)
-        if self._h_ok.size < n:
-            self._h_db = np.zeros(s.capacity)
-            self._h_ok = np.zeros(s.capacity, dtype=bool)
-            self._h_x, self._h_y = np.zeros((2, s.capacity, OFFSETS.size))
         fp = self.footprints
         g = fp.grid
         detour_kernels.detour_blocks(
-            fb, a_all, dx_all, dy_all, d2_all, reach * reach, loc, db, s.x[fb], s.y[fb], OFFSETS,
-            _BIT[_SORTED_POS], contact, lat, cap, g.origin_x, g.origin_y, g.resolution, g.width, g.height,
-            fp.cells, fp.clear_cells(), fp.samples, self._h_db, self._h_ok, self._h_x, self._h_y, blocked,
+            fb, a_all, dx_all, dy_all, d2_all, reach * reach, loc, db, s.x[fb], s.y[fb], OFFSETS, _COS_OFF,
+            _SIN_OFF, _BIT[_SORTED_POS], contact, lat, cap, g.origin_x, g.origin_y, g.resolution, g.width,
+            g.height, fp.cells, fp.clear_cells(), fp.samples, blocked,
         )  # fmt: skip
         loc[fb] = -1
 
