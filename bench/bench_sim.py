@@ -156,7 +156,8 @@ def run_sim_steps(
         print(
             "  stage ms/step (nested: follow includes corridor_free or way blocked, detour (which includes pair "
             "blocks and footprint free, or detour blocks); pairs.update includes neighbor_pairs; move includes "
-            "footprint free; compiled runs limit_stop_move instead of reactive_stop and move): "
+            "footprint free; compiled runs limit_stop_move instead of reactive_stop and move, and avoid instead "
+            "of way blocked and detour): "
             f"{parts}",
             file=sys.stderr,
         )
@@ -209,6 +210,8 @@ def _time_stages(sim: Any, stage_s: dict[str, float]) -> None:
     # compiled: the detour's neighbor and static tests in one pass, the follower's corridor test
     timed(avoidance, "_compiled_blocks", "detour blocks")
     timed(follower, "_blocked_compiled", "way blocked")
+    # compiled, without dynamic obstacles: the corridor test, the detour search and the turn in one
+    timed(follower, "_avoid_compiled", "avoid")
     timed(sim._upkeep, "update", "battery + progress")
     timed(sim._safety, "reactive_stop", "reactive_stop")
     timed(sim._safety, "move", "move")

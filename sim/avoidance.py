@@ -54,14 +54,17 @@ _SORTED_POS = np.argsort(_SORTED_K, kind="stable")
 #: offset in the order ``_ORDERS[side + 1]`` whose sorted position is not set in ``mask``, -1
 #: if every one is.
 _BIT = np.left_shift(1, np.arange(OFFSETS.size, dtype=np.int64))
-#: The offsets' cosines and sines (:func:`sim.detour_kernels.detour_blocks` turns a neighbor's
-#: offset by them).
-_COS_OFF = np.cos(OFFSETS)
-_SIN_OFF = np.sin(OFFSETS)
 _FIRST_FREE = np.full((3, 1 << OFFSETS.size), -1, dtype=np.int64)
 for _i, _order in enumerate(_ORDERS):
     _free = ((np.arange(1 << OFFSETS.size)[:, None] >> _SORTED_POS[_order][None, :]) & 1) == 0
     _FIRST_FREE[_i] = np.where(_free.any(axis=1), _order[_free.argmax(axis=1)], -1)
+#: What the compiled detour search (:mod:`sim.detour_kernels`) reads: the offsets' cosines
+#: and sines (it turns a neighbor's offset by them), each offset's bit in a blocked mask, and
+#: the first free offset by side and mask (``_FIRST_FREE``).
+COS_OFFSETS = np.cos(OFFSETS)
+SIN_OFFSETS = np.sin(OFFSETS)
+OFFSET_BITS = _BIT[_SORTED_POS]
+FIRST_FREE = _FIRST_FREE
 
 
 def corridor_gaps(
@@ -251,23 +254,27 @@ class Avoidance:
         out: np.ndarray = _FIRST_FREE[side + 1, blocked]
         return out
 
+    def scratch_rows(self) -> np.ndarray:
+        """Each robot's row among the blocked robots of a compiled detour search: -1 for every
+        robot, as the search leaves it (sized for the fleet's capacity)."""
+        if self._loc.size < self.state.n:
+            self._loc = np.full(self.state.capacity, -1, dtype=np.int64)
+        return self._loc
+
     def _compiled_blocks(self, fb: np.ndarray, db: np.ndarray, blocked: np.ndarray) -> None:
         """:meth:`_pair_blocks` and :meth:`_static_blocks` as one compiled pass
         (:func:`sim.detour_kernels.detour_blocks`)."""
         s = self.state
-        n = s.n
         contact, lat, cap = self.contact, self.lat, AVOID_CLEAR_M
         reach = math.hypot(cap + contact, lat)
         a_all, dx_all, dy_all, d2_all = self.pairs.candidates(reach)
-        loc = self._loc
-        if loc.size < n:
-            loc = self._loc = np.full(s.capacity, -1, dtype=np.int64)
+        loc = self.scratch_rows()
         loc[fb] = np.arange(fb.size)
         fp = self.footprints
         g = fp.grid
         detour_kernels.detour_blocks(
-            fb, a_all, dx_all, dy_all, d2_all, reach * reach, loc, db, s.x[fb], s.y[fb], OFFSETS, _COS_OFF,
-            _SIN_OFF, _BIT[_SORTED_POS], contact, lat, cap, g.origin_x, g.origin_y, g.resolution, g.width,
+            fb, a_all, dx_all, dy_all, d2_all, reach * reach, loc, db, s.x[fb], s.y[fb], OFFSETS, COS_OFFSETS,
+            SIN_OFFSETS, OFFSET_BITS, contact, lat, cap, g.origin_x, g.origin_y, g.resolution, g.width,
             g.height, fp.cells, fp.clear_cells(), fp.samples, blocked,
         )  # fmt: skip
         loc[fb] = -1

@@ -33,6 +33,7 @@ import math
 
 import numpy as np
 
+from sim.follower_kernels import way_blocked
 from sim.kernels import jit, register_warm_up
 from sim.motion_kernels import _free
 
@@ -214,6 +215,109 @@ def detour_blocks(
         blocked[r] = m
 
 
+# long: the follower's corridor test, the detour search and the choice of heading, in one call
+@jit
+def avoid(
+    fi: np.ndarray,
+    desired: np.ndarray,
+    rem: np.ndarray,
+    side: np.ndarray,
+    n: int,
+    pi: np.ndarray,
+    pj: np.ndarray,
+    x0: np.ndarray,
+    y0: np.ndarray,
+    way_reach2: float,
+    look: float,
+    margin: float,
+    tol: float,
+    hx: np.ndarray,
+    hy: np.ndarray,
+    best: np.ndarray,
+    rows: np.ndarray,
+    a_all: np.ndarray,
+    dx_all: np.ndarray,
+    dy_all: np.ndarray,
+    d2_all: np.ndarray,
+    reach2: float,
+    loc: np.ndarray,
+    offsets: np.ndarray,
+    cos_off: np.ndarray,
+    sin_off: np.ndarray,
+    bits: np.ndarray,
+    first_free: np.ndarray,
+    contact: float,
+    lat: float,
+    cap: float,
+    gx: float,
+    gy: float,
+    res: float,
+    width: int,
+    height: int,
+    cells: np.ndarray,
+    clear_cells: np.ndarray,
+    samples: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """``PathFollower._avoid`` without dynamic obstacles, in one call: the follower's corridor
+    test (:func:`sim.follower_kernels.way_blocked`, arguments ``fi`` .. ``rows`` with
+    ``contact``, ``lat``, and ``look`` its lookahead) finds the blocked robots; their blocked
+    detour headings come from :func:`detour_blocks` (arguments ``a_all`` .. ``samples`` as
+    there; the robots' positions ``x``, ``y``);
+    each blocked robot ``fi[q]`` with a free heading turns ``desired[q]`` by the first free
+    offset of ``first_free[side[q] + 1, mask]`` (``Avoidance.detour``'s table) and takes its
+    side (+1 left, -1 right); without one it keeps both. ``loc`` (-1 for every robot, left
+    so) is scratch by robot. Returns the number of blocked robots (their ``q`` in ``rows``)."""
+    nb = way_blocked(
+        fi,
+        desired,
+        rem,
+        side,
+        n,
+        pi,
+        pj,
+        x0,
+        y0,
+        way_reach2,
+        contact,
+        lat,
+        look,
+        margin,
+        tol,
+        hx,
+        hy,
+        best,
+        rows,
+    )
+    if nb == 0:
+        return 0
+    fb = np.empty(nb, dtype=np.int64)
+    db = np.empty(nb)
+    xb = np.empty(nb)
+    yb = np.empty(nb)
+    for r in range(nb):
+        i = fi[rows[r]]
+        fb[r] = i
+        db[r] = desired[rows[r]]
+        xb[r] = x[i]
+        yb[r] = y[i]
+        loc[i] = r
+    blocked = np.zeros(nb, dtype=np.int64)
+    detour_blocks(
+        fb, a_all, dx_all, dy_all, d2_all, reach2, loc, db, xb, yb, offsets, cos_off, sin_off, bits, contact,
+        lat, cap, gx, gy, res, width, height, cells, clear_cells, samples, blocked,
+    )  # fmt: skip
+    for r in range(nb):
+        q = rows[r]
+        loc[fb[r]] = -1
+        k = first_free[side[q] + 1, blocked[r]]
+        if k >= 0:
+            desired[q] = db[r] + offsets[k]
+            side[q] = 1 if offsets[k] > 0 else -1
+    return nb
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) :func:`detour_blocks` with the detour's argument types."""
     ints = np.zeros(0, dtype=np.int64)
@@ -222,6 +326,11 @@ def warm_up() -> None:
     detour_blocks(
         ints, ints, f, f, f, 1.0, ints, f, f, f, np.zeros(1), np.ones(1), np.zeros(1), np.ones(1, dtype=np.int64),
         0.6, 0.65, 0.8, 0.0, 0.0, 0.1, 1, 1, cells, cells, np.zeros(1), ints,
+    )  # fmt: skip
+    avoid(
+        ints, f, f, ints, 0, ints, ints, f, f, 1.0, 1.5, 0.6, 0.1, f, f, f, ints, ints, f, f, f, 1.0, ints,
+        np.zeros(1), np.ones(1), np.zeros(1), np.ones(1, dtype=np.int64), np.zeros((3, 2), dtype=np.int64),
+        0.6, 0.65, 0.8, 0.0, 0.0, 0.1, 1, 1, cells, cells, np.zeros(1), f, f,
     )  # fmt: skip
 
 
