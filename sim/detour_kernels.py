@@ -14,9 +14,9 @@ of the unit vectors (and the rounding of ``db + o_k`` itself), under 1e-14 m for
 within the pair reach (about 1.5 m). A decision is taken from them only when every quantity it
 compares (along against 0 and the corridor's length, across against the corridor's half-width
 and the contact distance, the gap against the clearance) is at least :data:`MARGIN_M` from its
-threshold, where a 1e-14 m error cannot flip it (across the contact distance the square root
-magnifies an error by at most about ``sqrt(contact / 2 MARGIN_M)``, ~2000, still far below
-the margin); otherwise the exact test runs with the heading's C library ``cos`` / ``sin``
+threshold, where a 1e-14 m error cannot flip it (the gap test is taken squared, without a
+square root, and is near its threshold within ``2 contact MARGIN_M``, see
+:func:`_rotated_blocks`); otherwise the exact test runs with the heading's C library ``cos`` / ``sin``
 (:func:`_exact_block`, :func:`sim.kernels.pair_blocks_along`'s formula). So the blocked bits
 are those of :func:`sim.kernels.pair_blocks` on every input, and the loop over the 12
 offsets is branch-free (selects, no early exits), which the compiler vectorizes.
@@ -87,9 +87,12 @@ def _rotated_blocks(
     """The bits :func:`sim.kernels.pair_blocks_along` sets, from one ``cos`` / ``sin`` per
     blocked robot: a neighbor's offset turned into the robot's wanted heading's frame (``along``
     ``a``, across ``b``) gives its along and lateral distances for offset ``k`` as ``a cos(o_k)
-    + b sin(o_k)`` and ``|a sin(o_k) - b cos(o_k)|``. Wherever one of these (or the gap) lies
-    within :data:`MARGIN_M` of a threshold of the test, the exact test decides
-    (:func:`_exact_block`)."""
+    + b sin(o_k)`` and ``|a sin(o_k) - b cos(o_k)|``; the gap test ``along - sqrt(contact**2 -
+    lateral**2) < cap`` is taken squared, ``(along - cap)**2 < contact**2 - lateral**2`` (where
+    ``along >= cap``), so no square root is taken. Wherever one of these lies within
+    :data:`MARGIN_M` of a threshold of the test (the squared gap test within ``2 contact
+    MARGIN_M``: the two sides of the unsquared one are then within :data:`MARGIN_M`), the exact
+    test decides (:func:`_exact_block`)."""
     nb = db.shape[0]
     kk = offsets.shape[0]
     c0 = np.empty(nb)
@@ -100,6 +103,8 @@ def _rotated_blocks(
     cc = contact * contact
     lim = cap + contact
     eps = MARGIN_M
+    # |d| = |t - sqrt(..)| (t + sqrt(..)) and t + sqrt(..) <= 2 contact where it matters
+    eps_d = 2.0 * contact * MARGIN_M
     for p in range(a_all.shape[0]):
         if not d2_all[p] < reach2:
             continue
@@ -115,16 +120,22 @@ def _rotated_blocks(
         for k in range(kk):
             along = ua * cos_off[k] + ub * sin_off[k]
             lateral = abs(ua * sin_off[k] - ub * cos_off[k])
-            sq = math.sqrt(max(cc - lateral * lateral, 0.0))
-            gap = along - (contact if lateral >= contact else sq)
-            g = max(0.0, gap)
-            hit = (along > 0.0) & (lateral < lat) & (along < lim) & (g < cap)
+            # the gap is short of the clearance when along - cap < sqrt(cc - lateral**2) (or when
+            # lateral >= contact, as along < lim already says): compared squared, no square root
+            t = along - cap
+            d = t * t - (cc - lateral * lateral)
+            hit = (
+                (along > 0.0)
+                & (lateral < lat)
+                & (along < lim)
+                & ((lateral >= contact) | (t < 0.0) | (d < 0.0))
+            )
             near = (
                 (abs(along) < eps)
                 | (abs(lateral - lat) < eps)
                 | (abs(along - lim) < eps)
                 | (abs(lateral - contact) < eps)
-                | (abs(g - cap) < eps)
+                | (abs(d) < eps_d)
             )
             mp |= bits[k] if hit else 0
             unc |= bits[k] if near else 0

@@ -106,7 +106,9 @@ def _edge_scene(seed: int, contact: float, lat: float) -> tuple[np.ndarray, ...]
     ]  # fmt: skip
     a, dxs, dys = [], [], []
     for r in range(nb):
-        for along, across in spots:
+        laterals = rng.uniform(0.05 * contact, 0.95 * contact, 6).tolist()
+        on_gap = [(AVOID_CLEAR_M + math.sqrt(contact * contact - lat_ * lat_), lat_) for lat_ in laterals]
+        for along, across in spots + on_gap:
             h = db[r] + OFFSETS[rng.integers(OFFSETS.size)]
             hx, hy = math.cos(h), math.sin(h)
             for nudge in (0.0, 1e-9, -1e-9, 4e-16, -4e-16, 1e-15):
