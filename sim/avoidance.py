@@ -273,7 +273,8 @@ class Avoidance:
         fp = self.footprints
         g = fp.grid
         detour_kernels.detour_blocks(
-            fb, a_all, dx_all, dy_all, d2_all, reach * reach, loc, db, s.x[fb], s.y[fb], OFFSETS, COS_OFFSETS,
+            fb, a_all, dx_all, dy_all, d2_all, reach * reach, loc, db, s.x[fb], s.y[fb], np.cos(db), np.sin(db),
+            OFFSETS, COS_OFFSETS,
             SIN_OFFSETS, OFFSET_BITS, contact, lat, cap, g.origin_x, g.origin_y, g.resolution, g.width,
             g.height, fp.cells, fp.clear_cells(), fp.samples, blocked,
         )  # fmt: skip

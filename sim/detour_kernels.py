@@ -75,6 +75,8 @@ def _rotated_blocks(
     reach2: float,
     loc: np.ndarray,
     db: np.ndarray,
+    c0: np.ndarray,
+    s0: np.ndarray,
     offsets: np.ndarray,
     cos_off: np.ndarray,
     sin_off: np.ndarray,
@@ -84,8 +86,9 @@ def _rotated_blocks(
     cap: float,
     blocked: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
-    """The bits :func:`sim.kernels.pair_blocks_along` sets, from one ``cos`` / ``sin`` per
-    blocked robot: a neighbor's offset turned into the robot's wanted heading's frame (``along``
+    """The bits :func:`sim.kernels.pair_blocks_along` sets, from the unit vector ``(c0[r],
+    s0[r])`` of each blocked robot's wanted heading ``db[r]`` (its ``cos`` / ``sin``, or any
+    approximation of them to a few ulp): a neighbor's offset turned into the robot's wanted heading's frame (``along``
     ``a``, across ``b``) gives its along and lateral distances for offset ``k`` as ``a cos(o_k)
     + b sin(o_k)`` and ``|a sin(o_k) - b cos(o_k)|``; the gap test ``along - sqrt(contact**2 -
     lateral**2) < cap`` is taken squared, ``(along - cap)**2 < contact**2 - lateral**2`` (where
@@ -93,13 +96,7 @@ def _rotated_blocks(
     :data:`MARGIN_M` of a threshold of the test (the squared gap test within ``2 contact
     MARGIN_M``: the two sides of the unsquared one are then within :data:`MARGIN_M`), the exact
     test decides (:func:`_exact_block`)."""
-    nb = db.shape[0]
     kk = offsets.shape[0]
-    c0 = np.empty(nb)
-    s0 = np.empty(nb)
-    for r in range(nb):
-        c0[r] = math.cos(db[r])
-        s0[r] = math.sin(db[r])
     cc = contact * contact
     lim = cap + contact
     eps = MARGIN_M
@@ -162,6 +159,8 @@ def detour_blocks(
     db: np.ndarray,
     xb: np.ndarray,
     yb: np.ndarray,
+    c0: np.ndarray,
+    s0: np.ndarray,
     offsets: np.ndarray,
     cos_off: np.ndarray,
     sin_off: np.ndarray,
@@ -180,8 +179,8 @@ def detour_blocks(
     blocked: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """:func:`sim.kernels.pair_blocks` of the blocked robots ``fb`` (``a_all`` .. ``cap`` as
-    there; ``cos_off``, ``sin_off``: the offsets' cosines and sines) through
-    :func:`_rotated_blocks`, then for each blocked robot whose cell is not clear
+    there; ``cos_off``, ``sin_off``: the offsets' cosines and sines; ``c0``, ``s0``: the unit
+    vectors of the wanted headings ``db``) through :func:`_rotated_blocks`, then for each blocked robot whose cell is not clear
     (``clear_cells``, the padded clearance mask; ``xb``, ``yb``: the blocked robots' positions,
     one per ``db``) and each offset its neighbors left free: the bit of the offset is set when
     a sample ``samples[j]`` m along the heading ``db[r] + offsets[k]`` (its C library ``cos`` /
@@ -197,6 +196,8 @@ def detour_blocks(
         reach2,
         loc,
         db,
+        c0,
+        s0,
         offsets,
         cos_off,
         sin_off,
@@ -307,16 +308,20 @@ def avoid(
     db = np.empty(nb)
     xb = np.empty(nb)
     yb = np.empty(nb)
+    c0 = np.empty(nb)
+    s0 = np.empty(nb)
     for r in range(nb):
         i = fi[rows[r]]
         fb[r] = i
         db[r] = desired[rows[r]]
         xb[r] = x[i]
         yb[r] = y[i]
+        c0[r] = hx[i]  # the corridor test's unit vector of the same heading
+        s0[r] = hy[i]
         loc[i] = r
     blocked = np.zeros(nb, dtype=np.int64)
     detour_blocks(
-        fb, a_all, dx_all, dy_all, d2_all, reach2, loc, db, xb, yb, offsets, cos_off, sin_off, bits, contact,
+        fb, a_all, dx_all, dy_all, d2_all, reach2, loc, db, xb, yb, c0, s0, offsets, cos_off, sin_off, bits, contact,
         lat, cap, gx, gy, res, width, height, cells, clear_cells, samples, blocked,
     )  # fmt: skip
     for r in range(nb):
@@ -335,8 +340,8 @@ def warm_up() -> None:
     f = np.zeros(0)
     cells = np.zeros(9, dtype=bool)
     detour_blocks(
-        ints, ints, f, f, f, 1.0, ints, f, f, f, np.zeros(1), np.ones(1), np.zeros(1), np.ones(1, dtype=np.int64),
-        0.6, 0.65, 0.8, 0.0, 0.0, 0.1, 1, 1, cells, cells, np.zeros(1), ints,
+        ints, ints, f, f, f, 1.0, ints, f, f, f, f, f, np.zeros(1), np.ones(1), np.zeros(1),
+        np.ones(1, dtype=np.int64), 0.6, 0.65, 0.8, 0.0, 0.0, 0.1, 1, 1, cells, cells, np.zeros(1), ints,
     )  # fmt: skip
     avoid(
         ints, f, f, ints, 0, ints, ints, f, f, 1.0, 1.5, 0.6, 0.1, f, f, f, ints, ints, f, f, f, 1.0, ints,

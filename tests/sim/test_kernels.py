@@ -156,7 +156,7 @@ def test_rotated_detour_test_sets_the_exact_bits(seed: int, radius: float, edges
     )
     got = np.zeros(nb, dtype=np.int64)
     _rotated_blocks(
-        a_all, dx, dy, d2, reach * reach, loc, db, OFFSETS, np.cos(OFFSETS), np.sin(OFFSETS), bits, contact,
+        a_all, dx, dy, d2, reach * reach, loc, db, np.cos(db), np.sin(db), OFFSETS, np.cos(OFFSETS), np.sin(OFFSETS), bits, contact,
         lat, AVOID_CLEAR_M, got,
     )  # fmt: skip
     assert got.tolist() == want.tolist()
