@@ -88,9 +88,9 @@ def _rotated_blocks(
 ) -> None:  # pragma: no cover - compiled
     """The bits :func:`sim.kernels.pair_blocks_along` sets, from the unit vector ``(c0[r],
     s0[r])`` of each blocked robot's wanted heading ``db[r]`` (its ``cos`` / ``sin``, or any
-    approximation of them to a few ulp): a neighbor's offset turned into the robot's wanted heading's frame (``along``
-    ``a``, across ``b``) gives its along and lateral distances for offset ``k`` as ``a cos(o_k)
-    + b sin(o_k)`` and ``|a sin(o_k) - b cos(o_k)|``; the gap test ``along - sqrt(contact**2 -
+    approximation of them to a few ulp): a neighbor's offset turned into that heading's frame
+    (``a`` along, ``b`` across) gives its along and lateral distances for offset ``k`` as
+    ``a cos(o_k) + b sin(o_k)`` and ``|a sin(o_k) - b cos(o_k)|``; the gap test ``along - sqrt(contact**2 -
     lateral**2) < cap`` is taken squared, ``(along - cap)**2 < contact**2 - lateral**2`` (where
     ``along >= cap``), so no square root is taken. Wherever one of these lies within
     :data:`MARGIN_M` of a threshold of the test (the squared gap test within ``2 contact
