@@ -58,6 +58,13 @@ _FIRST_FREE = np.full((3, 1 << OFFSETS.size), -1, dtype=np.int64)
 for _i, _order in enumerate(_ORDERS):
     _free = ((np.arange(1 << OFFSETS.size)[:, None] >> _SORTED_POS[_order][None, :]) & 1) == 0
     _FIRST_FREE[_i] = np.where(_free.any(axis=1), _order[_free.argmax(axis=1)], -1)
+#: What the compiled detour search (:mod:`sim.detour_kernels`) reads: the offsets' cosines
+#: and sines (it turns a neighbor's offset by them), each offset's bit in a blocked mask, and
+#: the first free offset by side and mask (``_FIRST_FREE``).
+COS_OFFSETS = np.cos(OFFSETS)
+SIN_OFFSETS = np.sin(OFFSETS)
+OFFSET_BITS = _BIT[_SORTED_POS]
+FIRST_FREE = _FIRST_FREE
 
 
 def corridor_gaps(
@@ -162,11 +169,6 @@ class Avoidance:
         self._pair_blocks_fn = kernels.pair_blocks if self.compiled else pair_blocks_numpy
         #: each robot's row among the blocked robots of a detour search (-1: not blocked)
         self._loc = np.zeros(0, dtype=np.int64)
-        #: compiled: each robot's last detour headings' unit vectors, by its wanted heading
-        #: (:func:`sim.detour_kernels.cached_headings`); reallocated (empty) as the fleet grows
-        self._h_db = np.zeros(0)
-        self._h_ok = np.zeros(0, dtype=bool)
-        self._h_x = self._h_y = np.zeros((0, OFFSETS.size))
 
     def corridor_free(
         self, idx: np.ndarray, hx: np.ndarray, hy: np.ndarray, cap: np.ndarray, obst: np.ndarray
@@ -252,28 +254,29 @@ class Avoidance:
         out: np.ndarray = _FIRST_FREE[side + 1, blocked]
         return out
 
+    def scratch_rows(self) -> np.ndarray:
+        """Each robot's row among the blocked robots of a compiled detour search: -1 for every
+        robot, as the search leaves it (sized for the fleet's capacity)."""
+        if self._loc.size < self.state.n:
+            self._loc = np.full(self.state.capacity, -1, dtype=np.int64)
+        return self._loc
+
     def _compiled_blocks(self, fb: np.ndarray, db: np.ndarray, blocked: np.ndarray) -> None:
         """:meth:`_pair_blocks` and :meth:`_static_blocks` as one compiled pass
         (:func:`sim.detour_kernels.detour_blocks`)."""
         s = self.state
-        n = s.n
         contact, lat, cap = self.contact, self.lat, AVOID_CLEAR_M
         reach = math.hypot(cap + contact, lat)
         a_all, dx_all, dy_all, d2_all = self.pairs.candidates(reach)
-        loc = self._loc
-        if loc.size < n:
-            loc = self._loc = np.full(s.capacity, -1, dtype=np.int64)
+        loc = self.scratch_rows()
         loc[fb] = np.arange(fb.size)
-        if self._h_ok.size < n:
-            self._h_db = np.zeros(s.capacity)
-            self._h_ok = np.zeros(s.capacity, dtype=bool)
-            self._h_x, self._h_y = np.zeros((2, s.capacity, OFFSETS.size))
         fp = self.footprints
         g = fp.grid
         detour_kernels.detour_blocks(
-            fb, a_all, dx_all, dy_all, d2_all, reach * reach, loc, db, s.x[fb], s.y[fb], OFFSETS,
-            _BIT[_SORTED_POS], contact, lat, cap, g.origin_x, g.origin_y, g.resolution, g.width, g.height,
-            fp.cells, fp.clear_cells(), fp.samples, self._h_db, self._h_ok, self._h_x, self._h_y, blocked,
+            fb, a_all, dx_all, dy_all, d2_all, reach * reach, loc, db, s.x[fb], s.y[fb], np.cos(db), np.sin(db),
+            OFFSETS, COS_OFFSETS,
+            SIN_OFFSETS, OFFSET_BITS, contact, lat, cap, g.origin_x, g.origin_y, g.resolution, g.width,
+            g.height, fp.cells, fp.clear_cells(), fp.samples, blocked,
         )  # fmt: skip
         loc[fb] = -1
 

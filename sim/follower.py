@@ -24,8 +24,17 @@ from collections.abc import Callable
 import numpy as np
 
 from fleet.robots import SimParams
-from sim import follower_kernels, kernels
-from sim.avoidance import AVOID_LOOKAHEAD_M, OFFSETS, Avoidance
+from sim import detour_kernels, follower_kernels, kernels
+from sim.avoidance import (
+    AVOID_CLEAR_M,
+    AVOID_LOOKAHEAD_M,
+    COS_OFFSETS,
+    FIRST_FREE,
+    OFFSET_BITS,
+    OFFSETS,
+    SIN_OFFSETS,
+    Avoidance,
+)
 from sim.state import FleetState
 
 #: Heading error (rad) above which a path-following robot stops and rotates in place.
@@ -322,6 +331,9 @@ class PathFollower:
         m = self.params.model
         tol = self.params.goal_tolerance
         av = self.avoidance
+        if self.compiled and av.compiled and not obst.size:
+            self._avoid_compiled(fi, desired, rem_d, sd)
+            return
         if self.compiled and not obst.size:
             bi = self._blocked_compiled(fi, desired, rem_d, sd)
         else:
@@ -339,6 +351,35 @@ class PathFollower:
             chosen = OFFSETS[k]
             desired[bi] = np.where(anyok, db + chosen, db)
             sd[bi] = np.where(anyok, np.where(chosen > 0, 1, -1), sdb)
+
+    def _avoid_compiled(self, fi: np.ndarray, desired: np.ndarray, rem_d: np.ndarray, sd: np.ndarray) -> None:
+        """:meth:`_avoid` without dynamic obstacles as one compiled call
+        (:func:`sim.detour_kernels.avoid`: the corridor test of :meth:`_blocked_compiled`, the
+        detour search of ``Avoidance.detour`` and the turn to the detour)."""
+        s = self.state
+        av = self.avoidance
+        if self._scratch.shape[1] < s.n:
+            self._scratch = np.zeros((3, s.capacity))
+            self._rows = np.zeros(s.capacity, dtype=np.int64)
+        hx, hy, best = self._scratch
+        contact, lat = av.contact, av.lat
+        pairs = av.pairs
+        reach = math.hypot(AVOID_LOOKAHEAD_M + contact, lat)
+        pi, pj = pairs.index_pairs(reach)
+        # index_pairs() gives every pair once the reach passes the pair radius
+        way_reach2 = reach * reach if reach < pairs.radius else math.inf
+        d_reach = math.hypot(AVOID_CLEAR_M + contact, lat)
+        a_all, dx_all, dy_all, d2_all = pairs.candidates(d_reach)
+        loc = av.scratch_rows()
+        fp = av.footprints
+        g = fp.grid
+        detour_kernels.avoid(
+            fi, desired, rem_d, sd, s.n, pi, pj, pairs.x0, pairs.y0, way_reach2, AVOID_LOOKAHEAD_M,
+            2.0 * self.params.model.radius, self.params.goal_tolerance, hx, hy, best, self._rows,
+            a_all, dx_all, dy_all, d2_all, d_reach * d_reach, loc, OFFSETS, COS_OFFSETS, SIN_OFFSETS, OFFSET_BITS,
+            FIRST_FREE, contact, lat, AVOID_CLEAR_M, g.origin_x, g.origin_y, g.resolution, g.width, g.height,
+            fp.cells, fp.clear_cells(), fp.samples, s.x, s.y,
+        )  # fmt: skip
 
     def _blocked_compiled(
         self, fi: np.ndarray, desired: np.ndarray, rem_d: np.ndarray, sd: np.ndarray

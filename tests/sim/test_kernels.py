@@ -90,6 +90,79 @@ def test_pair_blocks_is_the_exact_corridor_test(seed: int, n: int, span: float, 
     assert fallback.tolist() == want.tolist()
 
 
+def _edge_scene(seed: int, contact: float, lat: float) -> tuple[np.ndarray, ...]:
+    """Neighbors of 20 robots placed on the thresholds of the corridor test of one of their
+    detour headings (along 0 or the corridor's length, across the half-width or the contact
+    distance, a gap of exactly the clearance), each nudged by 0 to a few ulp or by 1e-9 m
+    either way, plus random neighbors: the inputs where a rounding could flip a decision."""
+    rng = np.random.default_rng(seed)
+    nb = 20
+    db = rng.uniform(-math.pi, math.pi, nb)
+    lim = AVOID_CLEAR_M + contact
+    inner = math.sqrt(contact * contact - (0.5 * contact) ** 2)
+    spots = [
+        (0.0, 0.3), (lim, 0.2), (0.5, lat), (0.5, contact), (0.4, -lat), (0.4, -contact),
+        (AVOID_CLEAR_M + inner, 0.5 * contact), (AVOID_CLEAR_M + contact, 1.2 * contact),
+    ]  # fmt: skip
+    a, dxs, dys = [], [], []
+    for r in range(nb):
+        laterals = rng.uniform(0.05 * contact, 0.95 * contact, 6).tolist()
+        on_gap = [(AVOID_CLEAR_M + math.sqrt(contact * contact - lat_ * lat_), lat_) for lat_ in laterals]
+        for along, across in spots + on_gap:
+            h = db[r] + OFFSETS[rng.integers(OFFSETS.size)]
+            hx, hy = math.cos(h), math.sin(h)
+            for nudge in (0.0, 1e-9, -1e-9, 4e-16, -4e-16, 1e-15):
+                al = along + nudge
+                a.append(r)
+                dxs.append(al * hx - across * hy)
+                dys.append(al * hy + across * hx)
+        for _ in range(5):
+            a.append(r)
+            dxs.append(rng.uniform(-1.5, 1.5))
+            dys.append(rng.uniform(-1.5, 1.5))
+    dx, dy = np.array(dxs), np.array(dys)
+    return np.array(a, dtype=np.int64), dx, dy, dx * dx + dy * dy, db
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), radius=st.floats(0.1, 0.4), edges=st.booleans())
+def test_rotated_detour_test_sets_the_exact_bits(seed: int, radius: float, edges: bool) -> None:
+    """The detour pass's pair test from one cos / sin per robot (the neighbors turned into
+    the wanted heading's frame, the exact test near any threshold) sets the very bits of the
+    exact corridor test of every (pair, heading), on random crowds and on neighbors placed on
+    the test's thresholds to within a few ulp."""
+    from sim.detour_kernels import _rotated_blocks
+
+    contact = 2.0 * radius
+    lat = contact + CORRIDOR_MARGIN_M
+    reach = math.hypot(AVOID_CLEAR_M + contact, lat)
+    if edges:
+        a_all, dx, dy, d2, db = _edge_scene(seed, contact, lat)
+        nb = db.size
+        loc = np.arange(nb, dtype=np.int64)
+    else:
+        n = 60
+        a_all, dx, dy, d2 = _scene(seed, n, 3.0)
+        rng = np.random.default_rng(seed + 1)
+        fb = np.flatnonzero(rng.random(n) < 0.7)
+        nb = fb.size
+        loc = np.full(n, -1, dtype=np.int64)
+        loc[fb] = np.arange(nb)
+        db = rng.uniform(-math.pi, math.pi, nb)
+    bits = np.left_shift(1, np.arange(OFFSETS.size, dtype=np.int64))
+    want = np.zeros(nb, dtype=np.int64)
+    kernels.pair_blocks(
+        a_all, dx, dy, d2, reach * reach, loc, db, OFFSETS, bits, contact, lat, AVOID_CLEAR_M, want
+    )
+    got = np.zeros(nb, dtype=np.int64)
+    _rotated_blocks(
+        a_all, dx, dy, d2, reach * reach, loc, db, np.cos(db), np.sin(db), OFFSETS, np.cos(OFFSETS), np.sin(OFFSETS), bits, contact,
+        lat, AVOID_CLEAR_M, got,
+    )  # fmt: skip
+    assert got.tolist() == want.tolist()
+    assert want.any()  # the scenes block some headings
+
+
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 60), span=st.floats(0.5, 8.0))
 def test_corridor_min_is_the_numpy_minimum(seed: int, n: int, span: float) -> None:
