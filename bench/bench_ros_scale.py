@@ -315,7 +315,10 @@ CLIENT_ACTIONS: dict[str, tuple[str, ...] | None] = {
 def summarize(rows: list[dict[str, float | int | str]]) -> None:
     """One line per row: discovery and the cold start, each against the 1-shard row of the
     same robots, profile and hogs (ratios within this run)."""
-    print("robots hog shards domains | launch  discover  answered  total | discover/1  total/1 | goals")
+    print(
+        "robots hog shards domains managers | launch  discover  answered  total | client_create client_cpu "
+        "executors_cpu server_cpu | discover/1  total/1 | goals"
+    )
     for r in rows:
         base = next(
             (b for b in rows if b["shards"] == 1 and all(b[k] == r[k] for k in ("robots", "hog", "profile"))),
@@ -331,8 +334,10 @@ def summarize(rows: list[dict[str, float | int | str]]) -> None:
             return f"{float(row[key]):7.1f}" if key in row else "      -"
 
         print(
-            f"{r['robots']:6} {r['hog']:3} {r['shards']:6} {r['domains']:>7} | {sec('launch_s')} {sec('discover_s')}"
-            f"   {sec('answered_s')} {sec('total_s')} | {ratio('discover_s'):>10} {ratio('total_s'):>8} | "
+            f"{r['robots']:6} {r['hog']:3} {r['shards']:6} {r['domains']:>7} {r.get('managers', '-'):>8} | "
+            f"{sec('launch_s')} {sec('discover_s')}   {sec('answered_s')} {sec('total_s')} | "
+            f"{sec('client_create_s'):>13} {sec('client_cpu_s'):>10} {sec('client_executor_cpu_s'):>13} "
+            f"{sec('server_cpu_s'):>10} | {ratio('discover_s'):>10} {ratio('total_s'):>8} | "
             f"{r.get('wait_ok', 0)}/{r['robots']}"
         )
 
