@@ -21,16 +21,21 @@ shard processes, each serving and simulating N/K robots) and measure
     load, at --speed 1); wait_ok of N succeeded, wait_other how the others ended;
   * answered_s: from the client's start until every robot answered its goal (discovery,
     navigators active, the goal round trip); total_s: launch_s + answered_s (a cold start);
+  * client_cpu_s, client_executor_cpu_s, server_cpu_s: CPU seconds of this process, of its
+    executor threads, and of every server process, from the client's start to discovery;
   * client_rss_mb: this process's resident memory growth;
   * load: the 1-minute load average at the row's start and end.
 --hog H runs H busy loops (one Python process each, not niced) beside the row: the same
 fleet on a machine that is busy with something else.
-Private ROS domain, loopback, the fleet's FastDDS discovery profile (``FLEET_ROS_DISCOVERY=scale``
+Every row runs under a hang guard (--row-limit; RowGuard): a row that does not end prints
+every process's stacks and a clear error and the bench exits 3.
+Claimed private ROS domains (fleet.ros.domains; one per shard of the largest --shards), loopback, the fleet's FastDDS discovery profile (``FLEET_ROS_DISCOVERY=scale``
 in the environment: the 20 s-lease profile for both sides; the row's profile_file names it).
 
 Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full] [--shards 1,2,4]
        [--hog 0,1] [--domains same,shard]
        [--executor single,events] [--client-actions all,nav] [--goal wait|here]
+       [--managers lazy,eager] [--row-limit S]
        [--discovery-server]
        [--config configs/warehouse_patrol_30.yaml] [--json out/bench_ros_scale.json]
 """
