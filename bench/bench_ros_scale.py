@@ -21,16 +21,21 @@ shard processes, each serving and simulating N/K robots) and measure
     load, at --speed 1); wait_ok of N succeeded, wait_other how the others ended;
   * answered_s: from the client's start until every robot answered its goal (discovery,
     navigators active, the goal round trip); total_s: launch_s + answered_s (a cold start);
+  * client_cpu_s, client_executor_cpu_s, server_cpu_s: CPU seconds of this process, of its
+    executor threads, and of every server process, from the client's start to discovery;
   * client_rss_mb: this process's resident memory growth;
   * load: the 1-minute load average at the row's start and end.
 --hog H runs H busy loops (one Python process each, not niced) beside the row: the same
 fleet on a machine that is busy with something else.
-Private ROS domain, loopback, the fleet's FastDDS discovery profile (``FLEET_ROS_DISCOVERY=scale``
+Every row runs under a hang guard (--row-limit; RowGuard): a row that does not end prints
+every process's stacks and a clear error and the bench exits 3.
+Claimed private ROS domains (fleet.ros.domains; one per shard of the largest --shards), loopback, the fleet's FastDDS discovery profile (``FLEET_ROS_DISCOVERY=scale``
 in the environment: the 20 s-lease profile for both sides; the row's profile_file names it).
 
 Usage: python bench/bench_ros_scale.py [--robots 10,50,100] [--profile lean,full] [--shards 1,2,4]
        [--hog 0,1] [--domains same,shard]
        [--executor single,events] [--client-actions all,nav] [--goal wait|here]
+       [--managers lazy,eager] [--row-limit S]
        [--discovery-server]
        [--config configs/warehouse_patrol_30.yaml] [--json out/bench_ros_scale.json]
 """
@@ -39,6 +44,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import faulthandler
 import itertools
 import json
 import os
@@ -48,6 +54,7 @@ import socket
 import subprocess
 import sys
 import sysconfig
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -55,8 +62,19 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from fleet.ros.domains import claim_domains  # noqa: E402
 from fleet.ros.env import apply_ros_env_defaults  # noqa: E402
-from fleet.ros.launch import ServerProcess, private_domain_id  # noqa: E402
+from fleet.ros.launch import ServerProcess  # noqa: E402
+
+
+def cpu_s(pid: int | str = "self", tid: int | None = None) -> float:
+    """CPU seconds (user + system) a process (or one of its threads) has used so far."""
+    path = f"/proc/{pid}/task/{tid}/stat" if tid is not None else f"/proc/{pid}/stat"
+    try:
+        fields = Path(path).read_text().rpartition(")")[2].split()
+    except FileNotFoundError:
+        return float("nan")
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def rss_mb(pid: int | str = "self") -> float:
@@ -112,6 +130,55 @@ def hogs(count: int) -> Iterator[None]:
             p.wait()
 
 
+class RowGuard:
+    """Hang guard of one row: if the row has not ended after ``limit_s`` (wall s), print a
+    clear error, every thread's Python stack of this process (faulthandler) and of each shard
+    process (SIGUSR1: ``fleet.ros.shard_processes`` registers faulthandler on it; the stacks
+    land in the server's log, printed too), kill the server's process group and exit with
+    status 3. A row blocked in C code that holds the GIL starves this watchdog thread: then
+    faulthandler's own C thread dumps the stacks ``grace_s`` later and exits (status 1; that
+    path cannot stop the server: kill its process group, named in the bench's log, by hand)."""
+
+    def __init__(self, limit_s: float, what: str, grace_s: float = 30.0) -> None:
+        self.limit_s = limit_s
+        self.what = what
+        self.grace_s = grace_s
+        #: The row's server, once started (set by :func:`one`).
+        self.server: ServerProcess | None = None
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._watch, name="row-guard", daemon=True)
+
+    def __enter__(self) -> RowGuard:
+        faulthandler.dump_traceback_later(self.limit_s + self.grace_s, exit=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._done.set()
+        faulthandler.cancel_dump_traceback_later()
+
+    def _watch(self) -> None:
+        if self._done.wait(self.limit_s):
+            return
+        print(
+            f"error: row {self.what} did not end within {self.limit_s:.0f} s (--row-limit): "
+            "hung; the stacks of this process and of the shards follow",
+            file=sys.stderr,
+            flush=True,
+        )
+        faulthandler.dump_traceback(all_threads=True)
+        srv = self.server
+        if srv is not None:
+            shards = srv.info.get("shard_pids", [])
+            for pid in [*shards, srv.proc.pid] if shards else []:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGUSR1)
+            time.sleep(3.0)
+            print(f"--- server log (tail) ---\n{srv.log()}", file=sys.stderr, flush=True)
+            srv.kill()
+        os._exit(3)
+
+
 def one(
     config: str,
     n: int,
@@ -124,6 +191,8 @@ def one(
     server_timeout_s: float = 3.0,
     hog: int = 0,
     domains: str = "same",
+    guard: RowGuard | None = None,
+    managers: str = "lazy",
 ) -> dict[str, float | int | str]:
     from fleet.ros.backend import BACKEND_KINDS, make_ros_backends
     from fleet.ros.executors import EXECUTOR_VAR
@@ -140,6 +209,7 @@ def one(
         "server_timeout_s": server_timeout_s,
         "hog": hog,
         "domains": domains,
+        "managers": managers,
         "load_start": round(os.getloadavg()[0], 1),
     }
     eager = CLIENT_ACTIONS[client_actions] or BACKEND_KINDS
@@ -159,6 +229,9 @@ def one(
         *(["--shard-domains"] if domains == "shard" and shards > 1 else []),
         ready_timeout_s=timeout_s,
     ) as srv:
+        if guard is not None:
+            guard.server = srv
+            print(f"[bench] row server: process group {srv.proc.pid}", file=sys.stderr, flush=True)
         row["launch_s"] = round(time.monotonic() - t_launch, 3)
         row["create_s"] = max(srv.info.get("shard_create_s", [srv.info["create_s"]]))
         time.sleep(0.5)
@@ -166,6 +239,7 @@ def one(
         row["server_rss_mb"] = round(sum(rss_mb(p) for p in pids), 1)
         rss0 = rss_mb()
         t0 = time.monotonic()
+        cpu0 = cpu_s(), sum(cpu_s(p) for p in pids)
         names = [f"/robot{i + 1}" for i in range(n)]
         # one client: one participant, whatever the server's shards; with --domains shard one
         # participant per shard, on that shard's domain (robot i in shard (i-1) % K)
@@ -181,10 +255,19 @@ def one(
             ]
         )
         rb = {ns: g[ns] for g in groups for ns in g.backends}
+        if managers == "eager":  # as before: the lifecycle managers' clients made at start
+            for g in groups:
+                for b in g.backends.values():
+                    g.call_soon(b.lifecycle.make_manager_clients)
         row["client_create_s"] = round(time.monotonic() - t0, 3)
         deadline = time.monotonic() + timeout_s
         missing = [m for g in groups for m in g.wait_for_servers(max(0.0, deadline - time.monotonic()))]
         row["discover_s"] = round(time.monotonic() - t0, 3) if not missing else float("nan")
+        # where the CPU went from the client's start to discovery: this process, its executor
+        # threads (rclpy's Python executor of each participant), the server processes
+        row["client_cpu_s"] = round(cpu_s() - cpu0[0], 1)
+        row["client_executor_cpu_s"] = round(sum(cpu_s("self", g._thread.native_id) for g in groups), 1)
+        row["server_cpu_s"] = round(sum(cpu_s(p) for p in pids) - cpu0[1], 1)
         row["missing"] = len(missing)
         if not missing:
             # every navigator answering its lifecycle get_state (what make_ros_backends(wait_s)
@@ -237,7 +320,10 @@ CLIENT_ACTIONS: dict[str, tuple[str, ...] | None] = {
 def summarize(rows: list[dict[str, float | int | str]]) -> None:
     """One line per row: discovery and the cold start, each against the 1-shard row of the
     same robots, profile and hogs (ratios within this run)."""
-    print("robots hog shards domains | launch  discover  answered  total | discover/1  total/1 | goals")
+    print(
+        "robots hog shards domains managers | launch  discover  answered  total | client_create client_cpu "
+        "executors_cpu server_cpu | discover/1  total/1 | goals"
+    )
     for r in rows:
         base = next(
             (b for b in rows if b["shards"] == 1 and all(b[k] == r[k] for k in ("robots", "hog", "profile"))),
@@ -253,8 +339,10 @@ def summarize(rows: list[dict[str, float | int | str]]) -> None:
             return f"{float(row[key]):7.1f}" if key in row else "      -"
 
         print(
-            f"{r['robots']:6} {r['hog']:3} {r['shards']:6} {r['domains']:>7} | {sec('launch_s')} {sec('discover_s')}"
-            f"   {sec('answered_s')} {sec('total_s')} | {ratio('discover_s'):>10} {ratio('total_s'):>8} | "
+            f"{r['robots']:6} {r['hog']:3} {r['shards']:6} {r['domains']:>7} {r.get('managers', '-'):>8} | "
+            f"{sec('launch_s')} {sec('discover_s')}   {sec('answered_s')} {sec('total_s')} | "
+            f"{sec('client_create_s'):>13} {sec('client_cpu_s'):>10} {sec('client_executor_cpu_s'):>13} "
+            f"{sec('server_cpu_s'):>10} | {ratio('discover_s'):>10} {ratio('total_s'):>8} | "
             f"{r.get('wait_ok', 0)}/{r['robots']}"
         )
 
@@ -310,14 +398,33 @@ def main(argv: list[str] | None = None) -> int:
         default=3.0,
         help="the backends' server_timeout_s: how long a goal request may go unanswered (s)",
     )
+    ap.add_argument(
+        "--managers",
+        default="lazy",
+        help="comma-separated: lazy (each backend makes its lifecycle managers' clients on the "
+        "first STARTUP, never for autostarted robots) or eager (at start, as before), one run each",
+    )
+    ap.add_argument(
+        "--row-limit",
+        type=float,
+        default=None,
+        help="hang guard: wall s a row may take before the bench dumps every stack, kills the "
+        "server and exits 3 (default 4 x --timeout + 120)",
+    )
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     # SIGTERM (e.g. `timeout`) unwinds like Ctrl-C so the server child is stopped
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
-    os.environ.setdefault("ROS_DOMAIN_ID", str(private_domain_id(base=190, span=40)))
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
+    # claimed domains (fleet.ros.domains): one per shard of the largest --shards, so that
+    # --domains shard (ROS_DOMAIN_ID + I - 1) meets no other run on this machine
+    claim = None
+    if "ROS_DOMAIN_ID" not in os.environ:
+        claim = claim_domains(max(int(x) for x in args.shards.split(",")), base=190, span=40)
+        os.environ["ROS_DOMAIN_ID"] = str(claim.first)
     apply_ros_env_defaults()
     rows = []
-    for profile, n, hog, shards, domains, executor, actions in itertools.product(
+    for profile, n, hog, shards, domains, executor, actions, managers in itertools.product(
         args.profile.split(","),
         (int(x) for x in args.robots.split(",")),
         (int(x) for x in args.hog.split(",")),
@@ -325,6 +432,7 @@ def main(argv: list[str] | None = None) -> int:
         args.domains.split(","),
         args.executor.split(","),
         args.client_actions.split(","),
+        args.managers.split(","),
     ):
         if shards == 1 and domains != "same" and "same" in args.domains.split(","):
             continue  # one shard has one domain: the row is already measured
@@ -332,6 +440,8 @@ def main(argv: list[str] | None = None) -> int:
             if args.discovery_server:
                 stack.enter_context(discovery_server())
             stack.enter_context(hogs(hog))
+            what = f"robots={n} hog={hog} shards={shards} domains={domains} managers={managers}"
+            guard = stack.enter_context(RowGuard(args.row_limit or 4 * args.timeout + 120, what))
             row = one(
                 args.config,
                 n,
@@ -344,6 +454,8 @@ def main(argv: list[str] | None = None) -> int:
                 args.server_timeout,
                 hog,
                 domains,
+                guard,
+                managers,
             )
         row["discovery"] = "server" if args.discovery_server else "simple"
         row["profile_file"] = Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]).name

@@ -49,11 +49,6 @@ def write_ready(path: str, info: ReadyInfo) -> None:
     tmp.replace(path)
 
 
-def private_domain_id(base: int = 40, span: int = 150) -> int:
-    """A ROS domain id in ``[base, base + span)`` derived from this process id (tests)."""
-    return base + os.getpid() % span
-
-
 class ServerProcess:
     """A running ``python -m fleet.ros.nav2_server`` (or any command that writes the same
     ready file). Use as a context manager, or call :meth:`stop`."""

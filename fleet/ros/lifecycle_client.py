@@ -11,7 +11,8 @@ is called on the executor thread, sends one request at a time at most every
 first; ``"unknown"`` again when the service vanishes or a request goes unanswered for
 :data:`ANSWER_S`). :meth:`LifecycleWatch.startup` sends STARTUP to every manager once (what
 ``BasicNavigator.lifecycleStartup`` does for the robot's managers), for robots whose Nav2 was
-launched without ``autostart``.
+launched without ``autostart``; the managers' service clients exist only from its first call
+(four DDS endpoints a robot that an autostarted fleet never uses).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from collections.abc import Callable
 
 from lifecycle_msgs.srv import GetState
 from nav2_msgs.srv import ManageLifecycleNodes
+from rclpy.client import Client
 from rclpy.node import Node
 from rclpy.task import Future
 
@@ -42,7 +44,10 @@ class LifecycleWatch:
         # whether the navigator's get_state is served: by default rclpy's own check (it counts
         # over the whole graph); the fleet's backends pass their graph sweep's answer
         self._seen = seen if seen is not None else lambda _name: bool(self._get.service_is_ready())
-        self._managers = [node.create_client(ManageLifecycleNodes, f"{m}/manage_nodes") for m in MANAGERS]
+        # the managers' clients are made on the first startup(): a fleet of autostarted robots
+        # never needs them, and at scale every endpoint costs discovery on both sides
+        self._node = node
+        self._managers: list[Client] = []
         #: ``"active"``, ``"inactive"``, ``"unconfigured"``, ``"finalized"`` or ``"unknown"``.
         self.state = "unknown"
         self._pending: Future | None = None
@@ -79,12 +84,21 @@ class LifecycleWatch:
             self._startup = []
 
     def startup(self) -> None:
-        """Send STARTUP to every manager, once (nothing while a manager is not discovered)."""
+        """Send STARTUP to every manager, once (nothing while a manager is not discovered;
+        the first call makes the managers' clients)."""
+        self.make_manager_clients()
         if self.startup_sent or not all(c.service_is_ready() for c in self._managers):
             return
         self.startup_sent = True
         req = ManageLifecycleNodes.Request(command=ManageLifecycleNodes.Request.STARTUP)
         self._startup = [c.call_async(req) for c in self._managers]
+
+    def make_manager_clients(self) -> None:
+        """Make the managers' service clients now, if not yet (:meth:`startup` does it)."""
+        if not self._managers:
+            self._managers = [
+                self._node.create_client(ManageLifecycleNodes, f"{m}/manage_nodes") for m in MANAGERS
+            ]
 
     def destroy(self, node: Node) -> None:
         node.destroy_client(self._get)

@@ -35,6 +35,7 @@ Imports nothing from ROS (the parent stays a small process).
 from __future__ import annotations
 
 import ctypes
+import faulthandler
 import json
 import logging
 import os
@@ -102,6 +103,7 @@ def follow_parent() -> None:
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
     except (OSError, AttributeError):  # not Linux: the parent's own stop must do
         log.debug("prctl(PR_SET_PDEATHSIG) unavailable")
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     parent = os.environ.get(PARENT_VAR)
     if parent and os.getppid() != int(parent):
         raise SystemExit(EXIT_INTERRUPTED)
@@ -136,6 +138,7 @@ def run_shards(
         print(f"error: --shards {count} is more than the {len(cfg.robots)} robots", file=sys.stderr)
         return 2
     stop = _Stop()
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # a hung run's stacks on demand
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGTERM, stop)
     t0 = time.monotonic()

@@ -17,8 +17,9 @@ from typing import TYPE_CHECKING
 
 import pytest
 
+from fleet.ros.domains import private_domain_id
 from fleet.ros.env import apply_ros_env_defaults, ros_unavailable_reason
-from fleet.ros.launch import ServerProcess, private_domain_id
+from fleet.ros.launch import ServerProcess
 
 if TYPE_CHECKING:
     from rclpy.context import Context
@@ -33,7 +34,9 @@ UNAVAILABLE = ros_unavailable_reason()
 if UNAVAILABLE is None:
     # Before any rclpy participant exists in this process: a private domain, loopback only,
     # the fast-discovery FastDDS profile. Child processes inherit it.
-    os.environ.setdefault("ROS_DOMAIN_ID", str(private_domain_id()))
+    # the domain is claimed (fleet.ros.domains) so no other run on this machine uses it
+    if "ROS_DOMAIN_ID" not in os.environ:
+        os.environ["ROS_DOMAIN_ID"] = str(private_domain_id())
     apply_ros_env_defaults()
 
 

@@ -9,6 +9,7 @@ alone, the parent killed), no shard process is left running.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -146,13 +147,20 @@ def test_the_shards_get_the_command_line_without_the_parents_options() -> None:
 
 def test_shard_domains_put_each_shard_on_its_own_ros_domain() -> None:
     """``--shard-domains``: shard I on ``ROS_DOMAIN_ID + I - 1``. A client on the second
-    domain drives robot 2 (shard 2) to its goal, and sees none of shard 1's robots."""
+    domain drives robot 2 (shard 2) to its goal, and sees none of shard 1's robots. The two
+    domains are claimed (:func:`fleet.ros.domains.claim_domains`): no other test or run on this
+    machine is on either."""
     from fleet.ros.action_graph import served_actions
     from fleet.ros.backend import OWN_NODES, make_ros_backends
+    from fleet.ros.domains import claim_domains
     from fleet.types import GoalStatus, NavigateToPose
 
-    base = int(os.environ["ROS_DOMAIN_ID"])
-    with ServerProcess.for_config(WAREHOUSE, *_args("--shard-domains"), ready_timeout_s=READY_S) as srv:
+    with contextlib.ExitStack() as stack:
+        base = stack.enter_context(claim_domains(2)).first
+        env = {**os.environ, "ROS_DOMAIN_ID": str(base)}
+        srv = stack.enter_context(
+            ServerProcess.for_config(WAREHOUSE, *_args("--shard-domains"), env=env, ready_timeout_s=READY_S)
+        )
         assert srv.info.get("shard_domain_ids") == [base, base + 1]
         with make_ros_backends(["/robot2"], domain_id=base + 1, wait_s=GOAL_S, server_timeout_s=GOAL_S) as rb:
             goal = rb["/robot2"].send_goal(NavigateToPose(Pose2D(3.5, 5.5, 1.57)))

@@ -31,8 +31,9 @@ from conformance_harness import register_backend  # noqa: E402
 from prestart import Pool  # noqa: E402
 
 from fleet.navigation import NavigationBackend  # noqa: E402
+from fleet.ros.domains import DomainClaim, claim_domains, private_domain_id  # noqa: E402
 from fleet.ros.env import apply_ros_env_defaults, ros_available  # noqa: E402
-from fleet.ros.launch import ServerProcess, private_domain_id  # noqa: E402
+from fleet.ros.launch import ServerProcess  # noqa: E402
 from fleet.testing.conformance import ConformanceHarness, ConformanceWorld  # noqa: E402
 from fleet.testing.room import SIM_PARAMS, SIM_WORLD, conformance_grid  # noqa: E402
 
@@ -57,6 +58,17 @@ _POOL: Pool[ServerProcess] = Pool("ros")
 between_cases = _POOL.between_cases
 
 
+def _pair() -> DomainClaim:
+    """Two ROS domains ``d, d ^ 1`` claimed for this process (the cases alternate between
+    them, so a case never meets the last case's server), free of every other claimer."""
+    if not _PAIR:
+        _PAIR.append(claim_domains(2, align=2))
+    return _PAIR[0]
+
+
+_PAIR: list[DomainClaim] = []
+
+
 def _start_spare(domain_id: int) -> ServerProcess:
     # the servers of earlier cases, one of them on this domain, are gone first
     _POOL.wait_stopped()
@@ -73,7 +85,8 @@ def _start_server(domain_id: int) -> ServerProcess:
 def ros_harness() -> Iterator[ConformanceHarness]:
     if not ros_available():
         pytest.skip("ROS 2 Jazzy wheels / nav2_msgs not installed (make setup-ros)")
-    os.environ.setdefault("ROS_DOMAIN_ID", str(private_domain_id()))
+    if "ROS_DOMAIN_ID" not in os.environ:
+        os.environ["ROS_DOMAIN_ID"] = str(private_domain_id())
     apply_ros_env_defaults()
     from fleet.ros.backend import make_ros_backends
 
@@ -81,11 +94,11 @@ def ros_harness() -> Iterator[ConformanceHarness]:
     if spare is not None:
         domain_id, srv = spare.tag, spare.take()
     else:
-        domain_id = int(os.environ["ROS_DOMAIN_ID"])
+        domain_id = _pair().first
         srv = _start_server(domain_id)
     rb = None
     try:
-        nxt = domain_id ^ 1  # the next case's server, on the other domain
+        nxt = domain_id ^ 1  # the next case's server, on the other domain of the pair
         _POOL.prepare(lambda: _start_spare(nxt), nxt)
         rb = make_ros_backends(["/robot1"], domain_id=domain_id, wait_s=20.0)
         backend = rb["/robot1"]
