@@ -40,7 +40,15 @@ def trace_trips(trips: Counter[str]) -> None:
 
     plan = manager_mod.errand_way
 
-    def traced(st, r, target):  # type: ignore[no-untyped-def]
+    def traced(st, r, target, baseline=None):  # type: ignore[no-untyped-def]
+        if baseline is not None:  # a robot on its errand looking again (contraflow_m)
+            way = plan(st, r, target, baseline=baseline)
+            if way is not None and target.startswith("dock:charger:"):
+                trips["shortened on the way"] += 1
+                print(
+                    f"  trip t={st.now:7.1f} {r.name} at {r.path[r.cur]} -> {target[13:]}: shortened on the way"
+                )
+            return way
         if not target.startswith("dock:charger:"):
             return plan(st, r, target)
         roads, path, cur, g = st.roads, r.path, r.cur, r.g
