@@ -198,7 +198,11 @@ def main(argv: list[str] | None = None) -> int:
 
     runner.observers.append(observe)
     rep = runner.run()
-    print(f"{a.config} traffic={'off' if a.no_traffic else 'on'} {a.duration:g} s: laps {rep.laps_completed}")
+    print(
+        f"{a.config} traffic={'off' if a.no_traffic else 'on'} {a.duration:g} s: laps {rep.laps_completed}, "
+        f"collisions {rep.collisions}, deadlocks {rep.deadlocks}, lowest battery {100 * rep.min_battery:.1f} %, "
+        f"mean wait {rep.mean_wait_s or 0:.0f} s"
+    )
     keys = sorted({k for c in states.values() for k in c})
     print("robot    " + " ".join(f"{k:>14}" for k in keys))
     for name in sorted(states):
