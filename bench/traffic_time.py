@@ -40,7 +40,15 @@ def trace_trips(trips: Counter[str]) -> None:
 
     plan = manager_mod.errand_way
 
-    def traced(st, r, target):  # type: ignore[no-untyped-def]
+    def traced(st, r, target, baseline=None):  # type: ignore[no-untyped-def]
+        if baseline is not None:  # a robot on its errand looking again (contraflow_m)
+            way = plan(st, r, target, baseline=baseline)
+            if way is not None and target.startswith("dock:charger:"):
+                trips["shortened on the way"] += 1
+                print(
+                    f"  trip t={st.now:7.1f} {r.name} at {r.path[r.cur]} -> {target[13:]}: shortened on the way"
+                )
+            return way
         if not target.startswith("dock:charger:"):
             return plan(st, r, target)
         roads, path, cur, g = st.roads, r.path, r.cur, r.g
@@ -190,7 +198,11 @@ def main(argv: list[str] | None = None) -> int:
 
     runner.observers.append(observe)
     rep = runner.run()
-    print(f"{a.config} traffic={'off' if a.no_traffic else 'on'} {a.duration:g} s: laps {rep.laps_completed}")
+    print(
+        f"{a.config} traffic={'off' if a.no_traffic else 'on'} {a.duration:g} s: laps {rep.laps_completed}, "
+        f"collisions {rep.collisions}, deadlocks {rep.deadlocks}, lowest battery {100 * rep.min_battery:.1f} %, "
+        f"mean wait {rep.mean_wait_s or 0:.0f} s"
+    )
     keys = sorted({k for c in states.values() for k in c})
     print("robot    " + " ".join(f"{k:>14}" for k in keys))
     for name in sorted(states):

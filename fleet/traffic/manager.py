@@ -57,6 +57,7 @@ import networkx as nx
 
 from fleet.errors import TrafficError
 from fleet.messages import Grant
+from fleet.traffic.contraflow import CONTRAFLOW_GAIN_M, reserve
 from fleet.traffic.deadlocks import cycles, detect_and_resolve
 from fleet.traffic.failures import avoid_dead, kill, revive, shrink
 from fleet.traffic.grants import extend
@@ -102,6 +103,7 @@ class TrafficManager:
         self._st = TrafficState(RoadIndex(g), p)
         self.table: ReservationTable = self._st.table
         self.metrics: TrafficMetrics = self._st.metrics
+        self._recheck: dict[str, float] = {}  # robot -> when shorten_errand may look again
 
     # ------------------------------------------------------------------ robots
 
@@ -264,10 +266,43 @@ class TrafficManager:
         r.loop = (list(seq), list(must)) if loop else None
         r.must_passed = 0
         install(st, r, prefix + new_nodes, pm + new_must)
+        if way is not None and len(way) > 1 and self.params.contraflow_m > 0.0:
+            reserve(st, r, way)
         if loop:
             extend_loop(st, r)
         avoid_dead(st, r)
         return r.path_id
+
+    def shorten_errand(self, robot: str, now: float) -> bool:
+        """With ``TrafficParams.contraflow_m``: look again (at most every ``detect_period_s``)
+        for a way for ``robot``, on an errand path (driven once, to the dock at its end), that
+        is at least :data:`~fleet.traffic.contraflow.CONTRAFLOW_GAIN_M` shorter than the rest
+        of its path, turning back or driving against the flow where the stretch is free
+        (:func:`fleet.traffic.paths.errand_way`); take it, reserving that stretch end to end
+        (:func:`fleet.traffic.contraflow.reserve`). Whether it did. The caller says which
+        robots are on errands (the policy: charging and parking trips)."""
+        p = self.params
+        st = self._st
+        r = st.get(robot)
+        if p.contraflow_m <= 0.0 or not r.alive or r.loop is not None or r.cur >= len(r.path) - 1:
+            return False
+        if now < self._recheck.get(robot, -math.inf):
+            return False
+        self._recheck[robot] = now + p.detect_period_s
+        target = r.path[-1]
+        beat = r.cum[-1] - r.cum[r.cur] - CONTRAFLOW_GAIN_M
+        tx, ty = st.roads.pos[target]
+        if math.hypot(tx - r.x, ty - r.y) >= beat:
+            return False  # no way can be that much shorter
+        st.now = now
+        way = errand_way(st, r, target, baseline=beat)
+        if way is None or len(way) < 2:
+            return False
+        prefix = r.path[r.cur : r.g + 1]
+        must = r.must[r.cur : r.g + 1] + [False] * (len(way) - 2) + [True]
+        install(st, r, prefix + way[1:], must)
+        reserve(st, r, way)
+        return True
 
     def clear_path(self, robot: str, now: float) -> None:
         """Drop ``robot``'s path: it stops at the end of its current grant and keeps holding

@@ -117,6 +117,7 @@ class TrafficParams:
     charge_margin_priority: bool = False
     sidestep_clear_corridor: int = 0
     sidestep_deep_depth: int = 0
+    contraflow_m: float = 0.0
 
     @property
     def clearance(self) -> float:

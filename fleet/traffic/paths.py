@@ -8,6 +8,7 @@ import math
 from collections.abc import Iterable, Sequence
 
 from fleet.errors import TrafficError
+from fleet.traffic.contraflow import reservable
 from fleet.traffic.grants import moves_ahead
 from fleet.traffic.reservations import Resource, edge_key
 from fleet.traffic.roads import RoadIndex
@@ -100,7 +101,9 @@ class Oncoming:
         return who is not None and (len(who) > 1 or self.robot not in who)
 
 
-def errand_way(st: TrafficState, r: TrackedRobot, target: str) -> list[str] | None:
+def errand_way(
+    st: TrafficState, r: TrackedRobot, target: str, baseline: float | None = None
+) -> list[str] | None:
     """The way for ``r``, sent on an errand to ``target`` (a charger, a parking dock), when
     a shorter one than the planned way exists; ``None`` otherwise.
 
@@ -114,15 +117,24 @@ def errand_way(st: TrafficState, r: TrackedRobot, target: str) -> list[str] | No
     and the grant ends there. A robot called to a charger in the middle of its patrol's
     aisle then turns back instead of driving on around the loop (on the 6-robot warehouse
     the trips to a charger were 36 m, where robots without traffic management drove 11 m).
-    Returns the node path from the grant's (new) end to ``target``."""
+    Returns the node path from the grant's (new) end to ``target``.
+
+    ``baseline`` (m, from the robot's node): the length to beat instead of the planned way's
+    (a robot already on its errand: :meth:`TrafficManager.shorten_errand`). With
+    ``contraflow_m`` set, a way that drives against the flow is taken only if its stretch can
+    be reserved end to end (:func:`fleet.traffic.contraflow.reservable`)."""
     if not st.params.turn_back:
         return None
     cur, g = r.cur, r.g
     path, pos, roads = r.path, st.roads.pos, st.roads
-    planned = roads.shortest(path[g], target, frozenset())
-    if planned is None:
-        return None
-    best = r.cum[g] - r.cum[cur] + roads.cost(planned, flow=False) - 1e-6
+    if baseline is None:
+        planned = roads.shortest(path[g], target, frozenset())
+        if planned is None:
+            return None
+        best = r.cum[g] - r.cum[cur] + roads.cost(planned, flow=False) - 1e-6
+    else:
+        best = baseline
+    contra = st.params.contraflow_m > 0.0
     k = cur + 1
     stop2 = st.params.turn_back_m * st.params.turn_back_m
     while k < g:
@@ -137,7 +149,7 @@ def errand_way(st: TrafficState, r: TrackedRobot, target: str) -> list[str] | No
         if way is None:
             continue
         d = r.cum[j] - r.cum[cur] + roads.cost(way, flow=False)
-        if d < best:
+        if d < best and (not contra or reservable(st, r, way)):
             best, chosen = d, (j, way)
     if chosen is None:
         return None

@@ -34,6 +34,9 @@ Deliver = Callable[[str, Grant], None]
 #: keeps counting).
 MAX_DEADLOCK_EVENTS = 2000
 
+#: Purposes of the errands (trips to a dock) that may turn back or drive against the flow.
+ERRANDS = (Purpose.CHARGE, Purpose.CHARGE_WAIT, Purpose.PARK)
+
 
 class ReservationTraffic:
     """A ``fleet.coordination`` ``TrafficPolicy`` backed by a :class:`TrafficManager`.
@@ -166,6 +169,10 @@ class ReservationTraffic:
                 self._apply_pending(name)
             self.errands.step(name, v, now, requests)
         self.errands.serve_chargers(requests)
+        if m.params.contraflow_m > 0.0:
+            for name, purpose in list(self._purpose.items()):
+                if purpose in ERRANDS and m.knows(name):
+                    m.shorten_errand(name, now)
         changed = m.cycle(now)
         self._count_deadlocks(now)
         if self.deliver is not None:
@@ -244,7 +251,7 @@ class ReservationTraffic:
         if not m.is_alive(robot):
             m.declare_alive(robot, self._now)  # e.g. stalled earlier: a new errand revives it
         # errands (charger, parking) may turn back instead of finishing the patrol's grant
-        errand = purpose in (Purpose.CHARGE, Purpose.CHARGE_WAIT, Purpose.PARK)
+        errand = purpose in ERRANDS
         m.set_path(robot, nodes, self._now, must_visit=must, loop=loop, turn_back=errand)
         self._purpose[robot] = purpose
 
