@@ -24,6 +24,7 @@ from __future__ import annotations
 import fcntl
 import os
 import tempfile
+from collections.abc import MutableMapping
 from pathlib import Path
 from typing import IO
 
@@ -114,3 +115,24 @@ def private_domain_id(base: int = 40, span: int = 150) -> int:
     claim = claim_domains(1, base=base, span=span)
     _PROCESS_CLAIMS.append(claim)
     return claim.first
+
+
+#: Set beside ``ROS_DOMAIN_ID`` by :func:`ensure_private_domain`: the pid of the process that
+#: claimed it (children inherit both; a claim dies with its process).
+CLAIMED_BY_ENV = "FLEET_ROS_DOMAIN_CLAIMED_BY"
+
+
+def ensure_private_domain(environ: MutableMapping[str, str] = os.environ) -> int:
+    """``ROS_DOMAIN_ID`` of this process, claimed here unless set by hand.
+
+    A domain the user set (no :data:`CLAIMED_BY_ENV` beside it) is kept. A domain this
+    process claimed is kept. A domain claimed by *another* process and inherited from it (a
+    pytest-xdist controller that loaded a test conftest before starting its workers) is not
+    this process's: it claims its own, so two workers never share one."""
+    owner = environ.get(CLAIMED_BY_ENV)
+    if "ROS_DOMAIN_ID" in environ and (owner is None or owner == str(os.getpid())):
+        return int(environ["ROS_DOMAIN_ID"])
+    domain_id = private_domain_id()
+    environ["ROS_DOMAIN_ID"] = str(domain_id)
+    environ[CLAIMED_BY_ENV] = str(os.getpid())
+    return domain_id

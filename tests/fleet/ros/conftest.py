@@ -10,14 +10,13 @@ import time. ``wait_until`` is the tests' one way to wait for something to happe
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pytest
 
-from fleet.ros.domains import private_domain_id
+from fleet.ros.domains import ensure_private_domain
 from fleet.ros.env import apply_ros_env_defaults, ros_unavailable_reason
 from fleet.ros.launch import ServerProcess
 
@@ -35,8 +34,7 @@ if UNAVAILABLE is None:
     # Before any rclpy participant exists in this process: a private domain, loopback only,
     # the fast-discovery FastDDS profile. Child processes inherit it.
     # the domain is claimed (fleet.ros.domains) so no other run on this machine uses it
-    if "ROS_DOMAIN_ID" not in os.environ:
-        os.environ["ROS_DOMAIN_ID"] = str(private_domain_id())
+    ensure_private_domain()
     apply_ros_env_defaults()
 
 

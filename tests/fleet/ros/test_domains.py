@@ -87,3 +87,18 @@ def test_a_range_outside_ros_domains_is_refused() -> None:
         claim_domains(4, base=230, span=10)
     with pytest.raises(BackendError, match="no block of 3"):
         claim_domains(3, base=10, span=2)
+
+
+def test_an_inherited_claim_is_not_this_process_s() -> None:
+    """A domain claimed by a parent (a pytest-xdist controller) and inherited by its children
+    (the workers) is claimed anew by each child; one set by hand is kept as is."""
+    from fleet.ros.domains import CLAIMED_BY_ENV, ensure_private_domain
+
+    by_hand = {"ROS_DOMAIN_ID": "7"}
+    assert ensure_private_domain(by_hand) == 7 and CLAIMED_BY_ENV not in by_hand
+    with claim_domains(1) as held:  # the parent's claim, still held
+        parent = {"ROS_DOMAIN_ID": str(held.first), CLAIMED_BY_ENV: str(os.getppid())}
+        mine = ensure_private_domain(parent)
+        assert mine != held.first and parent["ROS_DOMAIN_ID"] == str(mine)
+        assert parent[CLAIMED_BY_ENV] == str(os.getpid())
+        assert ensure_private_domain(parent) == mine  # this process's own claim: kept

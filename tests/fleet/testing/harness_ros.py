@@ -31,7 +31,7 @@ from conformance_harness import register_backend  # noqa: E402
 from prestart import Pool  # noqa: E402
 
 from fleet.navigation import NavigationBackend  # noqa: E402
-from fleet.ros.domains import DomainClaim, claim_domains, private_domain_id  # noqa: E402
+from fleet.ros.domains import DomainClaim, claim_domains, ensure_private_domain  # noqa: E402
 from fleet.ros.env import apply_ros_env_defaults, ros_available  # noqa: E402
 from fleet.ros.launch import ServerProcess  # noqa: E402
 from fleet.testing.conformance import ConformanceHarness, ConformanceWorld  # noqa: E402
@@ -85,8 +85,7 @@ def _start_server(domain_id: int) -> ServerProcess:
 def ros_harness() -> Iterator[ConformanceHarness]:
     if not ros_available():
         pytest.skip("ROS 2 Jazzy wheels / nav2_msgs not installed (make setup-ros)")
-    if "ROS_DOMAIN_ID" not in os.environ:
-        os.environ["ROS_DOMAIN_ID"] = str(private_domain_id())
+    ensure_private_domain()
     apply_ros_env_defaults()
     from fleet.ros.backend import make_ros_backends
 
