@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from operator import countOf
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING
 
 import networkx as nx
 
@@ -282,8 +282,9 @@ class Errands:
         reach = m.params.retarget_reach_m
         # the search of nx.single_source_dijkstra without its path to every node reached (most
         # of its cost on a large floor): the one path taken is rebuilt from the predecessors
-        found = nx.dijkstra_predecessor_and_distance(self.roadmap.graph, here, cutoff=reach, weight=weight)
-        pred, dist = cast("tuple[dict[str, list[str]], dict[str, float]]", found)
+        pred, dist = nx.dijkstra_predecessor_and_distance(
+            self.roadmap.graph, here, cutoff=reach, weight=weight
+        )
         docks = self.chargers if purpose is Purpose.CHARGE else self.parking
         taken = {n for r, n in self._target.items() if r != name}
         free = [d for d in docks if d in dist and d not in taken and m.holder(d) in (None, name)]
