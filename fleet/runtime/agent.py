@@ -38,7 +38,7 @@ on the bus at most that often (simulated time, from the records' ``t``): a recor
 when at least ``1 / status_hz`` s passed since the last one published; ``None`` publishes every
 tick. With ``status_max_period_s`` (the config's ``bus.status_max_period_s``) it publishes *on
 change* instead: a record goes out (still at most at ``status_hz``) only if it differs from the
-last one published (:func:`status_changed`: anything but ``t``, ``seq`` and small moves of the
+last one published (:func:`~fleet.runtime.status_record.status_changed`: anything but ``t``, ``seq`` and small moves of the
 pose, battery, progress and odometry), and at least every ``status_max_period_s`` s whatever
 changed. ``on_status`` (an in-process coordinator) still gets every tick's record.
 
@@ -77,8 +77,8 @@ from fleet.runtime.order_gate import OrderGate
 from fleet.runtime.status_record import (
     Held,
     TreeView,
+    held_changed,
     observation_of,
-    status_changed,
     status_record,
     tree_view,
     view_names,
@@ -178,7 +178,7 @@ class RobotAgent:
         #: Publish on change, and at least this often (None: every status period).
         self.status_max_period_s = status_max_period_s
         self._last_published: float | None = None
-        self._last_sent: StatusRecord | None = None
+        self._sent_held: Held | None = None  # the values of the last record published
         self.published = 0
         if clear_blackboard:  # the blackboard is process-global: not what an earlier agent left
             clear_robot_blackboard(self.namespace)
@@ -468,10 +468,10 @@ class RobotAgent:
             self.watchdog.reason, self.waiting_for_state,
         )  # fmt: skip
         if self.on_status is not None or self._publish_due(t):
-            rec = self.last_status
-            assert rec is not None
-            self._publish(rec)
+            self._publish(t)
             if self.on_status is not None:
+                rec = self.last_status
+                assert rec is not None
                 self.on_status(rec)
         obs = observation_of(t, st.pose, battery, bool(st.stuck), bool(st.charging), view)
         if self.observations is not None:
@@ -527,23 +527,25 @@ class RobotAgent:
             self.settling = sig != self._signature or wake.goals != before
             self._signature = sig
 
-    def _publish(self, rec: StatusRecord) -> None:
-        if self.bus is None:
+    def _publish(self, t: float) -> None:
+        """Publish the period's record (of time ``t``) when due; on change (``status_max_period_s``)
+        it is built only if it says something the last one published did not (:func:`held_changed`)."""
+        if self.bus is None or not self._publish_due(t):
             return
-        last, period = self._last_published, self.status_period_s
-        if period is not None and last is not None and rec.t < last + period - 1e-9:
-            return
-        longest, sent = self.status_max_period_s, self._last_sent
-        if (
-            longest is not None
-            and last is not None
-            and sent is not None
-            and rec.t < last + longest - 1e-9
-            and not status_changed(sent, rec)
-        ):
-            return
+        last, longest, sent, held = (
+            self._last_published,
+            self.status_max_period_s,
+            self._sent_held,
+            self._held,
+        )
+        assert held is not None
+        if longest is not None and last is not None and sent is not None and t < last + longest - 1e-9:
+            if not held_changed(sent, held, self.health):
+                return
+        rec = self.last_status
+        assert rec is not None
         self._last_published = rec.t
-        self._last_sent = rec
+        self._sent_held = held
         self.published += 1
         self.bus.publish_status(rec)
 

@@ -113,8 +113,10 @@ class GoalMetrics:
 class _Open:
     target: Pose2D
     started: float
-    straight_m: float
-    roadmap_m: float
+    #: where the robot stood when the goal was sent, then the goal's poses: the optimum's
+    #: (straight-line and roadmap) lengths are computed from them only if the goal succeeds
+    #: (most goals a traffic follower sends are replaced by the next before they end)
+    way: tuple[Pose2D, ...]
     attempt: str
     failed_code: int | None = None
     recoveries: int = 0
@@ -179,7 +181,7 @@ class GoalLog:
         if not poses or here is None:
             self._open = None
             return gid
-        self._open = _Open(poses[-1], self.clock.now(), *self._optimum(here, poses), attempt=gid)
+        self._open = _Open(poses[-1], self.clock.now(), (here, *poses), attempt=gid)
         return gid
 
     def goal_state(self, goal_id: str) -> GoalState:
@@ -220,8 +222,9 @@ class GoalLog:
         if success is not None:
             m.succeeded += 1
             m.time_s += self.clock.now() - cur.started
-            m.straight_s += cur.straight_m / self.max_speed
-            m.roadmap_s += cur.roadmap_m / self.max_speed
+            straight_m, roadmap_m = self._optimum(cur.way)
+            m.straight_s += straight_m / self.max_speed
+            m.roadmap_s += roadmap_m / self.max_speed
         elif cur.failed_code is not None:
             m.failed += 1
             m.failed_by_code[_code_name(cur.failed_code)] += 1
@@ -229,9 +232,8 @@ class GoalLog:
             m.canceled += 1
         self._open = None
 
-    def _optimum(self, start: Pose2D, poses: tuple[Pose2D, ...]) -> tuple[float, float]:
-        """(straight-line, roadmap) lengths in m from ``start`` through ``poses``."""
-        pts = [start, *poses]
+    def _optimum(self, pts: tuple[Pose2D, ...]) -> tuple[float, float]:
+        """(straight-line, roadmap) lengths in m from the start ``pts[0]`` through the rest."""
         straight = sum(a.distance_to(b) for a, b in zip(pts, pts[1:], strict=False))
         rm = self.roadmap
         if rm is None or len(rm) == 0:

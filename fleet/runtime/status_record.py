@@ -107,6 +107,50 @@ def status_changed(old: StatusRecord, new: StatusRecord) -> bool:
     )
 
 
+def held_changed(old: Held, new: Held, params: HealthParams) -> bool:
+    """``status_changed(status_record(n, ns, old, params), status_record(n, ns, new, params))``
+    decided from the held values, without building either record: the agent's test, each
+    period after the status period, of whether its record says something the last one
+    published did not. A tree view that is the same object (a period without a tree tick
+    reuses its view) is not compared field by field."""
+    ost, ov, _, _, oack, ogrant, omal, orej, owhy, owait = old
+    nst, nv, _, _, nack, ngrant, nmal, nrej, nwhy, nwait = new
+    p, q = ost.pose, nst.pose
+    if (p is None) != (q is None):
+        return True
+    if p is not None and q is not None:
+        if abs(p.x - q.x) > POSE_EPS_M or abs(p.y - q.y) > POSE_EPS_M:
+            return True
+        if abs(math.remainder(p.theta - q.theta, math.tau)) > THETA_EPS_RAD:
+            return True
+    if (
+        abs(float(ost.battery) - float(nst.battery)) > BATTERY_EPS
+        or abs(float(ost.distance_m) - float(nst.distance_m)) > POSE_EPS_M
+        or bool(ost.charging) != bool(nst.charging)
+        or bool(ost.stuck) != bool(nst.stuck)
+        or int(ost.collisions) != int(nst.collisions)
+        or oack != nack
+        or ogrant != ngrant
+        or omal != nmal
+        or orej != nrej
+    ):
+        return True
+    if ov is not nv and (
+        abs(ov.progress - nv.progress) > PROGRESS_EPS
+        or ov.mode != nv.mode
+        or ov.task_id != nv.task_id
+        or ov.bt != nv.bt
+        or ov.leaf != nv.leaf
+        or ov.laps != nv.laps
+        or ov.picks_done != nv.picks_done
+        or ov.result_id != nv.result_id
+        or ov.result != nv.result
+        or ov.steps_done != nv.steps_done
+    ):
+        return True
+    return diagnostics(ost, params, owhy, owait) != diagnostics(nst, params, nwhy, nwait)
+
+
 def observation(rec: StatusRecord, pose: Pose2D | None, view: TreeView) -> Observation:
     """What the coordinator reads of ``rec`` (the equal of
     :func:`fleet.coordination.coordinator.observation_from_record`), from the ``pose`` and the
@@ -188,6 +232,7 @@ def observation_of(
 
 __all__ = [
     "Held",
+    "held_changed",
     "TreeView",
     "diagnostics",
     "observation",

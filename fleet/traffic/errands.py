@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from operator import countOf
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING
 
 import networkx as nx
 
@@ -280,8 +280,11 @@ class Errands:
             return None if v in avoid else float(d.get("length", 1.0))
 
         reach = m.params.retarget_reach_m
-        found = nx.single_source_dijkstra(self.roadmap.graph, here, cutoff=reach, weight=weight)
-        dist, paths = cast("tuple[dict[str, float], dict[str, list[str]]]", found)
+        # the search of nx.single_source_dijkstra without its path to every node reached (most
+        # of its cost on a large floor): the one path taken is rebuilt from the predecessors
+        pred, dist = nx.dijkstra_predecessor_and_distance(
+            self.roadmap.graph, here, cutoff=reach, weight=weight
+        )
         docks = self.chargers if purpose is Purpose.CHARGE else self.parking
         taken = {n for r, n in self._target.items() if r != name}
         free = [d for d in docks if d in dist and d not in taken and m.holder(d) in (None, name)]
@@ -291,7 +294,7 @@ class Errands:
         if m.params.retarget_shorter and dist[best] >= self._way_left(name) - 1e-9:
             return  # no way round the blockers shorter than the one it waits on: it waits
         self._target[name] = best
-        self.drive(name, [str(n) for n in paths[best]], purpose)
+        self.drive(name, [str(n) for n in first_path(pred, here, best)], purpose)
 
     def _by_margin(self) -> bool:
         return self.battery is not None and self.manager.params.charge_margin_priority
@@ -389,3 +392,15 @@ class Errands:
         if not near:
             return None  # a charger near it frees soon (charging takes about a minute)
         return min(near, key=lambda d: (dist[d], d))
+
+
+def first_path(pred: Mapping[str, list[str]], source: str, node: str) -> list[str]:
+    """The path from ``source`` to ``node`` of a Dijkstra search's predecessor lists (``pred``:
+    networkx's ``dijkstra_predecessor_and_distance`` from ``source``), back along each node's
+    first predecessor: the path ``nx.single_source_dijkstra`` gives for ``node`` (both keep,
+    per node, the predecessor that first reached it at its final distance)."""
+    path = [node]
+    while path[-1] != source:
+        path.append(pred[path[-1]][0])
+    path.reverse()
+    return path

@@ -15,17 +15,26 @@ from ports import free_endpoint
 from test_agent import CountingBus
 
 import fleet.runtime.agent as agent_module
+import fleet.runtime.status_record as status_record_module
 from fleet.clock import SimClock
 from fleet.config.loader import load_config
 from fleet.coordination.coordinator import Coordinator, observation_from_record
 from fleet.coordination.views import Observation
+from fleet.diagnostics import HealthParams
 from fleet.messages import StatusRecord, TaskMessage
 from fleet.navigation import state_reader
 from fleet.runtime.agent import RobotAgent
 from fleet.runtime.goal_log import GoalLog
 from fleet.runtime.latch import Latch, LatchedBackend
 from fleet.runtime.runner import FleetRunner
-from fleet.runtime.status_record import TreeView, observation, observation_of
+from fleet.runtime.status_record import (
+    TreeView,
+    held_changed,
+    observation,
+    observation_of,
+    status_changed,
+    status_record,
+)
 from fleet.runtime.watched import WatchedBackend
 from fleet.types import GoalStatus, NavigateToPose, Pose2D, RobotState, frozen_factory, make_pose
 from fleet.viz.display import NullDisplay
@@ -272,3 +281,72 @@ def test_a_tree_reads_the_state_its_agent_read_in_the_period_and_afresh_after_a_
     report = runner.run()
     assert report.laps_completed + report.picks_completed > 0
     assert answered[0] > 100 and fresh[0] > 0  # both paths ran: reads after a command are fresh
+
+
+def test_the_change_test_on_held_values_is_the_records_change_test(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Publishing on change decides from the held values (no record built): over a 150 s patrol
+    with charging, every decision equals :func:`status_changed` of the two records, and both
+    answers occur (robots standing and driving)."""
+    real = status_record_module.held_changed
+    answers: list[bool] = []
+
+    def checked(old: Any, new: Any, params: Any) -> bool:
+        got = real(old, new, params)
+        want = status_changed(status_record("r", "/r", old, params), status_record("r", "/r", new, params))
+        assert got == want, (old, new)
+        answers.append(got)
+        return got
+
+    monkeypatch.setattr(agent_module, "held_changed", checked)
+    cfg = load_config(ROOT / "configs" / "warehouse_patrol.yaml")
+    cfg.tick_hz, cfg.status_hz, cfg.status_max_period_s = 10.0, 2.0, 5.0
+    runner = FleetRunner(
+        cfg, duration=150.0, speed=0, endpoint=free_endpoint(), live=False, display=NullDisplay(),
+        out=io.StringIO(),
+    )  # fmt: skip
+    report = runner.run()
+    assert report.laps_completed > 0
+    assert answers.count(True) > 50 and answers.count(False) > 50
+
+
+def test_the_change_test_on_held_values_sees_every_field() -> None:
+    """A change of any field the record's test reads is a change on the held values too, with
+    the tree view the same object or a new one; ``t`` and ``seq`` alone are not."""
+    h = HealthParams(battery_low=0.2)
+    st = localized_robot_state(make_pose(1.0, 2.0, 0.5), 0.0, 0.0, 0.8, False, False, 3.0, 0, True, "")
+    view = TreeView("RUNNING", "Drive", "patrol", "p1", 1, 0.3, 0, None, "", 0)
+    base = (st, view, 1.0, 1, (1, 2), 3, 0, 0, "", False)
+    cases: list[tuple[Any, ...]] = [
+        (dataclasses.replace(st, pose=make_pose(1.06, 2.0, 0.5)),),
+        (dataclasses.replace(st, pose=make_pose(1.0, 2.0, 0.56)),),
+        (dataclasses.replace(st, pose=None),),
+        (dataclasses.replace(st, battery=0.79),),
+        (dataclasses.replace(st, battery=0.1),),  # below battery_low: health changes
+        (dataclasses.replace(st, distance_m=3.06),),
+        (dataclasses.replace(st, charging=True),),
+        (dataclasses.replace(st, stuck=True),),
+        (dataclasses.replace(st, collisions=1),),
+        (dataclasses.replace(st, localized=False),),
+        (st, view._replace(progress=0.32)),
+        (st, view._replace(mode="charging")),
+        (st, view._replace(task_id="p2")),
+        (st, view._replace(leaf="Wait")),
+        (st, view._replace(laps=2)),
+        (st, view._replace(result="failed")),
+        (st, view, 1.0, 1, (1, 3)),
+        (st, view, 1.0, 1, (1, 2), 4),
+        (st, view, 1.0, 1, (1, 2), 3, 1),
+        (st, view, 1.0, 1, (1, 2), 3, 0, 1),
+        (st, view, 1.0, 1, (1, 2), 3, 0, 0, "", True),
+    ]
+    small = (
+        dataclasses.replace(st, pose=make_pose(1.04, 2.0, 0.54), battery=0.796),
+        view._replace(progress=0.305),
+    )
+    same = [small, (st, view, 9.0, 7), (st, view, 1.0, 1, (1, 2), 3, 0, 0, "too close")]  # a healthy state's
+    # diagnostics do not read the watchdog's reason (its mode says it)
+    for change in [*cases, *same]:
+        new = (*change, *base[len(change) :])
+        want = status_changed(status_record("r", "/r", base, h), status_record("r", "/r", new, h))  # type: ignore[arg-type]
+        assert held_changed(base, new, h) == want, change  # type: ignore[arg-type]
+        assert want == (change not in same), change

@@ -11,6 +11,7 @@ import networkx as nx
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from fleet.traffic.errands import first_path
 from fleet.traffic.roads import RoadIndex
 
 # -- the bounded search -----------------------------------------------------------------
@@ -120,3 +121,28 @@ def test_the_traffic_roadmaps_nearest_node_is_the_whole_arrays(tmp_path: Path) -
     for x, y in pts:
         d2 = (xy[:, 0] - x) ** 2 + (xy[:, 1] - y) ** 2
         assert roads.nearest_node(float(x), float(y)) == names[int(np.argmin(d2))]
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 40))
+def test_the_retarget_searchs_paths_are_single_source_dijkstras(seed: int, n: int) -> None:
+    """A side search (``Errands._retarget``) keeps networkx's predecessors instead of every
+    path: :func:`first_path` rebuilds, for every node reached, the path
+    ``nx.single_source_dijkstra`` gives, and the distances are its floats, with nodes to avoid
+    (weight ``None``), ties, zero lengths, self-loops and every reach."""
+    _, names, rng = _tie_heavy(seed, n)
+    g: nx.Graph[str] = nx.Graph()
+    for _ in range(3 * n):
+        g.add_edge(rng.choice(names), rng.choice(names), length=rng.choice([1.0, 1.0, 0.1, 0.7, 2.5, 0.0]))
+    for _ in range(4):
+        here = rng.choice(list(g.nodes))
+        avoid = set(rng.sample(list(g.nodes), rng.randint(0, len(g) // 2))) - {here}
+
+        def weight(u: str, v: str, d: dict[str, float], avoid: set[str] = avoid) -> float | None:
+            return None if v in avoid else float(d.get("length", 1.0))
+
+        reach = rng.choice([0.0, 0.7, 2.0, math.inf])
+        dist, paths = nx.single_source_dijkstra(g, here, cutoff=reach, weight=weight)
+        pred, dist2 = nx.dijkstra_predecessor_and_distance(g, here, cutoff=reach, weight=weight)
+        assert dist2 == dist and list(dist2) == list(dist)
+        assert {v: first_path(pred, here, v) for v in dist} == paths
