@@ -75,7 +75,11 @@ class TrafficSettings:
     ahead are released); ``dead_release_s``: a robot whose agent or bus link died keeps its
     whole grant this long, then only the node it stands on; ``cell_m``: roadmap edges longer
     than this are cut into cells for the traffic manager, so robots driving the same way
-    follow each other closely (``None``: not cut; ``TrafficParams.cell_m``)."""
+    follow each other closely (``None``: not cut; ``TrafficParams.cell_m``);
+    ``near_charger_trigger``: the battery guard measures its trip to the nearer of the robot's
+    named charger and its nearest charger plus ``CHARGE_REACH_M`` (the policy sends it to a
+    free charger near it; :class:`nodes.trees.ChargeThreshold`), so a robot far from its named
+    charger is not sent to charge again as soon as it has charged."""
 
     enabled: bool = True
     deadlock_s: float = 30.0
@@ -84,6 +88,7 @@ class TrafficSettings:
     stall_timeout_s: float = 20.0
     dead_release_s: float = 10.0
     cell_m: float | None = 1.5
+    near_charger_trigger: bool = True
 
 
 #: Wall seconds an agent may be without its bus link (its Zenoh router) before its
