@@ -243,10 +243,11 @@ class ChargeThreshold:
 
     With blackboard ``charger_sites`` (a traffic-managed robot: its policy sends it to a free
     charger at most :data:`~fleet.traffic.purpose.CHARGE_REACH_M` farther than its nearest
-    one, not to the named one) the distance is the lesser of that and the distance to the
-    nearest site plus ``CHARGE_REACH_M``. Without that bound a robot far from its named
-    charger (on its way to work across the floor) has a threshold at ``resume``: it goes to
-    charge again as soon as it has charged, for as long as it stays far."""
+    one, not to the named one), a robot so far from its named charger that the threshold
+    would reach ``resume`` (on its way to work across the floor: it would go to charge again
+    as soon as it has charged, for as long as it stays far) measures to the nearest site
+    plus ``CHARGE_REACH_M`` instead, if that is nearer. Nearer its named charger nothing
+    changes."""
 
     def __init__(self, namespace: str, backend: NavigationBackend, battery: BatteryModel) -> None:
         self._charger = read_key(namespace, "charger")
@@ -271,7 +272,7 @@ class ChargeThreshold:
             return None
         best = (abs(c.x - p.x) + abs(c.y - p.y), c, 0.0)
         sites = self._sites()
-        if sites:
+        if sites and self.battery.charge_threshold(best[0]) >= self.battery.resume:
             xs, ys = _site_arrays(sites)
             dist = np.abs(xs - p.x) + np.abs(ys - p.y)
             i = int(np.argmin(dist))
@@ -282,8 +283,8 @@ class ChargeThreshold:
 
     def declare(self, wake: Wake, cap: float) -> None:
         """Tick when the battery falls below ``min(cap, this threshold)`` (:mod:`fleet.wake`):
-        the line of the charger measured to from here (with its slack). Where the robot
-        moves, that line is never below the threshold, so the tick comes no later."""
+        the named charger's line; every tick while the robot measures to the nearest site
+        (far from its named charger; the threshold is not one line there)."""
         measured = self._measure(self.backend.robot_state().pose)
         if measured is None:
             c = self._charger()
@@ -294,8 +295,11 @@ class ChargeThreshold:
             wake.battery_below(min(cap, self.battery.low))
             return
         _, c, slack = measured
+        if slack:
+            wake.every_tick()
+            return
         a, b = self.battery.charge_line()
-        wake.battery_below_line(self.battery.low, cap, a + b * slack, b, (c.x, c.y))
+        wake.battery_below_line(self.battery.low, cap, a, b, (c.x, c.y))
 
 
 def charge_threshold(namespace: str, backend: NavigationBackend, battery: BatteryModel) -> ChargeThreshold:

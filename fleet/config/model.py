@@ -76,10 +76,10 @@ class TrafficSettings:
     whole grant this long, then only the node it stands on; ``cell_m``: roadmap edges longer
     than this are cut into cells for the traffic manager, so robots driving the same way
     follow each other closely (``None``: not cut; ``TrafficParams.cell_m``);
-    ``near_charger_trigger``: the battery guard measures its trip to the nearer of the robot's
-    named charger and its nearest charger plus ``CHARGE_REACH_M`` (the policy sends it to a
-    free charger near it; :class:`nodes.trees.ChargeThreshold`), so a robot far from its named
-    charger is not sent to charge again as soon as it has charged."""
+    ``near_charger_trigger``: a robot so far from its named charger that the battery guard's
+    threshold reaches ``resume`` measures to its nearest charger plus ``CHARGE_REACH_M`` (the
+    policy sends it to a free charger near it; :class:`nodes.trees.ChargeThreshold`), so it
+    is not sent to charge again as soon as it has charged."""
 
     enabled: bool = True
     deadlock_s: float = 30.0

@@ -257,8 +257,8 @@ class TrafficSection(Section):
     )
     near_charger_trigger: bool = Field(
         default=_TRAFFIC.near_charger_trigger,
-        description="the battery guard measures to the nearer of the named charger and the nearest one "
-        "plus the policy's charger reach (false: to the named charger only)",
+        description="far from its named charger (threshold at resume) the battery guard measures to the "
+        "nearest one plus the policy's charger reach (false: to the named charger only)",
     )
 
     def to_settings(self) -> TrafficSettings:

@@ -49,20 +49,28 @@ def test_a_charged_robot_far_from_its_named_charger_goes_back_to_work() -> None:
     assert t1() == pytest.approx(BATTERY.charge_threshold(3.0 + CHARGE_REACH_M))
 
 
-def test_a_robot_near_its_named_charger_measures_to_it() -> None:
-    """The bound changes nothing where the named charger is nearer than the nearest one
-    plus the reach: the robot beside its named charger keeps the named charger's threshold."""
-    _, t = _guard(0.9, (Pose2D(60.0, 3.0, 0.0), CHARGER))
-    robot_blackboard(NS, name="agent").charger = CHARGER
-    assert t() == pytest.approx(BATTERY.charge_threshold(3.0))
+@pytest.mark.parametrize("named", [CHARGER, Pose2D(60.0, 3.0, 0.0)])
+def test_a_robot_that_can_work_measures_to_its_named_charger(named: Pose2D) -> None:
+    """Nothing changes while the named charger's threshold is below ``resume``: a robot
+    3 m or 58 m from its named charger keeps its threshold, though another is nearer."""
+    _, t = _guard(0.9, (Pose2D(3.0, 3.0, 0.0), CHARGER, named))
+    robot_blackboard(NS, name="agent").charger = named
+    d = abs(named.x - 2.0) + abs(named.y - 3.0)
+    assert BATTERY.charge_threshold(d) < BATTERY.resume
+    assert t() == pytest.approx(BATTERY.charge_threshold(d))
 
 
 @pytest.mark.parametrize("sites", [(), (FAR, CHARGER), (FAR, CHARGER, Pose2D(30.0, 5.0, 0.0))])
 def test_the_declared_line_is_the_threshold_here_and_never_below_it(sites: tuple[Pose2D, ...]) -> None:
     """The event-driven scheduler ticks the guard when the battery falls below the declared
     line: at the robot's pose it is the threshold itself, and wherever the robot drives it is
-    never below the threshold there, so the guard never ticks too late."""
+    never below the threshold there, so the guard never ticks too late. A robot measuring to
+    a nearest site (far from its named charger) is ticked every period."""
     _, t = _guard(0.9, sites)
+    far = Wake()
+    t.declare(far, BATTERY.resume)
+    assert far.always == bool(sites)
+    robot_blackboard(NS, name="agent").charger = Pose2D(40.0, 3.0, 0.0)  # a line again
     wake = Wake()
     t.declare(wake, BATTERY.resume)
     assert wake.line is not None
@@ -72,7 +80,7 @@ def test_the_declared_line_is_the_threshold_here_and_never_below_it(sites: tuple
         return min(cap, max(low, a + b * (abs(x - cx) + abs(y - cy))))
 
     assert line(2.0, 3.0) == pytest.approx(min(BATTERY.resume, t()))
-    for x, y in [(10.0, 3.0), (29.0, 5.0), (80.0, 1.0), (149.0, 3.0), (2.0, 40.0)]:
+    for x, y in [(10.0, 3.0), (29.0, 5.0), (80.0, 1.0), (149.0, 3.0), (2.0, 40.0), (150.0, 90.0)]:
         measured = t._measure(Pose2D(x, y))  # noqa: SLF001 - the threshold at another pose
         assert measured is not None
         assert line(x, y) >= min(cap, BATTERY.charge_threshold(measured[0])) - 1e-12
