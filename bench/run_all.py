@@ -49,6 +49,7 @@ SMALL_ARGS: dict[str, list[str]] = {
     "profile_loop.py": ["--robots", "30", "--duration", "5", "--top", "15"],
     "bench_traffic_scale.py": ["--robots", "200", "--sources", "10", "--joins", "50"],
     "traffic_time.py": ["--duration", "120"],
+    "charging_wave.py": ["--robots", "30", "--duration", "60", "--every", "30"],
     "soak.py": ["--robots", "20", "--duration", "120", "--every", "20"],
     "chaos.py": ["--robots", "3", "--duration", "120", "--speed", "5", "--every", "4"],
 }

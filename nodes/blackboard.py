@@ -11,6 +11,9 @@ Keys written by the agent and read by the tree:
 * ``pick``: ``Pick | None`` (``shelf``, ``dwell_s``, ``drop``: a ``fleet.config.PickTask`` or
   a received ``fleet.messages.PickOrder``) for the picking tree.
 * ``charger``: ``Pose2D | None`` the charger to use when the battery is low.
+* ``charger_sites``: ``tuple[Pose2D, ...]`` every charger a traffic policy may send the robot
+  to instead (written once; empty: the battery guard measures its trip to ``charger`` only,
+  see :class:`nodes.trees.ChargeThreshold`).
 * ``grant``: ``fleet.messages.Grant | None`` the robot's latest traffic grant (only with
   traffic management; see ``docs/traffic.md``).
 * ``steps``: ``tuple[fleet.messages.Step, ...] | None`` the steps of a go_to, pick,
@@ -76,6 +79,7 @@ class RobotKeys(TypedDict):
     task_id: str | None
     pick: Pick | None
     charger: Pose2D | None
+    charger_sites: tuple[Pose2D, ...]
     grant: Grant | None
     laps: int
     lap_task_id: str | None
@@ -100,6 +104,7 @@ DEFAULTS: RobotKeys = {
     "task_id": None,
     "pick": None,
     "charger": None,
+    "charger_sites": (),
     "grant": None,
     "laps": 0,
     "lap_task_id": None,
@@ -118,7 +123,17 @@ DEFAULTS: RobotKeys = {
     "last_error": "",
 }
 #: Keys the agent writes and the tree reads.
-INPUT_KEYS = ("route", "task_id", "pick", "charger", "grant", "steps", "task_kind", "charge_now")
+INPUT_KEYS = (
+    "route",
+    "task_id",
+    "pick",
+    "charger",
+    "charger_sites",
+    "grant",
+    "steps",
+    "task_kind",
+    "charge_now",
+)
 #: Keys the tree writes and the agent reads.
 OUTPUT_KEYS = (
     "laps",
@@ -184,6 +199,8 @@ def robot_blackboard(namespace: str, name: str | None = None, keys: Iterable[str
 def read_key(namespace: str, key: Literal["route"]) -> Callable[[], tuple[Pose2D, ...] | None]: ...
 @overload
 def read_key(namespace: str, key: Literal["charger"]) -> Callable[[], Pose2D | None]: ...
+@overload
+def read_key(namespace: str, key: Literal["charger_sites"]) -> Callable[[], tuple[Pose2D, ...]]: ...
 @overload
 def read_key(namespace: str, key: Literal["pick"]) -> Callable[[], Pick | None]: ...
 @overload

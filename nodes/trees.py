@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
+import numpy as np
+import numpy.typing as npt
 import py_trees
 from py_trees.behaviour import Behaviour
 from py_trees.common import Status
@@ -23,7 +25,7 @@ from py_trees.common import Status
 from fleet.errors import FleetError
 from fleet.navigation import Clock, NavigationBackend
 from fleet.robots import BatteryModel
-from fleet.traffic.purpose import Purpose
+from fleet.traffic.purpose import CHARGE_REACH_M, Purpose
 from fleet.types import Goal, GoalState, Mode, NavigateThroughPoses, NavigateToPose, Pose2D, TreeKind
 from fleet.wake import Wake
 from nodes.blackboard import normalize_namespace, read_key, robot_blackboard
@@ -214,27 +216,87 @@ def battery_guard(
     )
 
 
+_Sites = tuple[tuple[Pose2D, ...], npt.NDArray[np.float64], npt.NDArray[np.float64]]
+#: The coordinates of the charger sites asked about, by identity (a fleet's agents share one).
+_site_cache: dict[int, _Sites] = {}
+
+
+def _site_arrays(sites: tuple[Pose2D, ...]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """``(xs, ys)`` of ``sites`` (m, map frame), built once per sequence."""
+    got = _site_cache.get(id(sites))
+    if got is None or got[0] is not sites:
+        if len(_site_cache) > 64:
+            _site_cache.clear()
+        got = _site_cache[id(sites)] = (
+            sites,
+            np.array([s.x for s in sites], dtype=float),
+            np.array([s.y for s in sites], dtype=float),
+        )
+    return got[1], got[2]
+
+
 class ChargeThreshold:
     """The battery guard's energy-based trigger (also the XML ``BatteryLow`` without a ``low``
-    port). ``() -> float``: :meth:`BatteryModel.charge_threshold` of the Manhattan distance from the
-    robot to its charger (blackboard ``charger``); ``battery.low`` when either is unknown."""
+    port). ``() -> float``: :meth:`BatteryModel.charge_threshold` of the Manhattan distance (m)
+    from the robot to its charger (blackboard ``charger``); ``battery.low`` when either is
+    unknown.
+
+    With blackboard ``charger_sites`` (a traffic-managed robot: its policy sends it to a free
+    charger at most :data:`~fleet.traffic.purpose.CHARGE_REACH_M` farther than its nearest
+    one, not to the named one), a robot so far from its named charger that the threshold
+    would reach ``resume`` (on its way to work across the floor: it would go to charge again
+    as soon as it has charged, for as long as it stays far) measures to the nearest site
+    plus ``CHARGE_REACH_M`` instead, if that is nearer. Nearer its named charger nothing
+    changes."""
 
     def __init__(self, namespace: str, backend: NavigationBackend, battery: BatteryModel) -> None:
         self._charger = read_key(namespace, "charger")
+        self._sites = read_key(namespace, "charger_sites")
         self.backend = backend
         self.battery = battery
 
     def __call__(self) -> float:
-        c, p = self._charger(), self.backend.robot_state().pose
-        if not isinstance(c, Pose2D) or p is None:
+        p = self.backend.robot_state().pose
+        measured = self._measure(p)
+        if measured is None:
             return self.battery.low
-        return self.battery.charge_threshold(abs(c.x - p.x) + abs(c.y - p.y))
+        d, _, _ = measured
+        return self.battery.charge_threshold(d)
+
+    def _measure(self, p: Pose2D | None) -> tuple[float, Pose2D, float] | None:
+        """``(distance, charger, slack)`` the threshold is measured with from ``p``: distance =
+        Manhattan distance to ``charger`` plus ``slack`` (m); ``None`` without a charger or
+        a pose."""
+        c = self._charger()
+        if not isinstance(c, Pose2D) or p is None:
+            return None
+        best = (abs(c.x - p.x) + abs(c.y - p.y), c, 0.0)
+        sites = self._sites()
+        if sites and self.battery.charge_threshold(best[0]) >= self.battery.resume:
+            xs, ys = _site_arrays(sites)
+            dist = np.abs(xs - p.x) + np.abs(ys - p.y)
+            i = int(np.argmin(dist))
+            near = float(dist[i]) + CHARGE_REACH_M
+            if near < best[0]:
+                best = (near, sites[i], CHARGE_REACH_M)
+        return best
 
     def declare(self, wake: Wake, cap: float) -> None:
-        """Tick when the battery falls below ``min(cap, this threshold)`` (:mod:`fleet.wake`)."""
-        c = self._charger()
-        if not isinstance(c, Pose2D):
+        """Tick when the battery falls below ``min(cap, this threshold)`` (:mod:`fleet.wake`):
+        the named charger's line; every tick while the robot measures to the nearest site
+        (far from its named charger; the threshold is not one line there)."""
+        measured = self._measure(self.backend.robot_state().pose)
+        if measured is None:
+            c = self._charger()
+            if isinstance(c, Pose2D):  # no pose yet: the named charger's line
+                a, b = self.battery.charge_line()
+                wake.battery_below_line(self.battery.low, cap, a, b, (c.x, c.y))
+                return
             wake.battery_below(min(cap, self.battery.low))
+            return
+        _, c, slack = measured
+        if slack:
+            wake.every_tick()
             return
         a, b = self.battery.charge_line()
         wake.battery_below_line(self.battery.low, cap, a, b, (c.x, c.y))

@@ -75,7 +75,12 @@ class TrafficSettings:
     ahead are released); ``dead_release_s``: a robot whose agent or bus link died keeps its
     whole grant this long, then only the node it stands on; ``cell_m``: roadmap edges longer
     than this are cut into cells for the traffic manager, so robots driving the same way
-    follow each other closely (``None``: not cut; ``TrafficParams.cell_m``)."""
+    follow each other closely (``None``: not cut; ``TrafficParams.cell_m``);
+    ``near_charger_trigger``: a robot so far from its named charger that the battery guard's
+    threshold reaches ``resume`` measures to its nearest charger plus ``CHARGE_REACH_M`` (the
+    policy sends it to a free charger near it; :class:`nodes.trees.ChargeThreshold`), so it
+    is not sent to charge again as soon as it has charged (off by default: measured in
+    docs/performance.md, "The charging wave at 1000 robots")."""
 
     enabled: bool = True
     deadlock_s: float = 30.0
@@ -84,6 +89,7 @@ class TrafficSettings:
     stall_timeout_s: float = 20.0
     dead_release_s: float = 10.0
     cell_m: float | None = 1.5
+    near_charger_trigger: bool = False
 
 
 #: Wall seconds an agent may be without its bus link (its Zenoh router) before its

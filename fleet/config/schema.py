@@ -255,6 +255,11 @@ class TrafficSection(Section):
         description="roadmap edges longer than this are cut into cells so same-way robots follow closely (m); "
         "null: not cut",
     )
+    near_charger_trigger: bool = Field(
+        default=_TRAFFIC.near_charger_trigger,
+        description="far from its named charger (threshold at resume) the battery guard measures to the "
+        "nearest one plus the policy's charger reach (false: to the named charger only)",
+    )
 
     def to_settings(self) -> TrafficSettings:
         return TrafficSettings(**self.model_dump())

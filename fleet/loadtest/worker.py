@@ -183,6 +183,7 @@ def run_worker(
         clock = SimClock()
         wbus = WorkerBus(bus)
         mirrors: list[MirrorBackend] = []
+        chargers = tuple(c.pose for c in cfg.chargers)  # one tuple: the agents share its arrays
         for name in spec.assignment[index]:
             ns = cfg.robot(name).namespace
             mirror = MirrorBackend(ns, call)
@@ -199,7 +200,8 @@ def run_worker(
                     traffic=spec.traffic,
                     status_hz=cfg.status_hz,
                     status_max_period_s=cfg.status_max_period_s,
-                    chargers=[c.pose for c in cfg.chargers],
+                    chargers=chargers,
+                    near_chargers=spec.traffic and cfg.traffic.near_charger_trigger,
                 )
             )
         by_name = {a.name: a for a in agents}

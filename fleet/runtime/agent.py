@@ -123,6 +123,8 @@ class RobotAgent:
             what its traffic grants (``fleet/<robot>/grant``, or :meth:`deliver_grant`) allow.
         status_hz: publish the status on the bus at most this often (simulated Hz, > 0);
             ``None``: every tick. See the module docstring.
+        near_chargers: with ``traffic``, ``chargers`` become the blackboard ``charger_sites``:
+            the battery guard also measures to the nearest (``traffic.near_charger_trigger``).
         leases: the live coordinator lease (:meth:`fleet.bus.lease.LeaseWatch.current`): orders
             and grants on the bus are then taken through the agent's :class:`OrderGate`.
             ``None``: the agent takes no orders from the bus (its coordinator runs in the same
@@ -151,6 +153,7 @@ class RobotAgent:
         tree_file: str | None = None,
         health: HealthParams | None = None,
         chargers: Sequence[Pose2D] = (),
+        near_chargers: bool = False,
         leases: Callable[[], Lease | None] | None = None,
         status_max_period_s: float | None = None,
         clear_blackboard: bool = True,
@@ -199,6 +202,8 @@ class RobotAgent:
         #: The config's chargers: until the coordinator names one, the battery guard uses
         #: the one nearest the robot (so a robot never given work still charges).
         self.chargers = tuple(chargers)
+        if near_chargers and traffic:  # sent to a free charger near it: the guard measures so
+            self.bb.charger_sites = self.chargers  # the same tuple for every agent of a fleet
         self.seq = 0
         self.ticks = 0
         self.charges = 0
@@ -375,11 +380,6 @@ class RobotAgent:
 
     # -- ticking -----------------------------------------------------------------------
 
-    def _default_charger(self, pose: Pose2D | None) -> None:
-        """Set the blackboard ``charger`` to the config charger nearest ``pose`` (the robot's)."""
-        if pose is not None:
-            self.bb.charger = nearest_charger(self.chargers, pose)
-
     def tick(self, tree: bool = True) -> StatusRecord:
         """Apply queued orders, check the safety watchdog, tick the tree once (unless the
         watchdog holds the robot), publish (see ``status_hz``) and return the status record.
@@ -403,8 +403,8 @@ class RobotAgent:
             self._view = None
         st = self._read_state()
         if not self._has_charger:
-            if self.bb.charger is None and self.chargers:
-                self._default_charger(st.pose)
+            if self.bb.charger is None and self.chargers and st.pose is not None:
+                self.bb.charger = nearest_charger(self.chargers, st.pose)  # until one is named
             self._has_charger = self.bb.charger is not None
         was = self.watchdog.reason
         waiting = self.waiting_for_state and self._waiting_for_state(st)

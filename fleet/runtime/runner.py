@@ -397,6 +397,7 @@ class FleetRunner:
             status_max_period_s=self.config.status_max_period_s,
             tree_file=self.tree_file,
             chargers=self._charger_poses,
+            near_chargers=self.traffic and self.config.traffic.near_charger_trigger,
             leases=self.lease_watch.current if self.lease_watch is not None else None,
             clear_blackboard=False,  # _setup cleared every local namespace in one pass
         )

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import networkx as nx
 
 from fleet.traffic.manager import TrafficManager
-from fleet.traffic.purpose import CHARGE_PRIORITY, Purpose
+from fleet.traffic.purpose import CHARGE_PRIORITY, CHARGE_REACH_M, Purpose
 from fleet.traffic.views import RobotViewLike
 from fleet.types import Mode
 
@@ -40,12 +40,6 @@ SPARE_CHARGERS = 0.1
 #: An idle robot on a charger above this battery fraction leaves it to an idle robot that
 #: wants to top up and found no free charger.
 VACATE_ABOVE = 0.9
-
-#: A robot that needs a charger takes a free one at most this much (m, driving with the flow)
-#: farther than its nearest charger; otherwise it waits for one near it: a charger frees
-#: within about a minute (a charge from 30 % takes 33 s at 0.02 /s), a trip across a wide
-#: floor costs minutes in traffic and energy the robot may not have.
-CHARGE_REACH_M = 30.0
 
 #: A robot on a dock errand (to a charger, or to a parking dock to wait or park) that has
 #: waited this long (s) on the same robots takes the nearest free dock of the same kind it can
