@@ -117,6 +117,7 @@ class TrafficParams:
     charge_margin_priority: bool = False
     sidestep_clear_corridor: int = 0
     sidestep_deep_depth: int = 0
+    junction_with_corridor: bool = False
 
     @property
     def clearance(self) -> float:
