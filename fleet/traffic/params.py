@@ -83,6 +83,12 @@ class TrafficParams:
     off): when no member of a deadlock can reroute or step aside within ``sidestep_depth``
     edges, a member may step aside up to this many edges away before a robot outside the
     deadlock is moved.
+
+    ``junction_with_corridor`` (off by default): a robot whose next block is a junction
+    followed on its path by a single-lane corridor in which another robot drives towards
+    that junction asks for the junction and the corridor's block together, all or nothing
+    (:func:`fleet.traffic.grants.block`), instead of taking the junction and then waiting at
+    it for the corridor while the robot leaving the corridor waits for the junction.
     """
 
     robot_radius: float = 0.3
