@@ -16,13 +16,14 @@ from fleet.traffic.state import TrackedRobot, TrafficState
 def block(st: TrafficState, r: TrackedRobot) -> list[int]:
     """Path indices of ``r``'s next block (after its grant end ``g``).
 
-    With ``junction_with_corridor``, a junction (degree above 2) whose next path node enters
-    a single-lane corridor in which another robot drives towards that junction is asked for
-    together with the corridor's block, all or nothing: a robot does not take the junction a
-    robot leaving the corridor needs and then wait for that robot's corridor (a two-robot
-    wait-for cycle that no side step of a patrol-filled corridor resolves quickly)."""
+    With ``junction_with_corridor`` = K > 0, a junction (degree above 2) whose next path node
+    enters a single-lane corridor in which another robot drives towards that junction is
+    asked for together with the corridor's block (when that block has at least K nodes), all
+    or nothing: a robot does not take the junction a robot leaving the corridor needs and
+    then wait for that robot's corridor (a two-robot wait-for cycle)."""
     out = _segment(st, r, r.g + 1)
-    if st.params.junction_with_corridor and len(out) == 1:
+    k = st.params.junction_with_corridor
+    if k > 0 and len(out) == 1:
         path, deg = r.path, st.roads.deg
         j = out[0]
         if (
@@ -33,7 +34,7 @@ def block(st: TrafficState, r: TrackedRobot) -> list[int]:
             and path[j + 1] != path[j]
         ):
             seg = _segment(st, r, j + 1)
-            if _leaving_through(st, r, [path[k] for k in seg], path[j]):
+            if len(seg) >= k and _leaving_through(st, r, [path[i] for i in seg], path[j]):
                 out += seg
     return out
 

@@ -84,9 +84,11 @@ class TrafficParams:
     edges, a member may step aside up to this many edges away before a robot outside the
     deadlock is moved.
 
-    ``junction_with_corridor`` (off by default): a robot whose next block is a junction
-    followed on its path by a single-lane corridor in which another robot drives towards
-    that junction asks for the junction and the corridor's block together, all or nothing
+    ``junction_with_corridor`` (corridor nodes, 0 = off): a robot whose next block is a
+    junction followed on its path by a single-lane corridor in which another robot drives
+    towards that junction asks for the junction and the corridor's block together, all or
+    nothing, when that block has at least this many nodes (2 or 3 leave out the short cut
+    edges between the junctions of a cross corridor)
     (:func:`fleet.traffic.grants.block`), instead of taking the junction and then waiting at
     it for the corridor while the robot leaving the corridor waits for the junction.
     """
@@ -123,7 +125,7 @@ class TrafficParams:
     charge_margin_priority: bool = False
     sidestep_clear_corridor: int = 0
     sidestep_deep_depth: int = 0
-    junction_with_corridor: bool = False
+    junction_with_corridor: int = 0
 
     @property
     def clearance(self) -> float:

@@ -28,7 +28,9 @@ def _world(rule: bool) -> TrafficManager:
     chain = ["s", *AISLE, "n"]
     g.add_edges_from(zip(chain, chain[1:], strict=False))
     g.add_edges_from([("n", "nw"), ("n", "ne"), ("s", "sw"), ("s", "se")])
-    params = TrafficParams(deadlock_detect_s=1.0, detect_period_s=0.1, junction_with_corridor=rule)
+    params = TrafficParams(
+        deadlock_detect_s=1.0, detect_period_s=0.1, junction_with_corridor=3 if rule else 0
+    )
     tm = TrafficManager(Roadmap.from_graph(g), params)
     # A drives up the aisle towards n; nobody comes the other way yet, so its grant stops
     # short of the junction n (horizon_m ahead)
