@@ -91,6 +91,10 @@ class TrafficParams:
     edges between the junctions of a cross corridor)
     (:func:`fleet.traffic.grants.block`), instead of taking the junction and then waiting at
     it for the corridor while the robot leaving the corridor waits for the junction.
+    ``swap_detect_s`` (``None`` = off): two robots that waited this long only on each other,
+    each asking for a block that holds the node the other stands on (head-on, neither can
+    move), are resolved like a deadlock without waiting ``deadlock_detect_s``
+    (:func:`fleet.traffic.deadlocks.head_on_pairs`).
     """
 
     robot_radius: float = 0.3
@@ -126,6 +130,7 @@ class TrafficParams:
     sidestep_clear_corridor: int = 0
     sidestep_deep_depth: int = 0
     junction_with_corridor: int = 0
+    swap_detect_s: float | None = None
 
     @property
     def clearance(self) -> float:
