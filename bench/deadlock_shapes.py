@@ -7,7 +7,11 @@ charge, charge-wait, park), the kind of roadmap node it stands on (``aisle`` ins
 ``end`` an aisle's end on the north / south corridor, ``side`` the west / east corridor,
 ``lane`` the parking lanes, ``dock`` a charger / parking spur, ``via`` a spur's junction, ``cell`` a piece of a cut edge) and
 the node it waits for. At the end: the episodes counted by shape (sorted purposes and node
-kinds), and the flat robots with where and in which mode they fell below 5 %.
+kinds), and the flat robots with where and in which mode they fell below 5 %. Every 5 s it
+also counts the waiting robots by what holds each back (``why``) and by what the queue it
+waits in ends in (``queue heads``): a moving robot, or a wait-for cycle named by its shape
+(``cycle 2: end>via via>end``: each member's node kind, ``>`` the kind it asks for, ``^``
+when it was sent back the way it came).
 
 Charging: every robot that falls below 5 % is printed with its charging trip so far (one line
 per 5 s: battery, phase, node, target charger, nodes left, blockers, and what changed its
