@@ -7,7 +7,11 @@ charge, charge-wait, park), the kind of roadmap node it stands on (``aisle`` ins
 ``end`` an aisle's end on the north / south corridor, ``side`` the west / east corridor,
 ``lane`` the parking lanes, ``dock`` a charger / parking spur, ``via`` a spur's junction, ``cell`` a piece of a cut edge) and
 the node it waits for. At the end: the episodes counted by shape (sorted purposes and node
-kinds), and the flat robots with where and in which mode they fell below 5 %.
+kinds), and the flat robots with where and in which mode they fell below 5 %. Every 5 s it
+also counts the waiting robots by what holds each back (``why``) and by what the queue it
+waits in ends in (``queue heads``): a moving robot, or a wait-for cycle named by its shape
+(``cycle 2: end>via via>end``: each member's node kind, ``>`` the kind it asks for, ``^``
+when it was sent back the way it came).
 
 Charging: every robot that falls below 5 % is printed with its charging trip so far (one line
 per 5 s: battery, phase, node, target charger, nodes left, blockers, and what changed its
@@ -256,6 +260,7 @@ def head(st: Any, r: Any) -> str:
     to the first one that is not waiting (``moving``: the queue drains) or round a cycle;
     that robot's :func:`why` (or ``moving``), with ``purpose`` of the head."""
     seen = {r.name}
+    chain = [r.name]
     cur = r
     for _ in range(50):
         if not cur.blockers:
@@ -268,12 +273,30 @@ def head(st: Any, r: Any) -> str:
         if nxt is None:
             break
         if nxt.name in seen:
-            return "cycle"
+            return f"cycle {cycle_shape(st, chain[chain.index(nxt.name) :])}"
         seen.add(nxt.name)
+        chain.append(nxt.name)
         if nxt.wait_since is None:
             return f"moving head: {why(st, cur)}"
         cur = nxt
     return f"waiting head: {why(st, cur)}"
+
+
+def cycle_shape(st: Any, names: list[str]) -> str:
+    """The shape of a wait-for cycle of nearest blockers: its size and, for each member in
+    order, the kind of node it stands on and of the node it asks for, and whether it was
+    sent back the way it came (``^``: its next node is the node it came from)."""
+    parts = []
+    for n in names:
+        o = st.robots[n]
+        if not o.path:
+            parts.append("?")
+            continue
+        want = o.path[o.g + 1] if o.g + 1 < len(o.path) else "-"
+        back = "^" if o.cur > 0 and o.cur + 1 < len(o.path) and o.path[o.cur + 1] == o.path[o.cur - 1] else ""
+        parts.append(f"{kind(o.path[o.cur])}>{kind(want) if want != '-' else '-'}{back}")
+    k = min(range(len(parts)), key=lambda i: parts[i:] + parts[:i])
+    return f"{len(names)}: " + " ".join(parts[k:] + parts[:k])
 
 
 def _num(v: str) -> float | None:
@@ -373,8 +396,11 @@ def main(argv: list[str] | None = None) -> int:
     print("why (every 5 s): block asked, node kind, the nearest blocker's relation (lead: same way, gap)")
     for what, n in watch.why.most_common(25):
         print(f"  {n:6d}  {what}")
-    print("queue heads (every 5 s): what the robot a waiting robot's queue starts at waits for")
-    for what, n in watch.heads.most_common(20):
+    print(
+        "queue heads (every 5 s): what the robot a waiting robot's queue starts at waits for "
+        "(cycle: its size, each member's node kind > the kind it asks for, ^ sent back)"
+    )
+    for what, n in watch.heads.most_common(30):
         print(f"  {n:6d}  {what}")
     print("charging robot-samples (every 5 s) by phase")
     for what, n in watch.phases.most_common():

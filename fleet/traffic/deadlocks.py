@@ -42,12 +42,42 @@ def cycles(st: TrafficState, now: float = math.inf, min_wait: float = -math.inf)
     return [c for c in nx.strongly_connected_components(g) if len(c) > 1]
 
 
+def head_on_pairs(st: TrafficState, now: float, min_wait: float) -> list[set[str]]:
+    """Pairs of robots that have waited only on each other for at least ``min_wait`` s, each
+    asking for a block that holds the node the other stands on: a head-on meeting neither
+    can leave without the other moving (sorted, so the same state gives the same order)."""
+    out = []
+    robots = st.robots
+    for n in sorted(st.waiting):
+        r = robots[n]
+        if (
+            r.wait_since is None
+            or len(r.blockers) != 1
+            or now - max(r.wait_since, r.blocked_since) < min_wait
+        ):
+            continue
+        (b,) = r.blockers
+        o = robots.get(b)
+        if b <= n or o is None or o.wait_since is None or o.blockers != {n}:
+            continue
+        if now - max(o.wait_since, o.blocked_since) < min_wait:
+            continue
+        if o.path[o.cur] in r.blocked_on and r.path[r.cur] in o.blocked_on:
+            out.append({n, b})
+    return out
+
+
 def detect_and_resolve(st: TrafficState, now: float) -> None:
-    """One detection pass: resolve the wait-for cycles older than ``deadlock_detect_s``,
-    then help robots blocked by dead or parked robots; at most ``max_resolutions`` in all."""
+    """One detection pass: resolve the head-on pairs older than ``swap_detect_s`` (when
+    set) and the wait-for cycles older than ``deadlock_detect_s``, then help robots blocked
+    by dead or parked robots; at most ``max_resolutions`` in all."""
     p = st.params
     budget = p.max_resolutions
-    for comp in cycles(st, now, p.deadlock_detect_s):
+    found = cycles(st, now, p.deadlock_detect_s)
+    if p.swap_detect_s is not None and p.swap_detect_s < p.deadlock_detect_s:
+        done = {n for c in found for n in c}
+        found += [c for c in head_on_pairs(st, now, p.swap_detect_s) if not c & done]
+    for comp in found:
         if budget <= 0:
             break
         budget -= 1

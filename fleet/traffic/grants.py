@@ -14,10 +14,54 @@ from fleet.traffic.state import TrackedRobot, TrafficState
 
 
 def block(st: TrafficState, r: TrackedRobot) -> list[int]:
-    """Path indices of ``r``'s next block (after its grant end ``g``)."""
+    """Path indices of ``r``'s next block (after its grant end ``g``).
+
+    With ``junction_with_corridor`` = K > 0, a junction (degree above 2) whose next path node
+    enters a single-lane corridor in which another robot drives towards that junction is
+    asked for together with the corridor's block (when that block has at least K nodes), all
+    or nothing: a robot does not take the junction a robot leaving the corridor needs and
+    then wait for that robot's corridor (a two-robot wait-for cycle)."""
+    out = _segment(st, r, r.g + 1)
+    k = st.params.junction_with_corridor
+    if k > 0 and len(out) == 1:
+        path, deg = r.path, st.roads.deg
+        j = out[0]
+        if (
+            j < len(path) - 1
+            and deg[path[j]] > 2
+            and deg[path[j + 1]] == 2
+            and path[j + 1] != path[j - 1]
+            and path[j + 1] != path[j]
+        ):
+            seg = _segment(st, r, j + 1)
+            if len(seg) >= k and _leaving_through(st, r, [path[i] for i in seg], path[j]):
+                out += seg
+    return out
+
+
+def _leaving_through(st: TrafficState, r: TrackedRobot, nodes: list[str], junction: str) -> bool:
+    """Whether another live robot holds one of the corridor ``nodes`` and its path comes to
+    ``junction`` before it leaves them (it drives out of the corridor through it)."""
+    table, seen = st.table, set()
+    for node in nodes:
+        h = table.holder(node)
+        if h is None or h == r.name or h in seen:
+            continue
+        seen.add(h)
+        o = st.robots.get(h)
+        if o is None or not o.alive:
+            continue
+        ahead = o.path[o.cur : o.cur + len(nodes) + 2]
+        if junction in ahead:
+            return True
+    return False
+
+
+def _segment(st: TrafficState, r: TrackedRobot, j: int) -> list[int]:
+    """Path indices of the block of ``r`` that starts at path index ``j``: that node and,
+    inside a corridor, every node to its far end (see the module docstring)."""
     path, deg = r.path, st.roads.deg
     n = len(path)
-    j = r.g + 1
     out = []
     while j < n:
         out.append(j)

@@ -83,6 +83,18 @@ class TrafficParams:
     off): when no member of a deadlock can reroute or step aside within ``sidestep_depth``
     edges, a member may step aside up to this many edges away before a robot outside the
     deadlock is moved.
+
+    ``junction_with_corridor`` (corridor nodes, 0 = off): a robot whose next block is a
+    junction followed on its path by a single-lane corridor in which another robot drives
+    towards that junction asks for the junction and the corridor's block together, all or
+    nothing, when that block has at least this many nodes (2 or 3 leave out the short cut
+    edges between the junctions of a cross corridor)
+    (:func:`fleet.traffic.grants.block`), instead of taking the junction and then waiting at
+    it for the corridor while the robot leaving the corridor waits for the junction.
+    ``swap_detect_s`` (``None`` = off): two robots that waited this long only on each other,
+    each asking for a block that holds the node the other stands on (head-on, neither can
+    move), are resolved like a deadlock without waiting ``deadlock_detect_s``
+    (:func:`fleet.traffic.deadlocks.head_on_pairs`).
     """
 
     robot_radius: float = 0.3
@@ -118,6 +130,8 @@ class TrafficParams:
     sidestep_clear_corridor: int = 0
     sidestep_deep_depth: int = 0
     contraflow_m: float = 0.0
+    junction_with_corridor: int = 0
+    swap_detect_s: float | None = None
 
     @property
     def clearance(self) -> float:
