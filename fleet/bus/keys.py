@@ -24,6 +24,9 @@ STATUS_KEYS = STATUS.format(robot="*")
 
 
 ALIVE_KEYS = ALIVE.format(robot="*")
+#: An agent process's claim on its robot while it starts (``fleet/<robot>/agent/<session id>``,
+#: docs/protocol.md "Leases"): of two agents started at once, both see both and step back.
+AGENT_CLAIM = "fleet/{robot}/agent/{owner}"
 
 
 #: Status batches of every process (:mod:`fleet.messages.status_batch`); four chunks, so
@@ -55,6 +58,10 @@ def grant_key(robot: str) -> str:
 
 def alive_key(robot: str) -> str:
     return ALIVE.format(robot=check_robot_name(robot))
+
+
+def agent_claim_key(robot: str, owner: str = "*") -> str:
+    return AGENT_CLAIM.format(robot=check_robot_name(robot), owner=owner)
 
 
 def robot_of_key(key: str) -> str:
@@ -142,6 +149,8 @@ ACCESS: dict[Role, tuple[KeyUse, ...]] = {
     "robot": (
         KeyUse("put", STATUS),
         KeyUse("token", ALIVE),
+        KeyUse("token", AGENT_CLAIM.format(robot=_ME, owner="*")),
+        KeyUse("watch", AGENT_CLAIM.format(robot=_ME, owner="*")),
         KeyUse("put", _nav("goal")),
         KeyUse("put", _nav("cancel")),
         KeyUse("subscribe", _nav("state")),

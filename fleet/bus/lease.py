@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import zenoh
 
-from fleet.bus.keys import LEASE_KEYS, SIM_LEASE_KEYS, alive_key
+from fleet.bus.keys import LEASE_KEYS, SIM_LEASE_KEYS, agent_claim_key, alive_key
 from fleet.bus.session import Declaration, undeclare_all
 from fleet.errors import LeaseError
 
@@ -118,13 +118,25 @@ def _another(held: Lease, endpoint: str) -> str:
     )
 
 
-def claim_robots(session: zenoh.Session, robots: Iterable[str], endpoint: str) -> None:
+#: A process with at most this many agents also holds a claim token per robot while it runs
+#: (the split deployment's ``fleet agent``, where two starts at once are a real risk); a fleet
+#: run with more agents checks the liveliness tokens only (a token per robot costs declarations).
+CLAIM_TOKENS_MAX = 64
+
+
+def claim_robots(session: zenoh.Session, robots: Iterable[str], endpoint: str) -> list[Declaration]:
     """Refuse (:class:`~fleet.errors.LeaseError`) if any of ``robots`` already has a live agent
     (its token ``fleet/<robot>/alive`` is held); call before this process's agents declare
-    theirs."""
+    theirs.
+
+    With at most :data:`CLAIM_TOKENS_MAX` robots it then declares a claim token per robot
+    (``fleet/<robot>/agent/<session id>``) and looks again: if another process claims one of
+    them, both started at once, and this one steps back (so does the other when it sees this
+    claim: a tie refuses both rather than letting two agents drive one robot). The caller keeps
+    the returned tokens for as long as its agents run (closing the session drops them)."""
     wanted = {alive_key(r): r for r in robots}
     if not wanted:
-        return
+        return []
     live: set[str] = set()
     for reply in session.liveliness().get("fleet/*/alive", timeout=QUERY_TIMEOUT_S):
         ok = reply.ok
@@ -137,6 +149,24 @@ def claim_robots(session: zenoh.Session, robots: Iterable[str], endpoint: str) -
             f"robot {names} already has a live agent on {endpoint} (token {tokens} is held): "
             "only one agent may drive a robot; stop the other one first"
         )
+    if len(wanted) > CLAIM_TOKENS_MAX:
+        return []
+    return _claim_tokens(session, sorted(wanted.values()), endpoint)
+
+
+def _claim_tokens(session: zenoh.Session, robots: list[str], endpoint: str) -> list[Declaration]:
+    me = str(session.zid())
+    tokens: list[Declaration] = [session.liveliness().declare_token(agent_claim_key(r, me)) for r in robots]
+    for robot in robots:
+        for reply in session.liveliness().get(agent_claim_key(robot), timeout=QUERY_TIMEOUT_S):
+            ok = reply.ok
+            if ok is not None and str(ok.key_expr) != agent_claim_key(robot, me):
+                undeclare_all(tokens)
+                raise LeaseError(
+                    f"robot {robot}: another agent is starting on {endpoint} at the same moment "
+                    f"(token {ok.key_expr}): only one agent may drive a robot; start one of them again"
+                )
+    return tokens
 
 
 def sim_lease_key(owner: str) -> str:

@@ -285,7 +285,7 @@ class FleetRunner:
         self.bus_view.skip_trajectories(traced)  # the world records these robots' trajectories
         from fleet.bus.lease import LeaseWatch, claim_robots
 
-        claim_robots(session, self.agent_names, self.endpoint)
+        self._agent_claims = claim_robots(session, self.agent_names, self.endpoint)
         if not self.run_coordinator and self.agent_names:
             self.lease_watch = LeaseWatch(session)
         if self.run_coordinator:

@@ -33,7 +33,7 @@ from fleet.bus.lease import (
 )
 from fleet.bus.nav_client import ZenohNavBackend
 from fleet.bus.nav_server import SimNavServer
-from fleet.bus.session import open_session
+from fleet.bus.session import open_session, undeclare_all
 from fleet.bus.status_bus import StatusBus
 from fleet.clock import SimClock
 from fleet.config.loader import load_config
@@ -234,6 +234,25 @@ def test_a_second_coordinator_and_a_second_agent_are_refused(net: Net) -> None:
         )
     finally:
         lease.release()
+
+
+def test_two_agents_started_at_once_do_not_both_drive(net: Net) -> None:
+    """An agent that has passed the liveliness check but not yet declared its robot's token
+    still holds a claim: a second agent started in that window is refused, naming the claim."""
+    first = claim_robots(net.agent_s, ["robot5"], net.endpoint)
+    try:
+        assert len(first) == 1  # held while the first agent's robot comes up
+        wait_until(
+            lambda: _refused(lambda: claim_robots(net.outsider, ["robot5"], net.endpoint)), "the claim"
+        )
+        with pytest.raises(
+            LeaseError, match=r"robot robot5: another agent is starting .* at the same moment"
+        ):
+            claim_robots(net.outsider, ["robot5"], net.endpoint)
+    finally:
+        undeclare_all(first)
+    # the first agent gave up: the robot is free again
+    wait_until(lambda: not _refused(lambda: claim_robots(net.outsider, ["robot5"], net.endpoint)), "robot5")
 
 
 def _refused(claim: Callable[[], None]) -> bool:
