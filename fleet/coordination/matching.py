@@ -300,7 +300,7 @@ class ChargerAllocation:
     def free(self, v: RobotView) -> None:
         """``v`` (dead) gives its charger back."""
         if v.charger is not None:
-            self.load[v.charger] -= 1
+            self._add(v.charger, -1)  # both counts: the choice reads the array
             v.charger = None
         self._chosen_for.pop(v.name, None)
 

@@ -112,3 +112,13 @@ def test_chargers_without_a_roadmap_go_by_straight_line_and_load() -> None:
     assert chargers.load == [1, 2]
     assert ChargerAllocation([]).charger_for(c) is None
     assert chargers.on_charger(view("x", 100.4)) and not chargers.on_charger(view("x", 100.6))
+
+
+def test_a_dead_robot_s_charger_counts_as_free_in_the_next_choice() -> None:
+    chargers = ChargerAllocation([Pose2D(0, 0), Pose2D(100, 0)])
+    a, b = view("a", 90), view("b", 95)
+    assert chargers.charger_for(a) == chargers.charger_for(b) == Pose2D(100, 0)
+    chargers.free(a)
+    chargers.free(b)  # both died: the far charger is empty again
+    assert chargers.load == [0, 0]
+    assert chargers.charger_for(view("c", 60)) == Pose2D(100, 0)  # 40 m, no penalty left
