@@ -352,16 +352,22 @@ class PathFollower:
             desired[bi] = np.where(anyok, db + chosen, db)
             sd[bi] = np.where(anyok, np.where(chosen > 0, 1, -1), sdb)
 
+    def _grown_scratch(self) -> np.ndarray:
+        """The compiled passes' scratch rows (three float rows and ``_rows``), grown to the
+        fleet's capacity when robots were added."""
+        s = self.state
+        if self._scratch.shape[1] < s.n:
+            self._scratch = np.zeros((3, s.capacity))
+            self._rows = np.zeros(s.capacity, dtype=np.int64)
+        return self._scratch
+
     def _avoid_compiled(self, fi: np.ndarray, desired: np.ndarray, rem_d: np.ndarray, sd: np.ndarray) -> None:
         """:meth:`_avoid` without dynamic obstacles as one compiled call
         (:func:`sim.detour_kernels.avoid`: the corridor test of :meth:`_blocked_compiled`, the
         detour search of ``Avoidance.detour`` and the turn to the detour)."""
         s = self.state
         av = self.avoidance
-        if self._scratch.shape[1] < s.n:
-            self._scratch = np.zeros((3, s.capacity))
-            self._rows = np.zeros(s.capacity, dtype=np.int64)
-        hx, hy, best = self._scratch
+        hx, hy, best = self._grown_scratch()
         contact, lat = av.contact, av.lat
         pairs = av.pairs
         reach = math.hypot(AVOID_LOOKAHEAD_M + contact, lat)
@@ -389,10 +395,7 @@ class PathFollower:
         ``fi``; ``sd`` is 0 for the others."""
         s = self.state
         av = self.avoidance
-        if self._scratch.shape[1] < s.n:
-            self._scratch = np.zeros((3, s.capacity))
-            self._rows = np.zeros(s.capacity, dtype=np.int64)
-        hx, hy, best = self._scratch
+        hx, hy, best = self._grown_scratch()
         contact, lat = av.contact, av.lat
         reach = math.hypot(AVOID_LOOKAHEAD_M + contact, lat)
         pairs = av.pairs
