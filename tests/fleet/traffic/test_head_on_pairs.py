@@ -6,6 +6,7 @@ move on its own (the transient wait-for cycles of the 100-robot load test's cros
 from __future__ import annotations
 
 import networkx as nx
+from node_hops import hop_to_goals
 
 from fleet.roadmap.graph import Roadmap
 from fleet.traffic.deadlocks import head_on_pairs
@@ -34,22 +35,16 @@ def _world(swap_s: float | None) -> TrafficManager:
 
 
 def _drive(tm: TrafficManager, until_s: float) -> tuple[float | None, float]:
-    """Every 0.1 s each robot jumps to its next granted node: when the first deadlock was
-    handled, and when both arrived (``until_s`` if not)."""
-    t, first = 0.0, None
-    while t < until_s:
-        tm.cycle(t)
-        if first is None and tm.metrics.deadlocks_detected:
-            first = t
-        for name in GOALS:
-            nodes = tm.grant(name).nodes
-            if nodes:
-                tm.update(name, Pose2D(*tm.node_pos(nodes[0]), 0.0), t)
-        tm.check()
-        if all(tm.done(n) and tm.path(n)[-1] == goal for n, goal in GOALS.items()):
-            return first, t
-        t = round(t + 0.1, 6)
-    return first, until_s
+    """:func:`hop_to_goals`: when the first deadlock was handled, and when both arrived
+    (``until_s`` if not)."""
+    first: list[float] = []
+
+    def seen(t: float) -> None:
+        if not first and tm.metrics.deadlocks_detected:
+            first.append(t)
+
+    t = hop_to_goals(tm, GOALS, until_s, after_cycle=seen)
+    return (first[0] if first else None), t
 
 
 def test_a_head_on_pair_waits_for_the_deadlock_timer_without_the_rule() -> None:

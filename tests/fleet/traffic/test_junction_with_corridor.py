@@ -6,6 +6,7 @@ episodes of the 100-robot load test, ``docs/traffic.md``, "Junction with the cor
 from __future__ import annotations
 
 import networkx as nx
+from node_hops import hop_to_goals
 
 from fleet.roadmap.graph import Roadmap
 from fleet.traffic.manager import TrafficManager
@@ -45,20 +46,8 @@ def _world(rule: bool) -> TrafficManager:
 
 
 def _drive(tm: TrafficManager, until_s: float) -> float:
-    """Every 0.1 s each robot jumps to its next granted node; the time both arrived
-    (``until_s`` if not)."""
-    t = 0.0
-    while t < until_s:
-        tm.cycle(t)
-        for name in GOALS:
-            nodes = tm.grant(name).nodes
-            if nodes:
-                tm.update(name, Pose2D(*tm.node_pos(nodes[0]), 0.0), t)
-        tm.check()
-        if all(tm.done(n) and tm.path(n)[-1] == goal for n, goal in GOALS.items()):
-            return t
-        t = round(t + 0.1, 6)
-    return until_s
+    """:func:`hop_to_goals`: the time both arrived (``until_s`` if not)."""
+    return hop_to_goals(tm, GOALS, until_s)
 
 
 def test_a_robot_holding_the_aisle_end_to_enter_meets_one_leaving_the_aisle() -> None:

@@ -5,6 +5,7 @@ down (``TrafficParams.sidestep_clear_corridor``): the shape of every deadlock ep
 from __future__ import annotations
 
 import networkx as nx
+from node_hops import hop_to_goals
 
 from fleet.roadmap.graph import Roadmap
 from fleet.traffic.manager import TrafficManager
@@ -63,23 +64,16 @@ def _world(clear: bool) -> TrafficManager:
 
 
 def _drive(tm: TrafficManager, until_s: float) -> tuple[float, str | None]:
-    """Every 0.1 s each robot jumps to its next granted node; the time everyone arrived
-    (``until_s`` if not) and where A stepped aside."""
-    t = 0.0
-    stepped = None
-    while t < until_s:
-        tm.cycle(t)
-        for name in GOALS:
-            nodes = tm.grant(name).nodes
-            if nodes:
-                if name == "A" and stepped is None and nodes[0] not in ("c", "d"):
-                    stepped = nodes[0]
-                tm.update(name, Pose2D(*tm.node_pos(nodes[0]), 0.0), t)
-        tm.check()
-        if all(tm.done(n) and tm.path(n)[-1] == goal for n, goal in GOALS.items()):
-            return t, stepped
-        t = round(t + 0.1, 6)
-    return until_s, stepped
+    """:func:`hop_to_goals`: the time everyone arrived (``until_s`` if not) and where A
+    stepped aside."""
+    stepped: list[str] = []
+
+    def hop(name: str, node: str) -> None:
+        if name == "A" and not stepped and node not in ("c", "d"):
+            stepped.append(node)
+
+    t = hop_to_goals(tm, GOALS, until_s, on_hop=hop)
+    return t, (stepped[0] if stepped else None)
 
 
 def test_side_step_into_an_aisle_a_robot_is_about_to_enter_deadlocks_again() -> None:
